@@ -1,0 +1,317 @@
+"""Pose math shared by every part of cobotlab.
+
+Conventions (see the project's DESIGN notes):
+
+* A pose is a float64 numpy array of shape (4, 4). ``a_T_b`` is the pose of frame b in
+  frame a: it maps coordinates in b to coordinates in a, ``p_a = a_T_b @ p_b``.
+* Units are SI: metres and radians. Degrees appear only in names that say so
+  (``rotation_error_deg``, ``degrees=True`` arguments).
+* Quaternions are ``quat_xyzw`` (scalar last, SciPy's order); Euler angles say their order in
+  the name: ``rpy`` is roll about x, pitch about y, yaw about z applied in that order to fixed
+  axes, i.e. ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (the same matrix as intrinsic ZYX).
+* A list of poses is a sequence of (4, 4) arrays or an (N, 4, 4) array; functions accept both.
+
+Every function that takes poses validates them and raises ``ValueError`` naming the index of
+the first bad one, so a student sees "pose 7 has det -1" rather than a wrong answer later.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+ORTHONORMAL_TOL = 1e-6
+
+__all__ = [
+    "ORTHONORMAL_TOL",
+    "as_poses",
+    "as_pose",
+    "as_rotation",
+    "make_pose",
+    "invert",
+    "compose",
+    "relative",
+    "transform_points",
+    "project_to_so3",
+    "skew",
+    "pose_from_rotvec",
+    "rotvec_from_pose",
+    "pose_from_quat_xyzw",
+    "quat_xyzw_from_pose",
+    "pose_from_rpy",
+    "rpy_from_pose",
+    "pose_from_euler_zyx",
+    "euler_zyx_from_pose",
+    "rotation_angle_deg",
+    "rotation_error_deg",
+    "translation_error",
+    "chordal_mean_rotation",
+]
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _check_rotation_block(R: np.ndarray, label: str) -> None:
+    if not np.all(np.isfinite(R)):
+        raise ValueError(f"{label} contains NaN or inf")
+    gram_error = np.abs(R.T @ R - np.eye(3)).max()
+    if gram_error > ORTHONORMAL_TOL:
+        raise ValueError(
+            f"{label} is not orthonormal (max |R^T R - I| = {gram_error:.2e} > "
+            f"{ORTHONORMAL_TOL:g}); re-orthogonalise it (robots.geometry.project_to_so3) or "
+            "check that it really is a rotation matrix"
+        )
+    det = np.linalg.det(R)
+    if det < 0:
+        raise ValueError(
+            f"{label} has det {det:+.3f}: a reflection, not a rotation; check for a "
+            "left-handed frame or a swapped axis"
+        )
+
+
+def as_rotation(R, name: str = "rotation") -> np.ndarray:
+    """Return ``R`` as a validated proper rotation matrix, float64 (3, 3)."""
+    R = np.asarray(R, dtype=float)
+    if R.shape != (3, 3):
+        raise ValueError(f"{name} must have shape (3, 3), got {R.shape}")
+    _check_rotation_block(R, name)
+    return R
+
+
+def as_poses(poses, name: str = "poses", min_count: int = 0) -> np.ndarray:
+    """Validate a list of poses and return it as a float64 array of shape (N, 4, 4).
+
+    Accepts a sequence of (4, 4) arrays or an (N, 4, 4) array. Raises ``ValueError`` naming
+    the first bad index: wrong shape, NaN/inf, a bottom row other than [0, 0, 0, 1], a
+    rotation block that is not orthonormal within 1e-6, or det(R) != +1.
+    """
+    if isinstance(poses, np.ndarray):
+        arr = np.asarray(poses, dtype=float)
+        if arr.ndim == 2 and arr.shape == (4, 4):
+            raise ValueError(
+                f"{name} must be a list of poses, got a single (4, 4) pose; wrap it in a list"
+            )
+    else:
+        if not isinstance(poses, Sequence) or isinstance(poses, (str, bytes)):
+            raise ValueError(f"{name} must be a sequence of (4, 4) arrays or an (N, 4, 4) array")
+        for i, T in enumerate(poses):
+            shape = np.shape(T)
+            if shape != (4, 4):
+                raise ValueError(f"{name}[{i}] must have shape (4, 4), got {shape}")
+        arr = np.asarray(poses, dtype=float).reshape(-1, 4, 4) if len(poses) else np.zeros((0, 4, 4))
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+        raise ValueError(f"{name} must have shape (N, 4, 4), got {arr.shape}")
+    if len(arr) < min_count:
+        raise ValueError(f"{name} needs at least {min_count} poses, got {len(arr)}")
+    for i, T in enumerate(arr):
+        label = f"{name}[{i}]"
+        if not np.all(np.isfinite(T)):
+            raise ValueError(f"{label} contains NaN or inf")
+        if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            raise ValueError(f"{label} has bottom row {T[3]}, expected [0, 0, 0, 1]")
+        _check_rotation_block(T[:3, :3], f"{label} rotation")
+    return arr
+
+
+def as_pose(T, name: str = "pose") -> np.ndarray:
+    """Validate one pose and return it as a float64 (4, 4) array (see ``as_poses``)."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {T.shape}")
+    return as_poses(T[None], name=name)[0]
+
+
+# --------------------------------------------------------------------------- construction
+
+
+def make_pose(R=None, t=None) -> np.ndarray:
+    """Build a (4, 4) pose from a (3, 3) rotation (default identity) and a translation in metres."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = as_rotation(R)
+    if t is not None:
+        t = np.asarray(t, dtype=float)
+        if t.shape not in ((3,), (3, 1)):
+            raise ValueError(f"translation must have 3 elements, got shape {t.shape}")
+        T[:3, 3] = t.reshape(3)
+    return T
+
+
+def invert(T) -> np.ndarray:
+    """Inverse of a pose or of each pose in an (N, 4, 4) stack: ``b_T_a = invert(a_T_b)``.
+
+    Uses R^T rather than a general matrix inverse, so the result stays exactly rigid.
+    """
+    T = np.asarray(T, dtype=float)
+    if T.shape[-2:] != (4, 4):
+        raise ValueError(f"invert expects (4, 4) or (N, 4, 4), got {T.shape}")
+    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = R_t
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R_t, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def compose(*poses) -> np.ndarray:
+    """Chain poses left to right: ``compose(a_T_b, b_T_c) == a_T_c``.
+
+    Arguments may be (4, 4) or (N, 4, 4) stacks; stacks broadcast against single poses.
+    """
+    if not poses:
+        return np.eye(4)
+    out = np.asarray(poses[0], dtype=float)
+    for T in poses[1:]:
+        out = out @ np.asarray(T, dtype=float)
+    return out
+
+
+def relative(a_T_b, a_T_c) -> np.ndarray:
+    """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a."""
+    return invert(a_T_b) @ np.asarray(a_T_c, dtype=float)
+
+
+def transform_points(a_T_b, points_b) -> np.ndarray:
+    """Map points (N, 3) or (3,) given in frame b into frame a. Metres in, metres out."""
+    T = np.asarray(a_T_b, dtype=float)
+    p = np.asarray(points_b, dtype=float)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def skew(v) -> np.ndarray:
+    """The (3, 3) cross-product matrix: ``skew(a) @ b == np.cross(a, b)``."""
+    x, y, z = np.asarray(v, dtype=float).reshape(3)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def project_to_so3(M) -> np.ndarray:
+    """Nearest proper rotation to a (3, 3) matrix in the Frobenius norm (SVD, det forced to +1)."""
+    M = np.asarray(M, dtype=float)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+        raise ValueError(f"project_to_so3 needs a finite (3, 3) matrix, got shape {M.shape}")
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+# --------------------------------------------------------------------------- conversions
+
+
+def _pose_from_rotation(rot: Rotation, t) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rot.as_matrix()
+    if t is not None:
+        T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
+    return T
+
+
+def pose_from_rotvec(rotvec, t=None) -> np.ndarray:
+    """Pose from a rotation vector (axis * angle, radians) and a translation (metres).
+
+    This is the (rx, ry, rz) of UR controllers and OpenCV's ``Rodrigues``.
+    """
+    return _pose_from_rotation(Rotation.from_rotvec(np.asarray(rotvec, dtype=float).reshape(3)), t)
+
+
+def rotvec_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation vector in radians, translation in metres) of a pose."""
+    T = as_pose(T)
+    return Rotation.from_matrix(T[:3, :3]).as_rotvec(), T[:3, 3].copy()
+
+
+def pose_from_quat_xyzw(quat_xyzw, t=None) -> np.ndarray:
+    """Pose from a quaternion in (x, y, z, w) order (normalised here) and a translation (m)."""
+    q = np.asarray(quat_xyzw, dtype=float).reshape(4)
+    if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-12:
+        raise ValueError(f"quaternion {q} is not finite and non-zero")
+    return _pose_from_rotation(Rotation.from_quat(q), t)
+
+
+def quat_xyzw_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
+    """(unit quaternion in (x, y, z, w) order with w >= 0, translation in metres) of a pose."""
+    T = as_pose(T)
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return q, T[:3, 3].copy()
+
+
+def pose_from_rpy(roll, pitch, yaw, t=None, degrees: bool = False) -> np.ndarray:
+    """Pose with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ = intrinsic ZYX)."""
+    rot = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=degrees)
+    return _pose_from_rotation(rot, t)
+
+
+def rpy_from_pose(T, degrees: bool = False) -> np.ndarray:
+    """(roll, pitch, yaw) such that ``pose_from_rpy(roll, pitch, yaw)`` has T's rotation."""
+    return Rotation.from_matrix(as_pose(T)[:3, :3]).as_euler("xyz", degrees=degrees)
+
+
+def pose_from_euler_zyx(yaw, pitch, roll, t=None, degrees: bool = False) -> np.ndarray:
+    """Pose from intrinsic Z-Y'-X'' angles given in that order (yaw, pitch, roll).
+
+    The same rotation as ``pose_from_rpy(roll, pitch, yaw)``; offered because drivers such as
+    Aubo's report (rz, ry, rx) in ZYX order.
+    """
+    rot = Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=degrees)
+    return _pose_from_rotation(rot, t)
+
+
+def euler_zyx_from_pose(T, degrees: bool = False) -> np.ndarray:
+    """(yaw, pitch, roll), intrinsic Z-Y'-X'', of a pose's rotation."""
+    return Rotation.from_matrix(as_pose(T)[:3, :3]).as_euler("ZYX", degrees=degrees)
+
+
+# --------------------------------------------------------------------------- errors and averages
+
+
+def _rotation_block(X) -> np.ndarray:
+    X = np.asarray(X, dtype=float)
+    if X.shape[-2:] == (4, 4):
+        return X[..., :3, :3]
+    if X.shape[-2:] == (3, 3):
+        return X
+    raise ValueError(f"expected a rotation (3, 3) or pose (4, 4), got shape {X.shape}")
+
+
+def rotation_angle_deg(R) -> np.ndarray | float:
+    """Angle of a rotation (or of each in a stack), degrees, in [0, 180].
+
+    Computed from the rotation vector rather than acos((trace - 1) / 2), which loses precision
+    near 0 degrees where calibration errors live.
+    """
+    Rb = _rotation_block(R)
+    angles = np.degrees(np.linalg.norm(Rotation.from_matrix(Rb.reshape(-1, 3, 3)).as_rotvec(), axis=1))
+    return float(angles[0]) if Rb.ndim == 2 else angles
+
+
+def rotation_error_deg(A, B) -> np.ndarray | float:
+    """Geodesic angle between two rotations (or poses, or stacks of them), in degrees."""
+    Ra, Rb = _rotation_block(A), _rotation_block(B)
+    return rotation_angle_deg(np.swapaxes(Ra, -1, -2) @ Rb)
+
+
+def translation_error(A, B) -> np.ndarray | float:
+    """Euclidean distance between the translations of two poses (or stacks), in metres."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    d = np.linalg.norm(A[..., :3, 3] - B[..., :3, 3], axis=-1)
+    return float(d) if np.ndim(d) == 0 else d
+
+
+def chordal_mean_rotation(rotations, weights=None) -> np.ndarray:
+    """Chordal L2 mean of rotations: the proper rotation nearest to their weighted sum.
+
+    ``rotations`` is a stack of (3, 3) rotations or (4, 4) poses; weights are non-negative.
+    """
+    Rs = _rotation_block(np.asarray(rotations, dtype=float))
+    if Rs.ndim != 3 or len(Rs) == 0:
+        raise ValueError("chordal_mean_rotation needs a non-empty stack of rotations")
+    for i, R in enumerate(Rs):
+        _check_rotation_block(R, f"rotations[{i}]")
+    w = np.ones(len(Rs)) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (len(Rs),) or np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
+        raise ValueError("weights must be finite, non-negative, one per rotation, not all zero")
+    return project_to_so3(np.einsum("n,nij->ij", w, Rs))

@@ -1,0 +1,136 @@
+"""Pose math: round trips (property tests), validation messages, errors and averages."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from robots import geometry as geo
+
+finite = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False)
+vec3 = st.tuples(finite, finite, finite).map(np.array)
+# Rotation vectors with angle below pi, where the rotation-vector chart is one-to-one.
+rotvecs = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1), st.floats(0.0, 3.1)).filter(
+    lambda a: np.linalg.norm(a[:3]) > 1e-3
+).map(lambda a: np.array(a[:3]) / np.linalg.norm(a[:3]) * a[3])
+quats = st.tuples(finite, finite, finite, finite).filter(lambda q: np.linalg.norm(q) > 1e-3).map(np.array)
+poses = st.tuples(quats, vec3).map(lambda qt: geo.pose_from_quat_xyzw(qt[0], qt[1]))
+
+
+@given(poses)
+def test_invert_is_a_true_inverse(T):
+    np.testing.assert_allclose(geo.invert(T) @ T, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(geo.compose(T, geo.invert(T)), np.eye(4), atol=1e-12)
+
+
+@given(poses, poses, poses)
+def test_compose_is_associative_and_relative_undoes_it(A, B, C):
+    np.testing.assert_allclose(geo.compose(A, B, C), A @ (B @ C), atol=1e-9)
+    np.testing.assert_allclose(geo.relative(A, A @ B), B, atol=1e-9)
+
+
+@given(rotvecs, vec3)
+def test_rotvec_round_trip(rv, t):
+    rv2, t2 = geo.rotvec_from_pose(geo.pose_from_rotvec(rv, t))
+    np.testing.assert_allclose(rv2, rv, atol=1e-9)
+    np.testing.assert_allclose(t2, t)
+
+
+@given(quats, vec3)
+def test_quat_xyzw_round_trip_up_to_sign(q, t):
+    q = q / np.linalg.norm(q)
+    q2, t2 = geo.quat_xyzw_from_pose(geo.pose_from_quat_xyzw(q, t))
+    assert q2[3] >= 0
+    # q and -q are the same rotation; with w = 0 both signs satisfy w >= 0.
+    assert min(np.abs(q2 - q).max(), np.abs(q2 + q).max()) < 1e-9
+    np.testing.assert_allclose(t2, t)
+
+
+@given(st.floats(-3.1, 3.1), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1))
+def test_rpy_and_euler_zyx_name_the_same_rotation(roll, pitch, yaw):
+    T = geo.pose_from_rpy(roll, pitch, yaw)
+    Rz = Rotation.from_euler("z", yaw).as_matrix()
+    Ry = Rotation.from_euler("y", pitch).as_matrix()
+    Rx = Rotation.from_euler("x", roll).as_matrix()
+    np.testing.assert_allclose(T[:3, :3], Rz @ Ry @ Rx, atol=1e-12)
+    np.testing.assert_allclose(geo.pose_from_euler_zyx(yaw, pitch, roll), T, atol=1e-12)
+    np.testing.assert_allclose(geo.rpy_from_pose(T), [roll, pitch, yaw], atol=1e-9)
+    np.testing.assert_allclose(geo.euler_zyx_from_pose(T), [yaw, pitch, roll], atol=1e-9)
+
+
+def test_pose_convention_maps_child_coordinates_to_parent():
+    base_T_cam = geo.make_pose(Rotation.from_euler("z", 90, degrees=True).as_matrix(), [1.0, 0, 0])
+    # A point 1 m along the camera's x axis lies 1 m along the base's y axis, offset by t.
+    np.testing.assert_allclose(geo.transform_points(base_T_cam, [1.0, 0, 0]), [1.0, 1.0, 0.0], atol=1e-12)
+
+
+@given(rotvecs)
+def test_rotation_error_is_the_geodesic_angle(rv):
+    R = geo.pose_from_rotvec(rv)
+    assert geo.rotation_error_deg(np.eye(4), R) == pytest.approx(np.degrees(np.linalg.norm(rv)), abs=1e-7)
+
+
+def test_rotation_error_is_precise_for_tiny_angles():
+    # acos((tr - 1) / 2) would return 0 or ~1e-6 deg noise here.
+    R = geo.pose_from_rotvec([1e-9, 0, 0])
+    assert geo.rotation_error_deg(np.eye(4), R) == pytest.approx(np.degrees(1e-9), rel=1e-6)
+
+
+def test_stacks_broadcast():
+    rng = np.random.default_rng(0)
+    Ts = np.stack([geo.pose_from_rotvec(rng.normal(size=3), rng.normal(size=3)) for _ in range(5)])
+    errs = geo.rotation_error_deg(Ts, Ts)
+    assert errs.shape == (5,) and np.all(errs < 1e-6)
+    np.testing.assert_allclose(geo.invert(Ts) @ Ts, np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
+    assert geo.translation_error(Ts, Ts).shape == (5,)
+
+
+def test_translation_error_in_metres():
+    assert geo.translation_error(geo.make_pose(t=[0.003, 0.004, 0]), np.eye(4)) == pytest.approx(0.005)
+
+
+def test_chordal_mean_of_symmetric_rotations_is_the_middle():
+    Rs = [Rotation.from_euler("z", a, degrees=True).as_matrix() for a in (-10, 0, 10)]
+    np.testing.assert_allclose(geo.chordal_mean_rotation(Rs), np.eye(3), atol=1e-12)
+    weighted = geo.chordal_mean_rotation(Rs[1:], weights=[1, 1])
+    assert geo.rotation_error_deg(weighted, Rs[2]) == pytest.approx(5.0, abs=1e-9)
+
+
+def test_project_to_so3_gives_a_proper_rotation():
+    rng = np.random.default_rng(1)
+    R = geo.project_to_so3(rng.normal(size=(3, 3)))
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (np.diag([1.0, 1.0, -1.0, 1.0]), "det -1"),
+        (np.diag([1.1, 1.0, 1.0, 1.0]), "not orthonormal"),
+        (np.full((4, 4), np.nan), "NaN"),
+        (np.eye(3), "shape (4, 4)"),
+        (np.vstack([np.eye(4)[:3], [0, 0, 1, 1]]), "bottom row"),
+    ],
+)
+def test_validation_names_the_index_and_the_problem(bad, message):
+    with pytest.raises(ValueError) as excinfo:
+        geo.as_poses([np.eye(4), np.eye(4), bad], name="base_T_flange")
+    assert "base_T_flange[2]" in str(excinfo.value)
+    assert message in str(excinfo.value)
+
+
+def test_validation_rejects_a_single_pose_where_a_list_is_expected():
+    with pytest.raises(ValueError, match="single"):
+        geo.as_poses(np.eye(4))
+
+
+def test_validation_enforces_minimum_count():
+    with pytest.raises(ValueError, match="at least 3"):
+        geo.as_poses([np.eye(4)] * 2, min_count=3)
+
+
+def test_quaternion_must_be_non_zero():
+    with pytest.raises(ValueError, match="non-zero"):
+        geo.pose_from_quat_xyzw([0, 0, 0, 0])
