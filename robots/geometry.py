@@ -106,11 +106,21 @@ def as_poses(poses, name: str = "poses", min_count: int = 0) -> np.ndarray:
         raise ValueError(f"{name} must have shape (N, 4, 4), got {arr.shape}")
     if len(arr) < min_count:
         raise ValueError(f"{name} needs at least {min_count} poses, got {len(arr)}")
-    for i, T in enumerate(arr):
-        label = f"{name}[{i}]"
+    # Check the whole stack at once (students pass hundreds of motions); only on failure walk
+    # the poses one by one, so the message names the first bad index and what is wrong with it.
+    finite = np.isfinite(arr).all(axis=(1, 2))
+    with np.errstate(invalid="ignore"):
+        R = arr[:, :3, :3]
+        gram_error = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2), initial=0.0)
+        good = (finite
+                & np.all(np.abs(arr[:, 3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9, axis=1)
+                & (gram_error <= ORTHONORMAL_TOL)
+                & (np.linalg.det(R) > 0))
+    for i in np.flatnonzero(~good)[:1]:
+        T, label = arr[i], f"{name}[{i}]"
         if not np.all(np.isfinite(T)):
             raise ValueError(f"{label} contains NaN or inf")
-        if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
             raise ValueError(f"{label} has bottom row {T[3]}, expected [0, 0, 0, 1]")
         _check_rotation_block(T[:3, :3], f"{label} rotation")
     return arr

@@ -112,6 +112,7 @@ def test_project_to_so3_gives_a_proper_rotation():
         (np.full((4, 4), np.nan), "NaN"),
         (np.eye(3), "shape (4, 4)"),
         (np.vstack([np.eye(4)[:3], [0, 0, 1, 1]]), "bottom row"),
+        (np.vstack([np.eye(4)[:3], [0, 0, 0, 1 + 1e-6]]), "bottom row"),
     ],
 )
 def test_validation_names_the_index_and_the_problem(bad, message):
