@@ -1,0 +1,36 @@
+"""The command line: help, one-line errors, --debug tracebacks."""
+
+import subprocess
+import sys
+
+import pytest
+
+from cobotlab import cli
+
+
+def test_help_lists_the_commands(capsys):
+    with pytest.raises(SystemExit) as excinfo:
+        cli.main(["--help"])
+    assert excinfo.value.code == 0
+    assert "demo" in capsys.readouterr().out
+
+
+def test_errors_are_one_line_without_debug(capsys):
+    assert cli.main(["demo", "--poses", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("cobotlab: error:") and "n_poses" in err
+    assert "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_debug_shows_the_exception():
+    with pytest.raises(ValueError, match="n_poses"):
+        cli.main(["--debug", "demo", "--poses", "2"])
+
+
+def test_console_script_runs_the_demo():
+    out = subprocess.run([sys.executable, "-m", "cobotlab.cli", "demo", "--poses", "6"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    for expected in ("eye_in_hand", "eye_to_hand", "nonlinear", "opencv PARK"):
+        assert expected in out.stdout
+    assert "failed" not in out.stdout

@@ -1,0 +1,157 @@
+"""Maximum-likelihood hand-eye refinement (poses) and reprojection refinement (corners)."""
+
+import numpy as np
+import pytest
+
+from autograder.synthetic import NoiseModel, make_hand_eye
+from robots import geometry as geo
+from solutions.mle import pose_residuals, refine_hand_eye, refine_reprojection
+
+MOUNTS = ("eye_in_hand", "eye_to_hand")
+
+
+def _errors(X, X_true):
+    return geo.rotation_error_deg(X, X_true), geo.translation_error(X, X_true)
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_refine_hand_eye_exact_recovery(mount):
+    p = make_hand_eye(0, mount, n_poses=8)
+    res = refine_hand_eye(p.base_T_flange, p.cam_T_target, mount)
+    for est, true in ((res.X, p.X_true), (res.Y, p.Y_true)):
+        r, t = _errors(est, true)
+        assert r < 1e-9 and t < 1e-9
+    assert res.outlier_indices == ()
+    assert res.converged
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_refine_reprojection_exact_recovery_from_a_poor_start(mount):
+    p = make_hand_eye(1, mount, n_poses=6)
+    X0 = geo.pose_from_rotvec([0.02, -0.01, 0.015], [0.004, -0.003, 0.005]) @ p.X_true
+    Y0 = p.Y_true @ geo.pose_from_rotvec([-0.01, 0.02, 0.0], [0.003, 0.002, -0.004])
+    res = refine_reprojection(p.board.object_points(), p.pixels, p.camera.K, p.camera.dist,
+                              p.base_T_flange, mount, X0=X0, Y0=Y0)
+    r, t = _errors(res.X, p.X_true)
+    assert r < 1e-9 and t < 1e-9
+    assert res.reprojection_rms_px < 1e-6
+
+
+def test_residuals_vanish_at_the_truth_and_match_the_noise():
+    p = make_hand_eye(2, "eye_in_hand", n_poses=5)
+    rot, trans = pose_residuals(p.X_true, p.Y_true, p.base_T_flange, p.cam_T_target)
+    assert np.abs(rot).max() < 1e-12 and np.abs(trans).max() < 1e-12
+    # A known error on one camera pose shows up as exactly that residual, in camera axes.
+    cam = p.cam_T_target.copy()
+    cam[3] = geo.pose_from_rotvec([0.01, 0, 0], [0, 0.002, 0]) @ cam[3]
+    cam[3, :3, 3] = p.cam_T_target[3, :3, 3] + [0, 0.002, 0]
+    rot, trans = pose_residuals(p.X_true, p.Y_true, p.base_T_flange, cam)
+    np.testing.assert_allclose(rot[3], [0.01, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(trans[3], [0, 0.002, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_bad_pose_is_named_and_ignored(mount):
+    noise = NoiseModel(cam_rot_deg=0.1, cam_trans_mm=0.5, n_outliers=1)
+    for seed in range(3):
+        p = make_hand_eye(seed, mount, n_poses=10, noise=noise)
+        res = refine_hand_eye(p.base_T_flange, p.cam_T_target, mount)
+        assert res.outlier_indices == p.outlier_indices
+        assert res.weights[p.outlier_indices[0]] == 0.0
+        r, t = _errors(res.X, p.X_true)
+        assert r < 0.3 and t < 0.02
+
+
+def test_no_outliers_named_on_clean_data():
+    noise = NoiseModel(cam_rot_deg=0.2, cam_trans_mm=1.0)
+    for seed in range(5):
+        p = make_hand_eye(seed, "eye_in_hand", n_poses=12, noise=noise)
+        assert refine_hand_eye(p.base_T_flange, p.cam_T_target).outlier_indices == ()
+
+
+def test_noise_levels_are_estimated():
+    p = make_hand_eye(3, "eye_to_hand", n_poses=40, noise=NoiseModel(cam_rot_deg=0.5, cam_trans_mm=2))
+    res = refine_hand_eye(p.base_T_flange, p.cam_T_target, "eye_to_hand")
+    total_rot = np.hypot(res.rotation_sigma_rad, res.robot_rotation_sigma_rad)
+    assert total_rot == pytest.approx(np.radians(0.5), rel=0.25)
+    assert res.translation_sigma_m == pytest.approx(0.002, rel=0.25)
+
+
+def test_known_sigma_is_used_as_given():
+    p = make_hand_eye(4, "eye_in_hand", n_poses=10, noise=NoiseModel(cam_rot_deg=0.2, cam_trans_mm=1))
+    res = refine_hand_eye(p.base_T_flange, p.cam_T_target, sigma=(np.radians(0.2), 0.001))
+    assert res.rotation_sigma_rad == pytest.approx(np.radians(0.2))
+    assert res.translation_sigma_m == pytest.approx(0.001)
+    r, t = _errors(res.X, p.X_true)
+    assert r < 0.3 and t < 0.005
+
+
+def test_order_of_poses_does_not_matter():
+    p = make_hand_eye(5, "eye_in_hand", n_poses=10, noise=NoiseModel(cam_rot_deg=0.3, cam_trans_mm=1))
+    perm = np.random.default_rng(1).permutation(10)
+    a = refine_hand_eye(p.base_T_flange, p.cam_T_target)
+    b = refine_hand_eye(p.base_T_flange[perm], p.cam_T_target[perm])
+    assert np.abs(a.X - b.X).max() < 1e-8 and np.abs(a.Y - b.Y).max() < 1e-8
+
+
+def test_start_from_one_given_pose():
+    p = make_hand_eye(6, "eye_to_hand", n_poses=8)
+    res = refine_hand_eye(p.base_T_flange, p.cam_T_target, "eye_to_hand", X0=p.X_true)
+    assert geo.translation_error(res.Y, p.Y_true) < 1e-9
+
+
+def test_reprojection_beats_pose_based_under_pixel_noise():
+    noise = NoiseModel(pixel_px=1.0, robot_rot_deg=0.02, robot_trans_mm=0.1)
+    pose_err, pix_err = [], []
+    for seed in range(5):
+        p = make_hand_eye(seed, "eye_in_hand", n_poses=8, noise=noise)
+        start = refine_hand_eye(p.base_T_flange, p.cam_T_target)
+        res = refine_reprojection(p.board.object_points(), p.pixels, p.camera.K, p.camera.dist,
+                                  p.base_T_flange, X0=start.X, Y0=start.Y)
+        pose_err.append(_errors(start.X, p.X_true))
+        pix_err.append(_errors(res.X, p.X_true))
+        assert 0.8 < res.reprojection_rms_px < 1.2
+    pose_med, pix_med = np.median(pose_err, axis=0), np.median(pix_err, axis=0)
+    assert pix_med[0] < pose_med[0] and pix_med[1] < pose_med[1]
+
+
+def test_reprojection_skips_missing_views_and_corners():
+    p = make_hand_eye(7, "eye_to_hand", n_poses=8, noise=NoiseModel(pixel_px=0.3))
+    pixels = p.pixels.copy()
+    pixels[2] = np.nan          # board not seen in view 2
+    pixels[5, :10] = np.nan     # part of the board hidden in view 5
+    start = refine_hand_eye(p.base_T_flange, p.cam_T_target, "eye_to_hand")
+    res = refine_reprojection(p.board.object_points(), pixels, p.camera.K, p.camera.dist,
+                              p.base_T_flange, "eye_to_hand", X0=start.X, Y0=start.Y)
+    assert np.isfinite(res.X).all() and np.isfinite(res.reprojection_rms_px)
+    assert res.weights[2] == 0.0
+    r, t = _errors(res.X, p.X_true)
+    assert r < 0.3 and t < 0.003
+
+
+# --------------------------------------------------------------------------- refusals
+
+
+def test_refusals_name_the_problem():
+    p = make_hand_eye(8, "eye_in_hand", n_poses=6)
+    with pytest.raises(ValueError, match="mount"):
+        refine_hand_eye(p.base_T_flange, p.cam_T_target, "eye_on_base")
+    with pytest.raises(ValueError, match="at least 3 poses"):
+        refine_hand_eye(p.base_T_flange[:2], p.cam_T_target[:2])
+    with pytest.raises(ValueError, match="one cam_T_target per base_T_flange"):
+        refine_hand_eye(p.base_T_flange, p.cam_T_target[:5])
+    with pytest.raises(ValueError, match="sigma"):
+        refine_hand_eye(p.base_T_flange, p.cam_T_target, sigma=(0.01,))
+    bad = p.cam_T_target.copy()
+    bad[4, 1, 1] = np.nan
+    with pytest.raises(ValueError, match=r"cam_T_target\[4\]"):
+        refine_hand_eye(p.base_T_flange, bad)
+    pts, K = p.board.object_points(), p.camera.K
+    with pytest.raises(ValueError, match="X0 and Y0"):
+        refine_reprojection(pts, p.pixels, K, None, p.base_T_flange)
+    with pytest.raises(ValueError, match="pixels must have shape"):
+        refine_reprojection(pts, p.pixels[:, :5], K, None, p.base_T_flange, X0=p.X_true, Y0=p.Y_true)
+    few = p.pixels.copy()
+    few[2:] = np.nan
+    with pytest.raises(ValueError, match="only 2 views"):
+        refine_reprojection(pts, few, K, None, p.base_T_flange, X0=p.X_true, Y0=p.Y_true)
