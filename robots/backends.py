@@ -1,0 +1,189 @@
+"""Find a backend by name and connect to it: ``connect(kind="sim", **options) -> Workcell``.
+
+``robots`` never imports a backend at import time (the arrows in DESIGN.md point from the
+backends to ``robots``). Instead a backend is either registered at run time with
+:func:`register_backend`, or named in the table below as ``"module:function"`` and imported
+the first time someone connects to it.
+
+Where the settings come from (highest wins)
+-------------------------------------------
+1. keyword arguments to ``connect`` (``kind`` and every option);
+2. environment variables: ``COBOTLAB_KIND`` (the backend) and ``COBOTLAB_HOST`` (the robot's
+   address; passed as ``host=`` to real drivers only, never to "sim");
+3. ``lab.toml`` in the current working directory::
+
+       [connect]
+       kind = "ur"                  # the default backend for this directory
+       [connect.ur]
+       host = "192.168.1.10"       # options used whenever kind is "ur"
+       [connect.sim]
+       arm = "ur5e"                # options used whenever kind is "sim"
+
+   (read with ``tomllib`` on Python 3.11+, or ``tomli`` on 3.10 if installed; otherwise the
+   file is skipped with a warning);
+4. the default: ``kind = "sim"``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import warnings
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from robots.interfaces import Workcell
+
+__all__ = [
+    "BUILTIN_BACKENDS",
+    "BackendNotAvailableError",
+    "register_backend",
+    "available_backends",
+    "resolve_connect_options",
+    "connect",
+]
+
+DEFAULT_KIND = "sim"
+
+# name -> "module:factory". The module is imported only when this backend is first used.
+BUILTIN_BACKENDS: dict[str, str] = {
+    "sim": "sim_backends.world:create_workcell",
+    "ur": "robots.drivers.ur:create_workcell",
+    "franka": "robots.drivers.franka:create_workcell",
+    "aubo": "robots.drivers.aubo:create_workcell",
+    "cobotta": "robots.drivers.cobotta:create_workcell",
+}
+
+_registry: dict[str, Callable[..., Workcell]] = {}
+
+
+class BackendNotAvailableError(ImportError):
+    """The backend's module (or a library it needs) is not installed."""
+
+
+def register_backend(name: str, factory: Callable[..., Workcell]) -> None:
+    """Make ``connect(name, **options)`` call ``factory(**options)``, which returns a Workcell.
+
+    Registering a name again replaces the factory (convenient when a notebook reloads a module).
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"backend name must be a non-empty string, got {name!r}")
+    if not callable(factory):
+        raise ValueError(f"factory for backend {name!r} must be callable, got {factory!r}")
+    _registry[name] = factory
+
+
+def available_backends() -> list[str]:
+    """Names ``connect`` accepts (registered or built in), whether or not they are installed."""
+    return sorted(set(_registry) | set(BUILTIN_BACKENDS))
+
+
+def _load_factory(kind: str) -> Callable[..., Workcell]:
+    if kind in _registry:
+        return _registry[kind]
+    if kind not in BUILTIN_BACKENDS:
+        raise ValueError(
+            f"unknown robot kind {kind!r}; known kinds: {', '.join(available_backends())}. "
+            "Check the spelling, or register your own with robots.register_backend(name, factory)"
+        )
+    module_name, func_name = BUILTIN_BACKENDS[kind].split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:  # "cannot import name X" is a bug: let it through
+        missing = getattr(error, "name", None) or str(error)
+        if kind != "sim":
+            fix = "install the real-robot extras with `pip install cobotlab[real]`"
+        elif module_name.startswith(str(missing)):
+            fix = "the simulator is not installed; reinstall cobotlab (`pip install cobotlab`)"
+        else:
+            fix = f"the simulator needs {missing!r}; reinstall cobotlab (`pip install cobotlab`)"
+        raise BackendNotAvailableError(
+            f"backend {kind!r} is not available: cannot import {missing!r} "
+            f"(needed by {module_name}); {fix}"
+        ) from error
+    # The module may have registered itself on import; otherwise use the named function.
+    factory = _registry.get(kind) or getattr(module, func_name, None)
+    if factory is None:
+        raise BackendNotAvailableError(
+            f"backend {kind!r}: module {module_name} has no function {func_name}(); "
+            "the installation looks incomplete"
+        )
+    _registry[kind] = factory
+    return factory
+
+
+def _read_lab_toml(path: Path) -> dict:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        try:
+            import tomli as tomllib
+        except ModuleNotFoundError:
+            warnings.warn(
+                f"{path} ignored: reading it needs Python 3.11+ or `pip install tomli`",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            return {}
+    with open(path, "rb") as f:
+        try:
+            data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as error:
+            raise ValueError(f"{path} is not valid TOML: {error}") from error
+    section = data.get("connect", {})
+    if not isinstance(section, dict):
+        raise ValueError(f"{path}: [connect] must be a table")
+    return section
+
+
+def resolve_connect_options(
+    kind: str | None = None,
+    options: Mapping | None = None,
+    cwd: str | Path | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> tuple[str, dict]:
+    """Merge the settings for ``connect`` (see the module docstring for the precedence).
+
+    ``cwd`` (default: the working directory) is where ``lab.toml`` is looked for and
+    ``environ`` (default: ``os.environ``) supplies the variables. Returns ``(kind, options)``.
+    """
+    environ = os.environ if environ is None else environ
+    path = Path.cwd() if cwd is None else Path(cwd)
+    toml = _read_lab_toml(path / "lab.toml") if (path / "lab.toml").is_file() else {}
+
+    resolved_kind = kind or environ.get("COBOTLAB_KIND") or toml.get("kind") or DEFAULT_KIND
+    merged: dict = {}
+    per_kind = toml.get(resolved_kind, {})
+    if not isinstance(per_kind, dict):
+        raise ValueError(f"lab.toml: [connect.{resolved_kind}] must be a table")
+    merged.update(per_kind)
+    if resolved_kind != "sim" and environ.get("COBOTLAB_HOST"):
+        merged["host"] = environ["COBOTLAB_HOST"]
+    merged.update(options or {})
+    return resolved_kind, merged
+
+
+def connect(kind: str | None = None, **options) -> Workcell:
+    """Connect to a robot cell and return its :class:`~robots.interfaces.Workcell`.
+
+    ``kind`` is "sim" (the default: the PyBullet world) or a driver name ("ur", "franka",
+    "aubo", "cobotta"); ``options`` go to the backend, e.g.
+    ``connect("sim", arm="panda", mount="eye_in_hand", seed=0)`` or
+    ``connect("ur", host="192.168.1.10")``. Settings may also come from the environment and
+    ``lab.toml``; explicit arguments win (see this module's docstring).
+
+    Use the result as a context manager so the robot always stops and disconnects::
+
+        with connect("sim", arm="panda", seed=0) as cell:
+            cell.robot.move_to(T)
+            frame = cell.camera.capture()
+
+    Raises ValueError for an unknown kind (listing the known ones) and
+    BackendNotAvailableError (an ImportError) when the backend is not installed.
+    """
+    kind, options = resolve_connect_options(kind, options)
+    factory = _load_factory(kind)
+    cell = factory(**options)
+    if not isinstance(cell, Workcell):
+        raise TypeError(f"backend {kind!r} returned {type(cell).__name__}, not a robots.Workcell")
+    return cell

@@ -1,0 +1,417 @@
+"""Capture hand-eye data: move through poses, take a picture at each, detect the target.
+
+:func:`capture_pose_pairs` drives any :class:`~robots.interfaces.Robot` and
+:class:`~robots.interfaces.Camera` (simulated or real) and returns a :class:`Capture`: the
+flange poses *as read back from the robot* (not as commanded), the detected target poses and
+corners, and the images. Saved with :func:`save_capture`, a capture folder reloads with
+:func:`load_capture` to exactly the same arrays, so a lab can be re-run offline from data
+taken on a real robot.
+
+Folder layout::
+
+    poses.npz      arrays (no pickles): base_T_flange (M, 4, 4), cam_T_target (M, 4, 4)
+                   (NaN where the detector gave no pose), commanded_base_T_flange (P, 4, 4),
+                   pose_indices (M,), timestamps (M,), corners_px (M, Nmax, 2) and
+                   object_points (M, Nmax, 3) padded with NaN, corner_counts (M,),
+                   failed_indices (K,), intrinsics [fx, fy, cx, cy, width, height], dist (5,)
+    images/view_007.png   the RGB image of commanded pose 7 (lossless PNG)
+    images/failed_003.png images where detection failed, kept for inspection
+    depth.npz      optional float32 depth images (M, H, W), when captured with keep_depth=True
+    meta.yaml      human-readable summary: date, robot, camera, counts, why views failed
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from robots.geometry import as_pose, as_poses
+from robots.interfaces import Camera, Frame, Intrinsics, Robot, UnreachableError
+
+__all__ = [
+    "Detection",
+    "Capture",
+    "capture_pose_pairs",
+    "save_capture",
+    "load_capture",
+    "chessboard_detector",
+]
+
+FORMAT = "cobotlab-capture/1"
+
+
+@dataclass
+class Detection:
+    """What a detector found in one image.
+
+    ``cam_T_target`` (4, 4): the target's pose in the camera optical frame (metres), or None
+    when the detector finds corners but does not solve for the pose. ``corners_px`` (N, 2):
+    detected image points in pixels; ``object_points`` (N, 3): the same points in the target
+    frame, metres. ``ok=False`` marks a failed detection (the view is skipped).
+    """
+
+    cam_T_target: np.ndarray | None
+    corners_px: np.ndarray
+    object_points: np.ndarray
+    ok: bool = True
+
+    def __post_init__(self):
+        self.corners_px = np.asarray(self.corners_px, dtype=float).reshape(-1, 2)
+        self.object_points = np.asarray(self.object_points, dtype=float).reshape(-1, 3)
+        if len(self.corners_px) != len(self.object_points):
+            raise ValueError(
+                f"Detection has {len(self.corners_px)} corners but {len(self.object_points)} "
+                "object points; they must correspond one to one"
+            )
+        for name in ("corners_px", "object_points"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"Detection.{name} contains NaN or inf; drop those points instead")
+        if self.cam_T_target is not None:
+            self.cam_T_target = as_pose(self.cam_T_target, "Detection.cam_T_target")
+        self.ok = bool(self.ok)
+
+
+@dataclass
+class Capture:
+    """The data of one capture run. M views kept, P poses commanded, K views failed.
+
+    ``base_T_flange[i]`` and ``cam_T_target[i]`` form the i-th hand-eye pair;
+    ``cam_T_target[i]`` is all-NaN if the detector gave corners but no pose for that view
+    (use :meth:`pose_pairs` to get only complete pairs). ``pose_indices[i]`` says which
+    commanded pose view i came from. ``failed_indices`` / ``failed_reasons`` record the skipped
+    ones. ``images`` are the kept views' RGB images, ``depths`` their depth images (or None).
+    """
+
+    base_T_flange: np.ndarray
+    cam_T_target: np.ndarray
+    corners_px: list[np.ndarray]
+    object_points: list[np.ndarray]
+    intrinsics: Intrinsics
+    commanded_base_T_flange: np.ndarray
+    pose_indices: np.ndarray
+    timestamps: np.ndarray
+    images: list[np.ndarray]
+    failed_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    failed_reasons: list[str] = field(default_factory=list)
+    failed_images: list[np.ndarray | None] = field(default_factory=list)
+    depths: list[np.ndarray] | None = None
+    robot_name: str = ""
+    camera_name: str = ""
+    created: str = ""
+
+    def __len__(self) -> int:
+        return len(self.base_T_flange)
+
+    def pose_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(base_T_flange, cam_T_target), each (M', 4, 4), for views with a target pose."""
+        has_pose = np.all(np.isfinite(self.cam_T_target), axis=(1, 2))
+        return self.base_T_flange[has_pose], self.cam_T_target[has_pose]
+
+
+# --------------------------------------------------------------------------- capture
+
+
+def capture_pose_pairs(
+    robot: Robot,
+    camera: Camera,
+    poses,
+    detector,
+    folder=None,
+    progress: bool = True,
+    speed: float = 0.1,
+    settle_s: float | None = None,
+    keep_depth: bool = False,
+    overwrite: bool = False,
+) -> Capture:
+    """Visit each commanded ``base_T_flange`` pose, photograph the target and detect it.
+
+    For each pose: ``robot.move_to(pose, speed)`` (m/s), wait ``settle_s`` seconds (default:
+    ``robot.settle_time_s``, 0.5 s unless the backend says otherwise, so a real arm stops
+    vibrating), read ``robot.flange_pose()``, ``camera.capture()``, then
+    ``detector(frame, camera.intrinsics) -> Detection | None``. Views where the detection
+    fails, or whose pose the arm cannot reach (UnreachableError), are skipped and recorded;
+    a SafetyError stops the run, since the pose list itself needs fixing.
+
+    ``poses``: (P, 4, 4) or a list of (4, 4), base frame, metres. If ``folder`` is given the
+    capture is saved there (see :func:`save_capture`). Shows a tqdm progress bar unless
+    ``progress=False``. Returns the :class:`Capture`.
+    """
+    from tqdm.auto import tqdm
+
+    commanded = as_poses(poses, "poses", min_count=1)
+    if not callable(detector):
+        raise ValueError(
+            "detector must be a callable detector(frame, intrinsics) -> Detection | None"
+        )
+    if settle_s is None:
+        settle_s = float(getattr(robot, "settle_time_s", 0.5))
+    if not np.isfinite(settle_s) or settle_s < 0:
+        raise ValueError(f"settle_s must be a non-negative number of seconds, got {settle_s}")
+    if folder is not None:
+        _check_folder_free(Path(folder), overwrite)
+    intrinsics = camera.intrinsics
+
+    kept = {
+        "flange": [],
+        "target": [],
+        "corners": [],
+        "objects": [],
+        "index": [],
+        "time": [],
+        "image": [],
+        "depth": [],
+    }
+    failed_indices, failed_reasons, failed_images = [], [], []
+
+    bar = tqdm(total=len(commanded), desc="capture", unit="pose", disable=not progress)
+    try:
+        for i, target in enumerate(commanded):
+            try:
+                robot.move_to(target, speed=speed)
+            except UnreachableError as error:
+                failed_indices.append(i)
+                failed_reasons.append(f"unreachable: {error}")
+                failed_images.append(None)
+                bar.update(1)
+                continue
+            if settle_s > 0:
+                time.sleep(settle_s)
+            base_T_flange = robot.flange_pose()
+            frame = camera.capture()
+            if not isinstance(frame, Frame):
+                raise TypeError(f"camera.capture() returned {type(frame).__name__}, not a Frame")
+            detection = detector(frame, intrinsics)
+            if detection is None or not detection.ok or len(detection.corners_px) == 0:
+                failed_indices.append(i)
+                failed_reasons.append("target not detected")
+                failed_images.append(frame.rgb)
+            else:
+                kept["flange"].append(as_pose(base_T_flange, "robot.flange_pose()"))
+                kept["target"].append(
+                    np.full((4, 4), np.nan)
+                    if detection.cam_T_target is None
+                    else detection.cam_T_target
+                )
+                kept["corners"].append(detection.corners_px)
+                kept["objects"].append(detection.object_points)
+                kept["index"].append(i)
+                kept["time"].append(frame.timestamp)
+                kept["image"].append(frame.rgb)
+                kept["depth"].append(frame.depth)
+            bar.update(1)
+            bar.set_postfix(ok=len(kept["index"]), failed=len(failed_indices))
+    finally:
+        bar.close()
+
+    if keep_depth and any(d is None for d in kept["depth"]):
+        raise ValueError("keep_depth=True but the camera returned frames without depth")
+    capture = Capture(
+        base_T_flange=np.array(kept["flange"]).reshape(-1, 4, 4),
+        cam_T_target=np.array(kept["target"]).reshape(-1, 4, 4),
+        corners_px=kept["corners"],
+        object_points=kept["objects"],
+        intrinsics=intrinsics,
+        commanded_base_T_flange=commanded,
+        pose_indices=np.array(kept["index"], dtype=np.int64),
+        timestamps=np.array(kept["time"], dtype=float),
+        images=kept["image"],
+        failed_indices=np.array(failed_indices, dtype=np.int64),
+        failed_reasons=failed_reasons,
+        failed_images=failed_images,
+        depths=kept["depth"] if keep_depth else None,
+        robot_name=robot.name,
+        camera_name=camera.name,
+        created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    )
+    if folder is not None:
+        save_capture(capture, folder, overwrite=overwrite)
+    return capture
+
+
+# --------------------------------------------------------------------------- save / load
+
+
+def _check_folder_free(folder: Path, overwrite: bool) -> None:
+    if (folder / "poses.npz").exists() and not overwrite:
+        raise FileExistsError(
+            f"{folder} already holds a capture; pick a new folder or pass overwrite=True"
+        )
+
+
+def _pad(arrays: list[np.ndarray], width: int) -> tuple[np.ndarray, np.ndarray]:
+    counts = np.array([len(a) for a in arrays], dtype=np.int64)
+    n_max = int(counts.max()) if len(counts) else 0
+    out = np.full((len(arrays), n_max, width), np.nan)
+    for i, a in enumerate(arrays):
+        out[i, : len(a)] = a
+    return out, counts
+
+
+def save_capture(capture: Capture, folder, overwrite: bool = False) -> Path:
+    """Write ``capture`` to ``folder`` (created if needed); returns the folder path.
+
+    Refuses to overwrite an existing capture unless ``overwrite=True``.
+    """
+    import cv2
+    import yaml
+
+    folder = Path(folder)
+    _check_folder_free(folder, overwrite)
+    images_dir = folder / "images"
+    images_dir.mkdir(parents=True, exist_ok=True)
+    for old in images_dir.glob("*.png"):  # only reached when overwriting
+        old.unlink()
+
+    corners, counts = _pad(capture.corners_px, 2)
+    objects, _ = _pad(capture.object_points, 3)
+    i = capture.intrinsics
+    np.savez(
+        folder / "poses.npz",
+        base_T_flange=capture.base_T_flange,
+        cam_T_target=capture.cam_T_target,
+        commanded_base_T_flange=capture.commanded_base_T_flange,
+        pose_indices=capture.pose_indices,
+        timestamps=capture.timestamps,
+        corners_px=corners,
+        object_points=objects,
+        corner_counts=counts,
+        failed_indices=capture.failed_indices,
+        intrinsics=np.array([i.fx, i.fy, i.cx, i.cy, i.width, i.height], dtype=float),
+        dist=i.dist,
+    )
+    for index, rgb in zip(capture.pose_indices, capture.images):
+        _write_png(cv2, images_dir / f"view_{index:03d}.png", rgb)
+    for index, rgb in zip(capture.failed_indices, capture.failed_images):
+        if rgb is not None:
+            _write_png(cv2, images_dir / f"failed_{index:03d}.png", rgb)
+    depth_file = folder / "depth.npz"
+    if capture.depths is not None:
+        np.savez_compressed(depth_file, depth=np.array(capture.depths, dtype=np.float32))
+    elif depth_file.exists():
+        depth_file.unlink()
+
+    meta = {
+        "format": FORMAT,
+        "created": capture.created,
+        "robot": capture.robot_name,
+        "camera": capture.camera_name,
+        "n_commanded": int(len(capture.commanded_base_T_flange)),
+        "n_views": int(len(capture)),
+        "intrinsics": i.to_dict(),
+        "failed": [
+            {"pose_index": int(k), "reason": r}
+            for k, r in zip(capture.failed_indices, capture.failed_reasons)
+        ],
+        "failed_image_saved": [img is not None for img in capture.failed_images],
+    }
+    with open(folder / "meta.yaml", "w") as f:
+        yaml.safe_dump(meta, f, sort_keys=False)
+    return folder
+
+
+def _write_png(cv2, path: Path, rgb: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {path}; check the folder exists and is writable")
+
+
+def _read_png(cv2, path: Path) -> np.ndarray:
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise FileNotFoundError(
+            f"missing or unreadable image {path}; the capture folder is incomplete"
+        )
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def load_capture(folder) -> Capture:
+    """Read a folder written by :func:`save_capture`; the arrays come back bit for bit equal."""
+    import cv2
+    import yaml
+
+    folder = Path(folder)
+    if not (folder / "poses.npz").is_file():
+        raise FileNotFoundError(f"{folder} has no poses.npz; is it a capture folder?")
+    with open(folder / "meta.yaml") as f:
+        meta = yaml.safe_load(f)
+    if meta.get("format") != FORMAT:
+        raise ValueError(
+            f"{folder}/meta.yaml has format {meta.get('format')!r}, expected {FORMAT!r}"
+        )
+    with np.load(folder / "poses.npz", allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    counts = data["corner_counts"]
+    fx, fy, cx, cy, width, height = data["intrinsics"]
+    intrinsics = Intrinsics(fx, fy, cx, cy, int(width), int(height), data["dist"])
+    images = [_read_png(cv2, folder / "images" / f"view_{k:03d}.png") for k in data["pose_indices"]]
+    failed_images = [
+        _read_png(cv2, folder / "images" / f"failed_{k:03d}.png") if saved else None
+        for k, saved in zip(data["failed_indices"], meta["failed_image_saved"])
+    ]
+    depths = None
+    if (folder / "depth.npz").is_file():
+        with np.load(folder / "depth.npz", allow_pickle=False) as z:
+            depths = list(z["depth"])
+    return Capture(
+        base_T_flange=data["base_T_flange"],
+        cam_T_target=data["cam_T_target"],
+        corners_px=[c[:n] for c, n in zip(data["corners_px"], counts)],
+        object_points=[o[:n] for o, n in zip(data["object_points"], counts)],
+        intrinsics=intrinsics,
+        commanded_base_T_flange=data["commanded_base_T_flange"],
+        pose_indices=data["pose_indices"],
+        timestamps=data["timestamps"],
+        images=images,
+        failed_indices=data["failed_indices"],
+        failed_reasons=[item["reason"] for item in meta["failed"]],
+        failed_images=failed_images,
+        depths=depths,
+        robot_name=meta["robot"],
+        camera_name=meta["camera"],
+        created=meta["created"],
+    )
+
+
+# --------------------------------------------------------------------------- a detector
+
+
+def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
+    """Return ``detector(frame, intrinsics) -> Detection | None`` for a plain chessboard.
+
+    ``inner_cols`` x ``inner_rows`` are the inner corners (a board of 9 x 7 squares has 8 x 6),
+    ``square_m`` the square size in metres. The target frame has its origin at the first
+    detected inner corner, x along the rows of corners, y down the columns, z into the board
+    (OpenCV's convention for ``object_points``). The pose comes from ``cv2.solvePnP`` with the
+    camera's distortion, after sub-pixel corner refinement.
+    """
+    if inner_cols < 2 or inner_rows < 2 or not square_m > 0:
+        raise ValueError(
+            "a chessboard needs at least 2 x 2 inner corners and a positive square size"
+        )
+    grid = np.zeros((inner_rows * inner_cols, 3))
+    grid[:, :2] = np.mgrid[0:inner_cols, 0:inner_rows].T.reshape(-1, 2) * square_m
+
+    def detect(frame: Frame, intrinsics: Intrinsics) -> Detection | None:
+        import cv2
+
+        gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+        flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+        found, corners = cv2.findChessboardCorners(gray, (inner_cols, inner_rows), flags=flags)
+        if not found:
+            return None
+        criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+        corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
+        ok, rvec, tvec = cv2.solvePnP(
+            grid, corners, intrinsics.K, intrinsics.dist, flags=cv2.SOLVEPNP_ITERATIVE
+        )
+        if not ok:
+            return None
+        cam_T_target = np.eye(4)
+        cam_T_target[:3, :3] = cv2.Rodrigues(rvec)[0]
+        cam_T_target[:3, 3] = tvec.reshape(3)
+        return Detection(cam_T_target, corners.astype(float), grid.copy())
+
+    return detect
