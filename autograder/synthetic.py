@@ -269,12 +269,36 @@ def _sample_view(rng, board: Board, camera: CameraModel, depth_m=(0.35, 0.7),
     return cam_T_target if inside.all() else None
 
 
+def _nudge_view(rng, view, board: Board, camera: CameraModel, motion_deg) -> np.ndarray | None:
+    """``view`` turned by ``motion_deg`` about a random axis through the board centre, or None
+    if the board then leaves the image or turns more than 50 deg away from the camera."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    turn = Rotation.from_rotvec(np.radians(rng.uniform(*motion_deg)) * axis).as_matrix()
+    R = turn @ view[:3, :3]
+    if R[2, 2] < np.cos(np.radians(50.0)):
+        return None
+    centre_cam = geo.transform_points(view, board.centre) + rng.normal(0.0, 0.01, 3)
+    candidate = geo.make_pose(R, centre_cam - R @ board.centre)
+    px = camera.project(candidate, board.object_points())
+    inside = ((px[:, 0] > 10) & (px[:, 0] < camera.width - 10)
+              & (px[:, 1] > 10) & (px[:, 1] < camera.height - 10))
+    return candidate if inside.all() and 0.3 < candidate[2, 3] < 0.8 else None
+
+
 def _sample_views(rng, n_poses, board, camera, motion_deg) -> np.ndarray:
-    """n views whose consecutive relative rotations lie within ``motion_deg`` (degrees)."""
+    """n views whose consecutive relative rotations lie within ``motion_deg`` (degrees).
+
+    Each next view is first drawn afresh (varied views, as a careful student takes them); when
+    the requested motions are too small for a fresh draw to land in range, it is the previous
+    view turned about the board centre instead.
+    """
     lo, hi = motion_deg
     views = []
     for _ in range(20000):
-        view = _sample_view(rng, board, camera)
+        fresh = rng.uniform() < 0.5 or not views
+        view = (_sample_view(rng, board, camera) if fresh
+                else _nudge_view(rng, views[-1], board, camera, motion_deg))
         if view is None:
             continue
         if views:

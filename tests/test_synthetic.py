@@ -100,3 +100,10 @@ def test_bad_arguments_are_named():
         syn.make_hand_eye(0, n_poses=2)
     with pytest.raises(ValueError, match="robot_rot_deg"):
         syn.NoiseModel(robot_rot_deg=-1)
+
+
+def test_small_motions_can_be_requested():
+    p = syn.make_hand_eye(0, n_poses=10, motion_deg=(1, 8))
+    angles = geo.rotation_error_deg(p.cam_T_target[:-1], p.cam_T_target[1:])
+    assert np.all((angles >= 1) & (angles <= 8))
+    assert np.all((p.pixels[..., 0] > 0) & (p.pixels[..., 0] < p.camera.width))
