@@ -33,12 +33,12 @@ from robots.geometry import as_pose, as_poses
 from robots.interfaces import Camera, Frame, Intrinsics, Robot, UnreachableError
 
 __all__ = [
-    "Detection",
     "Capture",
+    "Detection",
     "capture_pose_pairs",
-    "save_capture",
-    "load_capture",
     "chessboard_detector",
+    "load_capture",
+    "save_capture",
 ]
 
 FORMAT = "cobotlab-capture/1"
@@ -299,8 +299,8 @@ def save_capture(capture: Capture, folder, overwrite: bool = False) -> Path:
         "created": capture.created,
         "robot": capture.robot_name,
         "camera": capture.camera_name,
-        "n_commanded": int(len(capture.commanded_base_T_flange)),
-        "n_views": int(len(capture)),
+        "n_commanded": len(capture.commanded_base_T_flange),
+        "n_views": len(capture),
         "intrinsics": i.to_dict(),
         "failed": [
             {"pose_index": int(k), "reason": r}
@@ -386,6 +386,11 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
     detected inner corner, x along the rows of corners, y down the columns, z into the board
     (OpenCV's convention for ``object_points``). The pose comes from ``cv2.solvePnP`` with the
     camera's distortion, after sub-pixel corner refinement.
+
+    A board with an odd number of squares both ways (9 x 7) looks the same turned half a
+    turn, and OpenCV may list its corners from either end. The detector keeps the order whose
+    first row runs left to right in the image, so views must keep the board's x axis within
+    90 degrees of the image's u axis (capture poses rolled less than +-90 degrees).
     """
     if inner_cols < 2 or inner_rows < 2 or not square_m > 0:
         raise ValueError(
@@ -404,6 +409,8 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
             return None
         criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
         corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
+        if corners[inner_cols - 1, 0] < corners[0, 0]:  # the half-turn ambiguity, see above
+            corners = corners[::-1].copy()
         ok, rvec, tvec = cv2.solvePnP(
             grid, corners, intrinsics.K, intrinsics.dist, flags=cv2.SOLVEPNP_ITERATIVE
         )

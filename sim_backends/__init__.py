@@ -1,0 +1,21 @@
+"""PyBullet simulation backend for cobotlab (the default ``robots.connect("sim", ...)``).
+
+Importing this package is cheap: PyBullet and the world are loaded only when a workcell is
+created. ``robots.backends`` finds the factory by name ("sim" ->
+``sim_backends.world:create_workcell``), so nothing needs registering by hand; the
+``create_workcell`` attribute below is the same function, imported on first use.
+
+Modules: ``world`` (the workcell factory and ground truth), ``arms``/``ik``/``tools`` (the
+simulated robots), ``camera`` (pinhole RGB-D rendering), ``scene`` and ``textures`` (table,
+calibration targets, chess set).
+"""
+
+__all__ = ["create_workcell"]
+
+
+def __getattr__(name):
+    if name == "create_workcell":
+        from sim_backends.world import create_workcell
+
+        return create_workcell
+    raise AttributeError(f"module 'sim_backends' has no attribute {name!r}")

@@ -1,0 +1,513 @@
+"""The simulated workcell: arm + tool + camera(s) + scene, behind ``robots.connect("sim", ...)``.
+
+``create_workcell`` builds a headless PyBullet world (DIRECT mode, TinyRenderer) that is
+deterministic for a seed, and returns a :class:`SimWorkcell` (a ``robots.Workcell``) whose
+``truth`` holds the ground truth that instructors and tests compare against.
+
+Layout (PyBullet world frame, z up): the table top is z = 0 and the robot base stands on it at
+the origin facing +x. Scenes:
+
+* ``calibration``: a calibration target lying face-up on the table in front of the robot
+  (seeded position and yaw), and a target on the flange centred on tool0. With the camera on
+  the flange (eye-in-hand) the flange carries a small ArUco marker (it must not block the
+  camera); with a fixed camera (eye-to-hand) it carries a small chessboard, the target the
+  fixed camera calibrates against. The arm starts at a pose from which the camera sees its
+  target.
+* ``chess``: a chess board on the table (White on the robot's side, a1 to the robot's left)
+  with the pieces in their starting squares, or a seeded random position.
+
+Frames in ``truth`` (all 4x4, metres): ``base`` is the robot base, ``flange`` tool0 as the
+simulation really has it (without encoder offsets), ``cam`` the OpenCV optical frame of the
+main (left) camera, ``board`` the calibration target's OpenCV frame (see
+``sim_backends.textures``), ``world`` the scene's reference frame (the board's origin corner
+in ``calibration``, the a1 corner of the chess board in ``chess``), ``pybullet`` the
+simulator's own world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pybullet as p
+
+from robots.geometry import compose, invert, make_pose, pose_from_rotvec, pose_from_rpy
+from robots.interfaces import Intrinsics, UnreachableError, Workcell
+from sim_backends import scene as scn
+from sim_backends import textures
+from sim_backends.camera import SimCamera, lighting_from
+
+__all__ = [
+    "MOUNTS",
+    "SCENES",
+    "TOOLS",
+    "SimTruth",
+    "SimWorkcell",
+    "create_workcell",
+    "default_intrinsics",
+    "nominal_flange_T_cam",
+]
+
+MOUNTS = ("eye_in_hand", "eye_to_hand")
+SCENES = ("calibration", "chess")
+TOOLS = ("suction", "gripper", "pointer", None)
+TARGETS = ("chessboard", "charuco", "circles", "aruco")
+TIME_STEP = 1.0 / 240.0
+
+# Published reach (m) of each arm, used to lay the scene out where the arm can work.
+ARM_REACH = {"panda": 0.855, "ur5e": 0.85, "ur10e": 1.3, "aubo_i5": 0.886, "cobotta": 0.342}
+
+
+
+def nominal_flange_T_cam(arm: str) -> np.ndarray:
+    """The design pose of the eye-in-hand camera on an arm's flange (tool0).
+
+    The camera sits 7.5 cm off the flange axis and 2-3 cm in front of the flange face, well
+    clear of every joint axis (TinyRenderer can hang when the eye sits on one), looking along
+    the flange z axis; camera x runs along the mount's y so the image is upright when the
+    flange x axis points away from the robot. On the Panda the mount is turned -45 degrees
+    about z, to the side of the Franka Hand (whose fingers open along the hand's y axis), and
+    looks straight ahead so the fingers stay out of the picture; on the other arms it is
+    tilted 10 degrees back towards the flange axis so a tool tip stays in view.
+    """
+    if arm == "panda":
+        yaw, forward, tilt = -np.pi / 4, 0.03, 0.0
+    else:
+        yaw, forward, tilt = 0.0, 0.02, np.deg2rad(10.0)
+    return compose(
+        pose_from_rpy(0.0, 0.0, yaw),
+        make_pose(t=[0.075, 0.0, forward]),
+        pose_from_rpy(0.0, -tilt, 0.0),
+        pose_from_rpy(0.0, 0.0, np.pi / 2),
+    )
+
+
+def default_intrinsics(width: int = 640, height: int = 480) -> Intrinsics:
+    """A RealSense-D435-like colour camera (about 69 x 54 degrees at 640x480) at any size."""
+    f = 0.96 * width
+    return Intrinsics(fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width,
+                      height=height)
+
+
+@dataclass
+class SimTruth:
+    """Ground truth of a simulated workcell (instructors and tests only; see module docstring).
+
+    ``base_T_cam`` is set for a fixed camera (eye-to-hand) and ``flange_T_cam`` for a camera on
+    the flange (eye-in-hand); the other is None. ``nominal_*`` is the mount a naive user would
+    assume (the design values, before ``mount_error``). ``pieces`` is live: read it again after
+    the arm moves a piece.
+    """
+
+    mount: str
+    base_T_cam: np.ndarray | None
+    flange_T_cam: np.ndarray | None
+    nominal_base_T_cam: np.ndarray | None
+    nominal_flange_T_cam: np.ndarray | None
+    base_T_board: np.ndarray | None
+    base_T_world: np.ndarray
+    flange_T_marker: np.ndarray | None
+    base_T_pybullet: np.ndarray
+    cam_T_right: np.ndarray | None = None
+    encoder_offsets: np.ndarray | None = None
+    board: textures.Target | None = None
+    flange_target: textures.Target | None = None
+    _chess: scn.ChessSet | None = field(default=None, repr=False)
+    _arm: object = field(default=None, repr=False)
+
+    @property
+    def pieces(self) -> dict:
+        """Square name -> ``PieceTruth(kind, colour, base_T_piece)`` read from the live sim.
+
+        Empty outside the chess scene. A piece that is lifted or off the board is keyed
+        ``"lifted:<body id>"``.
+        """
+        if self._chess is None:
+            return {}
+        return self._chess.pieces(self.base_T_pybullet)
+
+    def base_T_flange(self) -> np.ndarray:
+        """The TRUE flange pose now (the robot's ``flange_pose()`` adds encoder errors)."""
+        return self._arm.true_flange_pose()
+
+    def base_T_cam_now(self) -> np.ndarray:
+        """Where the main camera is now, in the base frame (either mount)."""
+        if self.base_T_cam is not None:
+            return self.base_T_cam.copy()
+        return compose(self.base_T_flange(), self.flange_T_cam)
+
+
+class SimWorkcell(Workcell):
+    """A ``robots.Workcell`` that also owns the PyBullet client (disconnected on close)."""
+
+    def __init__(self, robot, cameras, truth, client, arm):
+        super().__init__(robot, camera=cameras.get("cam"), cameras=cameras, truth=truth,
+                         kind="sim")
+        self.client = client
+        self.arm = arm
+
+    def _close(self) -> None:
+        if p.isConnected(self.client):
+            p.disconnect(self.client)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _random_pose_error(rng: np.random.Generator, mm: float, deg: float) -> np.ndarray:
+    """A pose whose translation is ``mm`` millimetres and rotation ``deg`` degrees, in seeded
+    random directions (the camera mounting error)."""
+    t = rng.normal(size=3)
+    axis = rng.normal(size=3)
+    return pose_from_rotvec(axis / np.linalg.norm(axis) * np.deg2rad(deg),
+                            t / np.linalg.norm(t) * mm * 1e-3)
+
+
+def _parse_mount_error(mount_error) -> tuple[float, float]:
+    try:
+        mm, deg = (float(x) for x in mount_error)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"mount_error must be (millimetres, degrees), e.g. (2.0, 0.5), got {mount_error!r}"
+        ) from None
+    if not (math.isfinite(mm) and math.isfinite(deg) and mm >= 0 and deg >= 0):
+        raise ValueError(f"mount_error values must be finite and >= 0, got {mount_error!r}")
+    return mm, deg
+
+
+def _calibration_target(kind: str, reach: float) -> textures.Target:
+    small = reach < 0.5  # the Cobotta: a board that fits its little workspace
+    if kind == "chessboard":
+        return textures.chessboard(square=0.02 if small else 0.039)
+    if kind == "charuco":
+        return textures.charuco(square=0.025 if small else 0.04,
+                                marker=0.018 if small else 0.03)
+    if kind == "circles":
+        return textures.circle_grid(spacing=0.012 if small else 0.02)
+    if kind == "aruco":
+        return textures.aruco_marker(marker_id=0, size=0.04 if small else 0.1)
+    raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
+
+
+def _target_centre(target: textures.Target) -> np.ndarray:
+    """The printed image's centre in the target frame (where to aim a camera)."""
+    w, h = target.size
+    return (invert(target.print_T_target) @ np.array([w / 2, h / 2, 0.0, 1.0]))[:3]
+
+
+def _flange_face_height(arm, half_size) -> float:
+    """How far (m) the arm's own geometry reaches beyond tool0 along flange +z over a
+    rectangle of ``half_size = (hx, hy)`` metres around the flange axis (0 when tool0 is on
+    the flange face and nothing sticks out, as on most arms).
+
+    Found with a grid of rays shot back at the flange, so a target plate laid that far out
+    is never pierced by a link.
+    """
+    T = arm.world_T_flange()
+    reach = 0.15
+    grid = [(x, y) for x in np.linspace(-half_size[0], half_size[0], 15)
+            for y in np.linspace(-half_size[1], half_size[1], 15)]
+    starts = [T[:3, :3] @ [x, y, reach] + T[:3, 3] for x, y in grid]
+    ends = [T[:3, :3] @ [x, y, 0.0] + T[:3, 3] for x, y in grid]
+    height = 0.0
+    # Links hidden by a tool (collision group 0, e.g. the Panda's hand) never match the mask.
+    hits = p.rayTestBatch(starts, ends, collisionFilterMask=-1, physicsClientId=arm.client)
+    for body, _, fraction, *_ in hits:
+        if body == arm.body_id:
+            height = max(height, reach * (1.0 - fraction))
+    return height
+
+
+def _target_on_flange(mount: str, arm, reach: float) -> tuple[textures.Target, np.ndarray]:
+    """The flange target and ``flange_T_marker``: its centre on the tool0 axis, printed face
+    looking along flange +z, 1 mm in front of the flange face. (On some arm models the last
+    links stick out beyond tool0; the plate then moves out until it clears them.)"""
+    if mount == "eye_in_hand":
+        target = textures.aruco_marker(marker_id=7, size=0.03 if reach < 0.5 else 0.04)
+    else:
+        square = 0.012 if reach < 0.5 else 0.02
+        target = textures.chessboard(squares=(7, 6), square=square, margin=square / 2)
+    gap = 0.001 + _flange_face_height(arm, (target.size[0] / 2, target.size[1] / 2))
+    if target.kind == "aruco":
+        # OpenCV marker frame: z out of the print, so it points along flange +z.
+        return target, make_pose(t=[0.0, 0.0, gap])
+    # Chessboard frame: z into the print, i.e. towards the flange.
+    flange_T_centre = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, gap])
+    return target, compose(flange_T_centre, make_pose(t=-_target_centre(target)))
+
+
+def _look_at(eye, point, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Optical frame at ``eye`` looking at ``point`` with the image top towards ``up``."""
+    eye, point = np.asarray(eye, float), np.asarray(point, float)
+    z = point - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_pose(np.stack([x, y, z], axis=1), eye)
+
+
+def _teleport_to(arm, base_T_flange) -> bool:
+    """Put the arm at an IK solution for a pose (set-up only, no motion). False if unreachable."""
+    try:
+        q = arm.solve_ik(base_T_flange)
+    except UnreachableError:
+        return False
+    arm.set_joint_positions(q)
+    return True
+
+
+# --------------------------------------------------------------------------- factory
+
+
+def create_workcell(
+    arm: str = "panda",
+    mount: str = "eye_in_hand",
+    scene: str = "calibration",
+    seed: int = 0,
+    width: int = 640,
+    height: int = 480,
+    intrinsics: Intrinsics | None = None,
+    distortion=None,
+    pixel_noise: float = 0.0,
+    depth_noise: float = 0.0,
+    encoder_noise_deg: float = 0.0,
+    mount_error=(0.0, 0.0),
+    lighting="default",
+    stereo_baseline: float | None = None,
+    tool: str | None = "default",
+    target: str = "chessboard",
+    chess_position: str | dict = "start",
+    safety=None,
+) -> SimWorkcell:
+    """Build the simulated workcell. Every random choice comes from ``seed``.
+
+    arm : one of ``sim_backends.arms.ARM_NAMES`` ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta").
+    mount : "eye_in_hand" (camera on the flange) or "eye_to_hand" (camera fixed in the cell).
+    scene : "calibration" or "chess" (see the module docstring).
+    width, height : image size in pixels (default intrinsics scale with it).
+    intrinsics : ``robots.interfaces.Intrinsics`` to use instead of the default camera.
+    distortion : (k1, k2, p1, p2, k3) applied to the image (overrides ``intrinsics.dist``).
+    pixel_noise : Gaussian RGB noise std in 0..255 units. depth_noise : k in sigma_z = k z^2 (1/m).
+    encoder_noise_deg : std (degrees) of a constant offset per joint encoder: the robot then
+        reports joint angles and flange poses that are slightly off, as a real arm does.
+    mount_error : (mm, deg) between the nominal camera mount and the true one, in seeded
+        random directions; ``truth`` holds both.
+    lighting : preset name ("default", "dim", "side", "overhead") or a ``camera.Lighting``.
+    stereo_baseline : metres; adds a right camera at +baseline along the left camera's x.
+    tool : "suction", "gripper", "pointer", None, or "default" (none for calibration, suction
+        for chess).
+    target : calibration target on the table: "chessboard" (9x7 squares of 39 mm),
+        "charuco", "circles" or "aruco".
+    chess_position : "start", "random" (seeded, 12 pieces) or a dict square -> (kind, colour).
+    safety : a ``robots.safety.Safety`` to use instead of the arm's default limits.
+    """
+    from sim_backends import arms as arms_mod
+    from sim_backends import tools as tools_mod
+
+    if arm not in arms_mod.ARM_NAMES:
+        raise ValueError(f"unknown arm {arm!r}; choose one of {arms_mod.ARM_NAMES}")
+    if mount not in MOUNTS:
+        raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
+    if scene not in SCENES:
+        raise ValueError(f"scene must be one of {SCENES}, got {scene!r}")
+    if tool == "default":
+        tool = "suction" if scene == "chess" else None
+    if tool not in TOOLS:
+        raise ValueError(f"tool must be one of {TOOLS} or 'default', got {tool!r}")
+    if target not in TARGETS:
+        raise ValueError(f"target must be one of {TARGETS}, got {target!r}")
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    mount_mm, mount_deg = _parse_mount_error(mount_error)
+    if not (math.isfinite(encoder_noise_deg) and encoder_noise_deg >= 0):
+        raise ValueError(f"encoder_noise_deg must be >= 0, got {encoder_noise_deg!r}")
+    if stereo_baseline is not None and not (math.isfinite(stereo_baseline) and stereo_baseline > 0):
+        raise ValueError("stereo_baseline must be a positive number of metres, got "
+                         f"{stereo_baseline!r}")
+    if intrinsics is None:
+        intrinsics = default_intrinsics(width, height)
+    elif not isinstance(intrinsics, Intrinsics):
+        raise ValueError("intrinsics must be a robots.interfaces.Intrinsics")
+    if distortion is not None:
+        i = intrinsics
+        intrinsics = Intrinsics(i.fx, i.fy, i.cx, i.cy, i.width, i.height, distortion)
+    light = lighting_from(lighting)
+    if not (chess_position in ("start", "random") or isinstance(chess_position, dict)):
+        raise ValueError("chess_position must be 'start', 'random' or a dict "
+                         f"square -> (kind, colour), got {chess_position!r}")
+
+    # Independent streams, so turning one knob never reshuffles another's draws.
+    rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess = (
+        np.random.default_rng(seed).spawn(6))
+    reach = ARM_REACH[arm]
+    client = p.connect(p.DIRECT)
+    try:
+        p.setGravity(0, 0, -9.81, physicsClientId=client)
+        p.setTimeStep(TIME_STEP, physicsClientId=client)
+        scn.add_table(client, size=(2.0 * reach + 0.6, 2.0 * reach + 0.6),
+                      centre_xy=(0.3 * reach, 0.0))
+        world_T_base = np.eye(4)  # the robot base is the world origin (kept general below)
+        base_T_pybullet = invert(world_T_base)
+        offsets = None
+        if encoder_noise_deg > 0:
+            n = arms_mod.ARM_SPECS[arm].n_joints
+            offsets = np.deg2rad(rng_enc.normal(0.0, encoder_noise_deg, size=n))
+        sim_arm = arms_mod.SimArm(client, arm, world_T_base=world_T_base,
+                                  encoder_offsets=offsets, rng=rng_enc)
+
+        board = world_T_board = chess = None
+        if scene == "calibration":
+            board, world_T_board = _add_table_target(client, target, reach, rng_scene)
+            world_T_world = world_T_board
+        else:
+            if chess_position == "start":
+                position = None  # ChessSet's default: the starting position
+            elif chess_position == "random":
+                position = scn.random_position(rng_chess)
+            else:
+                position = chess_position
+            chess = _add_chess_set(client, reach, rng_scene, position)
+            world_T_world = chess.world_T_chess
+
+        # The tool first: "no tool" hides the Panda's built-in hand, which the flange target
+        # below must then not make room for.
+        robot_tool = tools_mod.make_tool(tool, client, sim_arm)
+        flange_target = flange_T_marker = None
+        if scene == "calibration":
+            flange_target, flange_T_marker = _target_on_flange(mount, sim_arm, reach)
+            body = scn.add_target(client, flange_target,
+                                  compose(sim_arm.world_T_flange(), flange_T_marker),
+                                  thickness=0.001, collide=False)
+            sim_arm.attach(body, flange_T_marker)  # carried kinematically, exactly
+
+        # ----- cameras: the true mount is the nominal one times the mounting error
+        cam_kw = {"pixel_noise": pixel_noise, "depth_noise": depth_noise, "lighting": light,
+                  "clock": lambda: float(sim_arm.motion_time)}
+        error = _random_pose_error(rng_mount, mount_mm, mount_deg)
+        cam_T_right = None if stereo_baseline is None else make_pose(t=[stereo_baseline, 0, 0])
+        if mount == "eye_in_hand":
+            nominal_mount = nominal_flange_T_cam(arm)
+            flange_T_cam = compose(nominal_mount, error)
+            left = flange_T_cam  # the camera's pose in its parent (the flange)
+            nominal_base_T_cam = base_T_cam = world_T_cam = None
+        else:
+            # Fixed camera in front of the robot, off to its left, looking at the work area.
+            look = np.array([0.5 * reach, 0.0, 0.25 * reach])
+            eye = look + np.array([0.75, 0.45, 0.45]) * max(reach, 0.6)
+            nominal_world_T_cam = _look_at(eye, look)
+            world_T_cam = compose(nominal_world_T_cam, error)
+            nominal_base_T_cam = compose(base_T_pybullet, nominal_world_T_cam)
+            base_T_cam = compose(base_T_pybullet, world_T_cam)
+            left = world_T_cam
+            nominal_mount = flange_T_cam = None
+
+        def make_camera(name, pose, rng):
+            if mount == "eye_in_hand":
+                return SimCamera(client, intrinsics, parent=(sim_arm.body_id, sim_arm.flange_link),
+                                 link_T_cam=pose, name=name, rng=rng, **cam_kw)
+            return SimCamera(client, intrinsics, world_T_cam=pose, name=name, rng=rng, **cam_kw)
+
+        cameras = {"cam": make_camera("cam", left, rng_cam)}
+        if cam_T_right is not None:  # the right camera of the pair, +baseline along left x
+            cameras["right"] = make_camera("right", compose(left, cam_T_right), rng_right)
+
+        _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
+                    flange_T_cam, flange_T_marker, flange_target, world_T_cam, reach, intrinsics)
+        for _ in range(10):  # let the pieces settle on the board
+            p.stepSimulation(physicsClientId=client)
+        # Stepping sags the arm a little against its motors; the kinematic state is the truth.
+        sim_arm.set_joint_positions(sim_arm.joint_positions())
+
+        robot = tools_mod.SimRobot(sim_arm, tool=robot_tool, safety=safety)
+        truth = SimTruth(
+            mount=mount,
+            base_T_cam=base_T_cam,
+            flange_T_cam=flange_T_cam,
+            nominal_base_T_cam=nominal_base_T_cam,
+            nominal_flange_T_cam=nominal_mount,
+            base_T_board=None if world_T_board is None else compose(base_T_pybullet, world_T_board),
+            base_T_world=compose(base_T_pybullet, world_T_world),
+            flange_T_marker=flange_T_marker,
+            base_T_pybullet=base_T_pybullet,
+            cam_T_right=cam_T_right,
+            encoder_offsets=None if offsets is None else offsets.copy(),
+            board=board,
+            flange_target=flange_target,
+            _chess=chess,
+            _arm=sim_arm,
+        )
+        return SimWorkcell(robot, cameras, truth, client, sim_arm)
+    except BaseException:
+        p.disconnect(client)
+        raise
+
+
+def _add_table_target(client, kind, reach, rng):
+    """The calibration target lying on the table at 55 % of the arm's reach in front of it,
+    seeded position and yaw. Returns (Target, world_T_board)."""
+    board = _calibration_target(kind, reach)
+    world_T_centre = scn.board_pose_on_table(rng, (0.55 * reach, 0.0), height=0.003)
+    if board.kind == "aruco":  # OpenCV's marker frame: centred, z out of the print
+        world_T_board = compose(world_T_centre, make_pose(np.diag([1.0, -1.0, -1.0])))
+    else:
+        world_T_board = compose(world_T_centre, make_pose(t=-_target_centre(board)))
+    scn.add_target(client, board, world_T_board)
+    return board, world_T_board
+
+
+def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:
+    """The chess set in front of the robot, White on the robot's side (a1 to its left)."""
+    square = 0.03 if reach < 0.5 else 0.05
+    thickness = 0.01
+    yaw = rng.uniform(-np.deg2rad(3), np.deg2rad(3))
+    centre = np.array([0.5 * reach + 0.05, 0.0]) + rng.uniform(-0.01, 0.01, 2)
+    # Chess frame: ranks (y) along world +x, files (x) along world -y, z up.
+    R = pose_from_rpy(0, 0, yaw)[:3, :3] @ np.array([[0.0, 1.0, 0.0],
+                                                      [-1.0, 0.0, 0.0],
+                                                      [0.0, 0.0, 1.0]])
+    world_T_centre = make_pose(R, [centre[0], centre[1], thickness])
+    world_T_chess = compose(world_T_centre, make_pose(t=[-4 * square, -4 * square, 0]))
+    return scn.ChessSet(client, world_T_chess, position=position, square=square,
+                        board_thickness=thickness)
+
+
+def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, flange_T_cam,
+                flange_T_marker, flange_target, world_T_cam, reach, intrinsics):
+    """Teleport the arm to a pose where the camera sees its target (best effort: the arm's
+    own home pose stays if none of the candidates is reachable)."""
+    if scene != "calibration":
+        return
+    candidates = []
+    if mount == "eye_in_hand":
+        # Camera above the board centre looking straight down with its axes along the
+        # board's (z into the board), so the board reads upright in the image; high enough
+        # for the whole printed board to fit the image width. Turned half round as a last
+        # resort (some wrists cannot reach the upright view).
+        world_T_view = compose(world_T_board, make_pose(t=_target_centre(board)))
+        if board.kind == "aruco":
+            world_T_view = compose(world_T_view, make_pose(np.diag([1.0, -1.0, -1.0])))
+        intr = intrinsics
+        fit = max(board.size[0] * intr.fx / intr.width, board.size[1] * intr.fy / intr.height)
+        # Big arms look from higher up, clear of their own bulky wrists.
+        heights = [max(1.05 * fit, 0.5 * reach), 1.2 * fit, 1.4 * fit, 0.95 * fit]
+        for yaw in (0.0, np.pi):
+            for h in heights:
+                world_T_cam_goal = compose(make_pose(t=[0, 0, h]), world_T_view,
+                                           pose_from_rpy(0, 0, yaw))
+                candidates.append(compose(base_T_pybullet, world_T_cam_goal,
+                                          invert(flange_T_cam)))
+    else:
+        # The flange target between the work area and the camera (as close to the camera as
+        # the arm allows, for a large image of a small target), facing the camera with its
+        # axes along the camera's (its z, into the print, along the optical axis).
+        look = np.array([0.5 * reach, 0.0, 0.25 * reach])
+        centre = _target_centre(flange_target)
+        for f in (0.4, 0.3, 0.2, 0.1, 0.0):
+            pos = look + f * (world_T_cam[:3, 3] - look)
+            world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)
+            candidates.append(compose(base_T_pybullet, world_T_marker, invert(flange_T_marker)))
+    for base_T_flange in candidates:
+        if _teleport_to(sim_arm, base_T_flange):
+            return
