@@ -262,10 +262,21 @@ def test_unknown_kind_lists_the_known_ones():
         connect("kuka")
 
 
-@pytest.mark.parametrize("kind", ["ur", "franka", "aubo", "cobotta"])
-def test_a_missing_driver_says_how_to_install_it(kind):
+@pytest.mark.parametrize(
+    "kind, sdk_modules",
+    [
+        ("ur", ["rtde_control", "rtde_io", "rtde_receive"]),
+        ("franka", ["panda_py"]),
+        ("aubo", ["pyaubo_sdk"]),
+    ],
+)
+def test_a_missing_sdk_says_how_to_install_it(monkeypatch, kind, sdk_modules):
+    # A None entry in sys.modules makes `import name` fail as if the SDK were not installed.
+    # The host is on loopback so that nothing ever leaves this machine, even if a check slips.
+    for name in sdk_modules:
+        monkeypatch.setitem(sys.modules, name, None)
     with pytest.raises(BackendNotAvailableError, match=r"pip install cobotlab\[real\]") as info:
-        connect(kind, host="10.0.0.2")
+        connect(kind, host="127.0.0.1")
     assert isinstance(info.value, ImportError)
 
 
@@ -291,19 +302,19 @@ def test_registered_backends_get_the_options(monkeypatch, tmp_path):
 
 def test_option_precedence_arguments_then_environment_then_lab_toml(tmp_path):
     (tmp_path / "lab.toml").write_text(
-        '[connect]\nkind = "ur"\n[connect.ur]\nhost = "10.0.0.1"\nport = 30004\n'
+        '[connect]\nkind = "ur"\n[connect.ur]\nhost = "127.0.0.11"\nport = 30004\n'
         '[connect.sim]\narm = "ur5e"\nseed = 3\n'
     )
     assert resolve_connect_options(None, {}, tmp_path, {}) == (
         "ur",
-        {"host": "10.0.0.1", "port": 30004},
+        {"host": "127.0.0.11", "port": 30004},
     )
-    env = {"COBOTLAB_KIND": "sim", "COBOTLAB_HOST": "10.0.0.9"}
+    env = {"COBOTLAB_KIND": "sim", "COBOTLAB_HOST": "127.0.0.19"}
     # The environment picks sim; the host is a real-robot setting and is not passed to sim.
     assert resolve_connect_options(None, {}, tmp_path, env) == ("sim", {"arm": "ur5e", "seed": 3})
     assert resolve_connect_options("ur", {}, tmp_path, env) == (
         "ur",
-        {"host": "10.0.0.9", "port": 30004},
+        {"host": "127.0.0.19", "port": 30004},
     )
     assert resolve_connect_options("ur", {"host": "h"}, tmp_path, env)[1]["host"] == "h"
     assert resolve_connect_options("sim", {"seed": 7}, tmp_path, {}) == (
