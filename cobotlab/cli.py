@@ -35,7 +35,50 @@ def _build_parser() -> argparse.ArgumentParser:
                       help="robot rotation noise per axis, degrees (default 0.05)")
     demo.add_argument("--robot-noise-mm", type=float, default=0.2,
                       help="robot translation noise per axis, mm (default 0.2)")
+    robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
+    robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
+    check = robot_sub.add_parser(
+        "check",
+        help="connect, print joints, flange pose and safety limits; moves nothing",
+        description=(
+            "Connect to a robot cell, read and print its joint positions, flange pose and the "
+            "safety limits every move is checked against, then disconnect. Nothing moves. "
+            "Use it first whenever a real arm is (re)wired."
+        ),
+    )
+    check.add_argument("--kind", default=None,
+                       help="sim (default), ur, franka, aubo or cobotta; or COBOTLAB_KIND / lab.toml")
+    check.add_argument("--host", default=None, help="controller address for a real arm")
+    check.add_argument("--arm", default=None, help="sim only: panda, ur5e, ur10e, aubo_i5, cobotta")
     return parser
+
+
+def _robot_check(kind, host, arm) -> None:
+    import numpy as np
+
+    from robots import connect
+    from robots.geometry import rpy_from_pose
+
+    options = {k: v for k, v in (("host", host), ("arm", arm)) if v is not None}
+    with connect(kind, **options) as cell:
+        robot = cell.robot
+        q = robot.joint_positions()
+        T = robot.flange_pose()
+        limits = robot.joint_limits()
+        print(f"connected: {cell.kind} / {robot.name}")
+        print("joints (deg):  " + "  ".join(f"{v:8.2f}" for v in np.degrees(q)))
+        print("joint limits:  " + "  ".join(f"[{lo:.0f}, {hi:.0f}]" for lo, hi in np.degrees(limits)))
+        print("flange (mm):   " + "  ".join(f"{v:8.1f}" for v in T[:3, 3] * 1000))
+        print("flange rpy (deg, R = Rz(yaw) Ry(pitch) Rx(roll)): "
+              + "  ".join(f"{v:7.2f}" for v in rpy_from_pose(T, degrees=True)))
+        safety = robot.safety
+        print(f"safety: workspace {np.round(safety.workspace_min * 1000)} .. "
+              f"{np.round(safety.workspace_max * 1000)} mm, speed <= {safety.max_speed} m/s, "
+              f"joint speed <= {safety.max_joint_speed} rad/s, step <= {safety.max_step * 1000:.0f} mm "
+              f"/ {np.degrees(safety.max_rotation_step):.0f} deg, mode {safety.mode!r}")
+        tool = robot.tool
+        print(f"tool: {tool!r}" if tool is not None else "tool: none")
+    print("disconnected; nothing moved.")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
 
             run_demo(seed=args.seed, n_poses=args.poses, pixel_px=args.pixel_noise,
                      robot_rot_deg=args.robot_noise_deg, robot_trans_mm=args.robot_noise_mm)
+        elif args.command == "robot" and args.robot_command == "check":
+            _robot_check(args.kind, args.host, args.arm)
     except KeyboardInterrupt:
         print("cobotlab: interrupted", file=sys.stderr)
         return 130

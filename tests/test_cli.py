@@ -34,3 +34,17 @@ def test_console_script_runs_the_demo():
     for expected in ("eye_in_hand", "eye_to_hand", "nonlinear", "opencv PARK"):
         assert expected in out.stdout
     assert "failed" not in out.stdout
+
+
+def test_robot_check_reads_the_cell_and_moves_nothing(capsys):
+    assert cli.main(["robot", "check", "--arm", "ur5e"]) == 0
+    out = capsys.readouterr().out
+    assert "connected: sim / ur5e" in out
+    assert "flange (mm)" in out and "safety: workspace" in out
+    assert out.rstrip().endswith("nothing moved.")
+
+
+def test_robot_check_unknown_kind_is_one_line(capsys):
+    assert cli.main(["robot", "check", "--kind", "kuka"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "unknown robot kind 'kuka'" in err and len(err.splitlines()) == 1
