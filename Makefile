@@ -6,19 +6,28 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean system-packages
 
 # Reinstall only when the dependency list changes; the package itself is installed editable.
+# The tests also exercise the real-robot drivers against fakes and the RealSense SDK against its
+# own software device, so they install the `real` extra and pyrealsense2's libusb.
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet -e '.[dev,real]'
 	@touch $(STAMP)
+
+SYSTEM_PACKAGES := libusb-1.0-0
+system-packages:
+	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $(SYSTEM_PACKAGES); \
+	  else echo "note: install $(SYSTEM_PACKAGES) (sudo apt-get install $(SYSTEM_PACKAGES)) for the RealSense tests"; fi; \
+	fi
 
 demo: $(STAMP)
 	$(VENV)/bin/cobotlab demo
 
-test: $(STAMP)
+test: $(STAMP) system-packages
 	$(PY) -m pytest -n 2 --dist loadfile -q
 
 lint: $(STAMP)
