@@ -39,13 +39,15 @@ def _build_parser() -> argparse.ArgumentParser:
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
     check = robot_sub.add_parser(
         "check",
-        help="connect, print joints, flange pose and safety limits; moves nothing",
+        help="connect, print joints, flange pose and safety limits (moves nothing unless --jog)",
         description=(
             "Connect to a robot cell, read and print its joint positions, flange pose and the "
-            "safety limits every move is checked against, then disconnect. Nothing moves. "
-            "Use it first whenever a real arm is (re)wired."
+            "safety limits every move is checked against, then disconnect. Nothing moves "
+            "unless --jog is given. Use it first whenever a real arm is (re)wired."
         ),
     )
+    check.add_argument("--jog", action="store_true",
+                       help="then jog the arm in small steps (<= 20 mm / 10 deg); every move asks y/N")
     check.add_argument("--kind", default=None,
                        help="sim (default), ur, franka, aubo or cobotta; or COBOTLAB_KIND / lab.toml")
     check.add_argument("--host", default=None, help="controller address for a real arm")
@@ -53,7 +55,7 @@ def _build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _robot_check(kind, host, arm) -> None:
+def _robot_check(kind, host, arm, jog: bool = False) -> None:
     import numpy as np
 
     from robots import connect
@@ -78,7 +80,12 @@ def _robot_check(kind, host, arm) -> None:
               f"/ {np.degrees(safety.max_rotation_step):.0f} deg, mode {safety.mode!r}")
         tool = robot.tool
         print(f"tool: {tool!r}" if tool is not None else "tool: none")
-    print("disconnected; nothing moved.")
+        moves = 0
+        if jog:
+            from robots.jog import run_jog_console
+
+            moves = run_jog_console(cell)
+    print("disconnected; " + ("nothing moved." if moves == 0 else f"{moves} jog move(s) made."))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
             run_demo(seed=args.seed, n_poses=args.poses, pixel_px=args.pixel_noise,
                      robot_rot_deg=args.robot_noise_deg, robot_trans_mm=args.robot_noise_mm)
         elif args.command == "robot" and args.robot_command == "check":
-            _robot_check(args.kind, args.host, args.arm)
+            _robot_check(args.kind, args.host, args.arm, jog=args.jog)
     except KeyboardInterrupt:
         print("cobotlab: interrupted", file=sys.stderr)
         return 130

@@ -48,3 +48,12 @@ def test_robot_check_unknown_kind_is_one_line(capsys):
     assert cli.main(["robot", "check", "--kind", "kuka"]) == 2
     err = capsys.readouterr().err.strip()
     assert "unknown robot kind 'kuka'" in err and len(err.splitlines()) == 1
+
+
+def test_robot_check_jog_moves_only_after_a_yes(monkeypatch, capsys):
+    answers = iter(["x+", "y", "z-", "n", "q"])
+    monkeypatch.setattr("builtins.input", lambda prompt="": next(answers))
+    assert cli.main(["robot", "check", "--arm", "ur5e", "--jog"]) == 0
+    out = capsys.readouterr().out
+    assert "moved." in out and "you answered no" in out
+    assert out.rstrip().endswith("1 jog move(s) made.")
