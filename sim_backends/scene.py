@@ -25,6 +25,9 @@ import pybullet as p
 from scipy.spatial.transform import Rotation
 
 from robots.geometry import as_pose, compose, invert, make_pose, pose_from_rpy
+
+# Square names come from the student-facing helpers (robots never imports sim_backends).
+from robots.perception import FILES, square_index, square_name
 from sim_backends.textures import Target, write_textured_slab
 
 __all__ = [
@@ -44,7 +47,6 @@ __all__ = [
     "square_name",
 ]
 
-FILES = "abcdefgh"
 PIECE_KINDS = ("pawn", "rook", "knight", "bishop", "queen", "king")
 COLOURS = {"white": (0.93, 0.88, 0.74, 1.0), "black": (0.12, 0.10, 0.10, 1.0)}
 
@@ -124,21 +126,6 @@ def add_target(client: int, target: Target, world_T_target, thickness: float = 0
 
 
 # --------------------------------------------------------------------------- chess
-
-
-def square_name(file: int, rank: int) -> str:
-    """'a1'..'h8' from 0-based file (a = 0) and rank (rank 1 = 0)."""
-    if not (0 <= file < 8 and 0 <= rank < 8):
-        raise ValueError(f"file and rank must be in 0..7, got ({file}, {rank})")
-    return f"{FILES[file]}{rank + 1}"
-
-
-def square_index(name: str) -> tuple[int, int]:
-    """(file, rank), 0-based, of a square name like 'e4'."""
-    ok = isinstance(name, str) and len(name) == 2 and name[0] in FILES and name[1] in "12345678"
-    if not ok:
-        raise ValueError(f"square names run 'a1'..'h8' (file letter, rank digit), got {name!r}")
-    return FILES.index(name[0]), int(name[1]) - 1
 
 
 _BACK_RANK = ("rook", "knight", "bishop", "queen", "king", "bishop", "knight", "rook")

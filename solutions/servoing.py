@@ -1,0 +1,780 @@
+"""Reference visual servoing: PBVS, IBVS, the staged approach-to-grasp, pick-and-place.
+
+Conventions
+-----------
+* A *twist* is a (6,) array ``(vx, vy, vz, wx, wy, wz)``: the linear velocity (m/s) of a frame's
+  origin and its angular velocity (rad/s), both expressed in that frame (a body twist). A
+  camera twist is in the camera optical frame; :func:`cam_twist_to_flange` moves it to the
+  flange for an eye-in-hand camera through the calibration ``flange_T_cam``.
+* Image features for IBVS are *normalised* coordinates ``x = X / Z, y = Y / Z`` (pixels with K
+  and distortion removed, ``cv2.undistortPoints``), so the gain does not depend on the focal
+  length.
+* The control laws return a camera twist; a loop applies it for one control period ``dt``
+  (s) with :func:`integrate_twist`. With gain ``lambda`` (1/s) the error shrinks by about
+  ``1 - lambda dt`` per iteration.
+
+Errors: a lost target, a target leaving the image and a growing error raise the
+:class:`~robots.perception.ServoError` subclasses defined in :mod:`robots.perception` (so lab
+code can catch them without this module); every robot loop here stops the robot first.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from robots.geometry import as_pose, compose, invert, make_pose, transform_points
+from robots.perception import (
+    ServoDivergedError,
+    ServoError,
+    ServoTimeoutError,
+    TargetLostError,
+    TargetOutOfViewError,
+)
+
+__all__ = [
+    "ConvergenceMonitor",
+    "ServoDivergedError",
+    "ServoError",
+    "ServoResult",
+    "ServoTimeoutError",
+    "TargetLostError",
+    "TargetOutOfViewError",
+    "cam_twist_to_flange",
+    "decoupled_velocity",
+    "ibvs_velocity",
+    "integrate_twist",
+    "interaction_matrix",
+    "normalised_projection",
+    "pbvs_error",
+    "pbvs_velocity",
+    "saturate",
+    "simulate_servo",
+    "twist_transform",
+]
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+def normalised_projection(points_cam) -> np.ndarray:
+    """Normalised image coordinates (N, 2) ``(X / Z, Y / Z)`` of camera-frame points (N, 3)."""
+    pts = np.asarray(points_cam, dtype=float).reshape(-1, 3)
+    if np.any(pts[:, 2] <= 0):
+        raise TargetOutOfViewError("a feature point is behind the camera (z <= 0)")
+    return pts[:, :2] / pts[:, 2:3]
+
+
+def interaction_matrix(points_xy, depths) -> np.ndarray:
+    """The (2N, 6) interaction matrix L of N point features: ``d(x, y)/dt = L @ v_cam``.
+
+    ``points_xy`` (N, 2) are normalised coordinates, ``depths`` (N,) their depths Z (m, > 0),
+    ``v_cam`` the camera's body twist. Per point (Chaumette & Hutchinson 2006)::
+
+        [ -1/Z   0    x/Z   x y     -(1 + x^2)   y ]
+        [  0    -1/Z  y/Z   1 + y^2  -x y        -x ]
+    """
+    xy = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    Z = np.broadcast_to(np.asarray(depths, dtype=float).reshape(-1), (len(xy),))
+    bad = np.flatnonzero(~(np.isfinite(Z) & (Z > 0)) | ~np.all(np.isfinite(xy), axis=1))
+    if bad.size:
+        raise ValueError(f"feature {bad[0]} has depth {Z[bad[0]]} or coordinates {xy[bad[0]]}; "
+                         "depths must be positive finite metres")
+    x, y = xy[:, 0], xy[:, 1]
+    L = np.zeros((len(xy), 2, 6))
+    L[:, 0] = np.column_stack([-1 / Z, 0 * Z, x / Z, x * y, -(1 + x * x), y])
+    L[:, 1] = np.column_stack([0 * Z, -1 / Z, y / Z, 1 + y * y, -x * y, -x])
+    return L.reshape(-1, 6)
+
+
+def ibvs_velocity(s, s_star, depths, gain: float = 1.0, depths_star=None,
+                  mode: str = "current") -> np.ndarray:
+    """Camera twist ``v = -gain L^+ (s - s*)`` for point features (Chaumette & Hutchinson).
+
+    ``s``, ``s_star``: (N, 2) current and desired normalised coordinates; ``depths`` (N,) the
+    current depths (m; from the depth image or a pose estimate). ``mode``: "current" uses L at
+    the current features, "desired" at the desired ones (needs ``depths_star``), "mean" the
+    average of both (the best-behaved choice for large rotations). At least 3 points are
+    needed for all 6 degrees of freedom (4 to avoid the ambiguous cases).
+    """
+    s = np.asarray(s, dtype=float).reshape(-1, 2)
+    s_star = np.asarray(s_star, dtype=float).reshape(-1, 2)
+    if s.shape != s_star.shape:
+        raise ValueError(f"s has {len(s)} points but s_star {len(s_star)}; they must pair up")
+    if len(s) < 3:
+        raise ValueError(f"IBVS on 6 DOF needs at least 3 point features (4 is safer), got {len(s)}")
+    if mode == "current":
+        L = interaction_matrix(s, depths)
+    elif mode in ("desired", "mean"):
+        if depths_star is None:
+            raise ValueError(f"mode={mode!r} needs depths_star, the depths at the goal")
+        L = interaction_matrix(s_star, depths_star)
+        if mode == "mean":
+            L = 0.5 * (L + interaction_matrix(s, depths))
+    else:
+        raise ValueError(f"mode must be 'current', 'desired' or 'mean', got {mode!r}")
+    e = (s - s_star).reshape(-1)
+    return -gain * np.linalg.pinv(L) @ e
+
+
+def pbvs_error(cam_T_target, camd_T_target) -> np.ndarray:
+    """PBVS error (6,): ``(t, theta u)`` of ``camd_T_cam``, the current camera in the desired one.
+
+    ``cam_T_target`` is the measured target pose, ``camd_T_target`` where it should be seen
+    from the goal. Metres and radians; zero exactly at the goal.
+    """
+    camd_T_cam = compose(as_pose(camd_T_target, "camd_T_target"),
+                         invert(as_pose(cam_T_target, "cam_T_target")))
+    return np.concatenate([camd_T_cam[:3, 3], Rotation.from_matrix(camd_T_cam[:3, :3]).as_rotvec()])
+
+
+def pbvs_velocity(cam_T_target, camd_T_target, gain: float = 1.0) -> np.ndarray:
+    """Camera twist of the PBVS law ``v = -gain R^T t, w = -gain theta u`` (with
+    ``(R, t) = camd_T_cam``): the camera's origin heads straight for the goal and the distance
+    to it shrinks exactly exponentially, the rotation error likewise."""
+    e = pbvs_error(cam_T_target, camd_T_target)
+    camd_T_cam = compose(camd_T_target, invert(cam_T_target))
+    return np.concatenate([-gain * camd_T_cam[:3, :3].T @ e[:3], -gain * e[3:]])
+
+
+def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np.ndarray:
+    """Camera twist of the decoupled law on ``(x, y, area, angle)`` for a camera looking
+    roughly straight at a planar blob (a wrist camera above a part).
+
+    ``features`` / ``desired``: ``(x, y, a, alpha)``: the blob centroid in normalised
+    coordinates, its area in normalised units (pixels^2 / (fx fy)) and its orientation (rad;
+    NaN for a round blob, which leaves the rotation about the optical axis alone). ``depth``
+    is the blob's current depth Z (m). Each feature drives one motion:
+    ``vx = gain Z (x - x*)``, ``vy = gain Z (y - y*)``, ``vz = gain (Z - Z*) = gain Z (1 - sqrt(a/a*))``
+    (the area goes as 1/Z^2, so ``Z* = Z sqrt(a / a*)``), ``wz = -gain (alpha - alpha*)``
+    wrapped to (-pi/2, pi/2] (a blob's axis has no head). ``wx = wy = 0``.
+    """
+    f = np.asarray(features, dtype=float).reshape(4)
+    d = np.asarray(desired, dtype=float).reshape(4)
+    if not (np.isfinite(depth) and depth > 0):
+        raise ValueError(f"depth must be positive finite metres, got {depth}")
+    if not np.all(np.isfinite(f[:3])) or not np.all(np.isfinite(d[:3])) or f[2] <= 0 or d[2] <= 0:
+        raise ValueError(f"features {f} / desired {d} need finite x, y and a positive area")
+    v = np.zeros(6)
+    v[0] = gain * depth * (f[0] - d[0])
+    v[1] = gain * depth * (f[1] - d[1])
+    v[2] = gain * depth * (1.0 - np.sqrt(f[2] / d[2]))
+    if np.isfinite(f[3]) and np.isfinite(d[3]):
+        da = (f[3] - d[3] + np.pi / 2) % np.pi - np.pi / 2
+        v[5] = -gain * da
+    return v
+
+
+def saturate(twist, max_linear: float, max_angular: float) -> np.ndarray:
+    """Scale the whole twist down (direction kept) so |v| <= max_linear (m/s) and
+    |w| <= max_angular (rad/s)."""
+    twist = np.asarray(twist, dtype=float).reshape(6)
+    scale = 1.0
+    nv, nw = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+    if nv > max_linear:
+        scale = min(scale, max_linear / nv)
+    if nw > max_angular:
+        scale = min(scale, max_angular / nw)
+    return twist * scale
+
+
+def twist_transform(a_T_b) -> np.ndarray:
+    """The (6, 6) adjoint mapping a body twist of frame b to the same rigid motion's twist of
+    frame a, for a and b rigidly attached: ``w_a = R w_b``, ``v_a = R v_b + t x (R w_b)``."""
+    T = as_pose(a_T_b, "a_T_b")
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    W = np.zeros((6, 6))
+    W[:3, :3] = R
+    W[:3, 3:] = tx @ R
+    W[3:, 3:] = R
+    return W
+
+
+def cam_twist_to_flange(v_cam, flange_T_cam) -> np.ndarray:
+    """The flange body twist that moves an eye-in-hand camera with body twist ``v_cam``."""
+    return twist_transform(flange_T_cam) @ np.asarray(v_cam, dtype=float).reshape(6)
+
+
+def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
+    """The frame's pose after moving with constant body twist ``twist`` for ``dt`` seconds:
+    ``a_T_frame @ exp(dt * twist^)`` (exact SE(3) exponential)."""
+    from scipy.linalg import expm
+
+    xi = np.asarray(twist, dtype=float).reshape(6) * float(dt)
+    M = np.zeros((4, 4))
+    w = xi[3:]
+    M[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
+    M[:3, 3] = xi[:3]
+    step = expm(M)
+    step[:3, :3] = Rotation.from_matrix(step[:3, :3]).as_matrix()  # re-orthonormalise
+    step[3] = [0, 0, 0, 1]
+    return compose(as_pose(a_T_frame, "a_T_frame"), step)
+
+
+# --------------------------------------------------------------------------- convergence
+
+
+@dataclass
+class ConvergenceMonitor:
+    """Decides after each iteration whether a servo has converged, diverged or timed out.
+
+    ``update(error)`` takes the current error norm (any unit; the tolerances use the same) and
+    returns True once it is below ``tolerance``. It raises ServoDivergedError when the error
+    is NaN, or has grown to more than ``divergence_factor`` times the smallest value seen (and
+    above 10 x ``tolerance``, so noise at the goal is not mistaken for divergence), and ServoTimeoutError after ``max_iterations`` updates.
+    """
+
+    tolerance: float
+    max_iterations: int = 100
+    divergence_factor: float = 3.0
+    history: list = field(default_factory=list)
+
+    def __post_init__(self):
+        if not (self.tolerance > 0 and self.max_iterations >= 1 and self.divergence_factor > 1):
+            raise ValueError("need tolerance > 0, max_iterations >= 1, divergence_factor > 1")
+
+    def update(self, error: float) -> bool:
+        error = float(error)
+        self.history.append(error)
+        if not np.isfinite(error):
+            raise ServoDivergedError(f"servo error became {error} at iteration {len(self.history)}")
+        if error <= self.tolerance:
+            return True
+        best = min(self.history)
+        # Near the goal the error jitters with image noise; only a real blow-up counts.
+        if error > self.divergence_factor * best and error > 10.0 * self.tolerance:
+            raise ServoDivergedError(
+                f"servo error grew to {error:.4g}, {error / best:.1f}x its best {best:.4g} "
+                f"(iteration {len(self.history)}); check the gain's sign, the calibration and "
+                "the desired features")
+        if len(self.history) >= self.max_iterations:
+            raise ServoTimeoutError(
+                f"servo did not converge in {self.max_iterations} iterations (error {error:.4g}, "
+                f"tolerance {self.tolerance:.4g}); raise the gain or max_iterations")
+        return False
+
+
+@dataclass
+class ServoResult:
+    """Outcome of a servo run: ``converged``, ``iterations``, ``errors`` (feature error per
+    iteration), ``final_pose`` (the last camera pose), ``time_s`` (simulated seconds)."""
+
+    converged: bool
+    iterations: int
+    errors: list
+    final_pose: np.ndarray
+    time_s: float
+    position_error_m: float = float("nan")
+    rotation_error_deg: float = float("nan")
+
+
+# --------------------------------------------------------------------------- pure kinematics
+
+
+def simulate_servo(method: str, world_T_cam, world_T_camd, target_points, intrinsics=None,
+                   gain: float = 2.0, dt: float = 0.2, max_iterations: int = 200,
+                   tolerance: float | None = None, max_linear: float = 0.25,
+                   max_angular: float = 1.0, depth_error: float = 0.0,
+                   ibvs_mode: str = "current") -> ServoResult:
+    """Servo a free-flying camera by integrating its twist (no robot, no images).
+
+    ``method``: "ibvs" (point features of ``target_points`` (N, 3), world frame) or "pbvs"
+    (the target frame is the world frame: the camera measures ``cam_T_world`` exactly).
+    ``world_T_cam``: start camera pose; ``world_T_camd``: the goal. ``intrinsics`` (optional)
+    checks every point stays inside the image (TargetOutOfViewError otherwise).
+    ``depth_error``: relative error of the depths given to IBVS (an estimate, not the truth).
+    ``tolerance``: rms feature error (normalised units) for IBVS, default 1e-4; metres plus
+    radians for PBVS, default 1e-4. Returns a :class:`ServoResult` with the final camera pose
+    error to the goal.
+    """
+    if method not in ("ibvs", "pbvs"):
+        raise ValueError(f"method must be 'ibvs' or 'pbvs', got {method!r}")
+    T = as_pose(world_T_cam, "world_T_cam")
+    Td = as_pose(world_T_camd, "world_T_camd")
+    pts = np.asarray(target_points, dtype=float).reshape(-1, 3)
+    s_star = normalised_projection(transform_points(invert(Td), pts))
+    z_star = transform_points(invert(Td), pts)[:, 2]
+    monitor = ConvergenceMonitor(1e-4 if tolerance is None else tolerance, max_iterations)
+    converged, k = False, 0
+    while not converged:
+        cam_pts = transform_points(invert(T), pts)
+        s = normalised_projection(cam_pts)
+        if intrinsics is not None:
+            u = s[:, 0] * intrinsics.fx + intrinsics.cx
+            v = s[:, 1] * intrinsics.fy + intrinsics.cy
+            if np.any((u < 0) | (u > intrinsics.width - 1) | (v < 0) | (v > intrinsics.height - 1)):
+                raise TargetOutOfViewError(f"a feature left the image at iteration {k}")
+        if method == "ibvs":
+            err = float(np.sqrt(np.mean(np.sum((s - s_star) ** 2, axis=1))))
+            depths = cam_pts[:, 2] * (1.0 + depth_error)
+            v = ibvs_velocity(s, s_star, depths, gain, depths_star=z_star, mode=ibvs_mode)
+        else:
+            cam_T_world = invert(T)
+            e = pbvs_error(cam_T_world, invert(Td))
+            err = float(np.linalg.norm(e[:3]) + np.linalg.norm(e[3:]))
+            v = pbvs_velocity(cam_T_world, invert(Td), gain)
+        converged = monitor.update(err)
+        if converged:
+            break
+        T = integrate_twist(T, saturate(v, max_linear, max_angular), dt)
+        k += 1
+    delta = compose(invert(Td), T)
+    return ServoResult(True, k, monitor.history, T, k * dt, float(np.linalg.norm(delta[:3, 3])),
+                       float(np.degrees(np.linalg.norm(Rotation.from_matrix(delta[:3, :3]).as_rotvec()))))
+
+
+def offset_start(world_T_camd, centre_world, translation_m: float, rotation_deg: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A start camera pose ``translation_m`` and ``rotation_deg`` away from the goal, in seeded
+    random directions, with the rotation taken about ``centre_world`` (the target's centre) so
+    the target stays in view: the usual way to state "a 10 cm / 20 degree offset"."""
+    Td = as_pose(world_T_camd, "world_T_camd")
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    direction /= np.linalg.norm(direction)
+    c = np.asarray(centre_world, dtype=float).reshape(3)
+    R = Rotation.from_rotvec(np.radians(rotation_deg) * axis).as_matrix()
+    orbit = compose(make_pose(t=c), make_pose(R), make_pose(t=-c))
+    return compose(make_pose(t=translation_m * direction), orbit, Td)
+
+
+# --------------------------------------------------------------------------- on a robot
+
+
+def _undistorted(uv, intrinsics) -> np.ndarray:
+    import cv2
+
+    return cv2.undistortPoints(np.asarray(uv, float).reshape(-1, 1, 2), intrinsics.K,
+                               intrinsics.dist).reshape(-1, 2)
+
+
+def check_in_view(uv, intrinsics, margin_px: float = 5.0) -> None:
+    """Raise TargetOutOfViewError if any pixel (N, 2) is within ``margin_px`` of the border."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    w, h = intrinsics.width, intrinsics.height
+    out = (uv[:, 0] < margin_px) | (uv[:, 0] > w - 1 - margin_px) | \
+          (uv[:, 1] < margin_px) | (uv[:, 1] > h - 1 - margin_px)
+    if np.any(out):
+        k = int(np.flatnonzero(out)[0])
+        raise TargetOutOfViewError(
+            f"feature {k} at pixel ({uv[k, 0]:.0f}, {uv[k, 1]:.0f}) is within {margin_px} px of "
+            f"the {w}x{h} image border; the servo stopped before the target leaves the image")
+
+
+def run_servo(robot, camera, flange_T_cam, step, tolerance: float, gain: float = 2.0,
+              dt: float = 0.2, max_iterations: int = 60, max_linear: float = 0.1,
+              max_angular: float = 0.5, divergence_factor: float = 3.0) -> ServoResult:
+    """The eye-in-hand servo loop on a real or simulated robot.
+
+    Each iteration: ``frame = camera.capture()``; ``error, v_cam = step(frame, gain)`` (the
+    caller's measurement and control law; it raises TargetLostError / TargetOutOfViewError);
+    convergence / divergence / timeout checks (:class:`ConvergenceMonitor`); the twist is
+    saturated, turned into a flange twist with the calibration ``flange_T_cam`` and applied for
+    ``dt`` seconds as a straight ``robot.move_to``. On any error the robot is stopped and the
+    error re-raised. ``time_s`` is the simulated (frame timestamp) time from first to last image.
+    """
+    monitor = ConvergenceMonitor(tolerance, max_iterations, divergence_factor)
+    flange_T_cam = as_pose(flange_T_cam, "flange_T_cam")
+    t0 = None
+    try:
+        while True:
+            frame = camera.capture()
+            t0 = frame.timestamp if t0 is None else t0
+            error, v_cam = step(frame, gain)
+            if monitor.update(error):
+                return ServoResult(True, len(monitor.history) - 1, monitor.history,
+                                   compose(robot.flange_pose(), flange_T_cam),
+                                   frame.timestamp - t0)
+            v_cam = saturate(v_cam, max_linear, max_angular)
+            v_flange = cam_twist_to_flange(v_cam, flange_T_cam)
+            current = robot.flange_pose()
+            target = integrate_twist(current, v_flange, dt)
+            dist = np.linalg.norm(target[:3, 3] - current[:3, 3])
+            speed = float(np.clip(dist / dt, 1e-3, robot.safety.max_speed))
+            robot.move_to(target, speed=speed)
+    except BaseException:
+        robot.stop()
+        raise
+
+
+def ibvs_step(detect, camd_T_target, intrinsics, depth: str = "image", margin_px: float = 5.0,
+              min_points: int = 4, required_points=None):
+    """A ``step`` for :func:`run_servo`: IBVS on the detected points of a target.
+
+    ``detect(frame)`` returns a :class:`~robots.capture.Detection` (corner pixels, their object
+    points in the target frame and ``cam_T_target``) or None. The desired feature of each
+    detected point is its projection from ``camd_T_target`` (4, 4), so a board seen only in
+    part (ChArUco corners come with ids) still servos on the points it shows. ``depth``:
+    "image" reads each point's depth from the depth image (median of a 5x5 box), "pose" takes
+    it from the detection's pose. The error is the rms feature error, normalised units.
+    ``margin_px``: detected points closer than this to the border raise TargetOutOfViewError
+    (None: no check, for boards seen in part). ``required_points`` (M, 3), target frame:
+    points that must stay in the image (e.g. all of a board's corners), checked through the
+    detected pose.
+    """
+    from robots.perception import depth_at
+
+    camd_T_target = as_pose(camd_T_target, "camd_T_target")
+    if depth not in ("image", "pose"):
+        raise ValueError(f"depth must be 'image' or 'pose', got {depth!r}")
+
+    def step(frame, gain):
+        det = detect(frame)
+        if det is None or len(det.corners_px) < min_points:
+            raise TargetLostError("the target is not detected in the image; servo stopped")
+        if margin_px is not None:
+            check_in_view(det.corners_px, intrinsics, margin_px)
+        if required_points is not None and det.cam_T_target is not None:
+            from robots.perception import project
+
+            check_in_view(project(transform_points(det.cam_T_target, required_points),
+                                  intrinsics), intrinsics, 0.0)
+        s = _undistorted(det.corners_px, intrinsics)
+        goal = transform_points(camd_T_target, det.object_points)
+        s_star, z_star = normalised_projection(goal), goal[:, 2]
+        z = depth_at(frame, det.corners_px) if depth == "image" and frame.depth is not None \
+            else np.full(len(s), np.nan)
+        if not np.all(np.isfinite(z)):
+            if det.cam_T_target is None:
+                raise TargetLostError("no depth at the features and no pose to estimate it")
+            z = transform_points(det.cam_T_target, det.object_points)[:, 2]
+        err = float(np.sqrt(np.mean(np.sum((s - s_star) ** 2, axis=1))))
+        return err, ibvs_velocity(s, s_star, z, gain, depths_star=z_star, mode="mean")
+
+    return step
+
+
+def pbvs_step(detect, camd_T_target, intrinsics, margin_px: float = 5.0, required_points=None):
+    """A ``step`` for :func:`run_servo`: PBVS on the detection's ``cam_T_target``. The error is
+    metres + radians (``|t| + |theta u|`` of ``camd_T_cam``). ``margin_px`` and
+    ``required_points`` as in :func:`ibvs_step`."""
+    camd_T_target = as_pose(camd_T_target, "camd_T_target")
+
+    def step(frame, gain):
+        det = detect(frame)
+        if det is None or det.cam_T_target is None:
+            raise TargetLostError("the target is not detected in the image; servo stopped")
+        if margin_px is not None:
+            check_in_view(det.corners_px, intrinsics, margin_px)
+        if required_points is not None and det.cam_T_target is not None:
+            from robots.perception import project
+
+            check_in_view(project(transform_points(det.cam_T_target, required_points),
+                                  intrinsics), intrinsics, 0.0)
+        e = pbvs_error(det.cam_T_target, camd_T_target)
+        return (float(np.linalg.norm(e[:3]) + np.linalg.norm(e[3:])),
+                pbvs_velocity(det.cam_T_target, camd_T_target, gain))
+
+    return step
+
+
+def move_in_steps(robot, base_T_flange, speed: float = 0.2, max_step_m: float = 0.3,
+                  max_step_deg: float = 60.0) -> None:
+    """``robot.move_to`` split into straight segments no longer than the safety limits allow
+    (each at most ``max_step_m`` and ``max_step_deg``)."""
+    from scipy.spatial.transform import Slerp
+
+    target = as_pose(base_T_flange, "base_T_flange")
+    start = robot.flange_pose()
+    dist = np.linalg.norm(target[:3, 3] - start[:3, 3])
+    angle = np.degrees(np.linalg.norm(
+        Rotation.from_matrix(start[:3, :3].T @ target[:3, :3]).as_rotvec()))
+    n = max(1, int(np.ceil(max(dist / max_step_m, angle / max_step_deg))))
+    slerp = Slerp([0, 1], Rotation.from_matrix([start[:3, :3], target[:3, :3]]))
+    for k in range(1, n + 1):
+        s = k / n
+        waypoint = make_pose(slerp([s]).as_matrix()[0], (1 - s) * start[:3, 3] + s * target[:3, 3])
+        robot.move_to(target if k == n else waypoint, speed=min(speed, robot.safety.max_speed))
+
+
+# --------------------------------------------------------------------------- staged pick-and-place
+
+STAGES = ("search", "approach", "coarse", "precise", "grasp", "lift", "place", "done")
+DOWN = np.diag([1.0, -1.0, -1.0])  # a tool frame whose z axis points straight down
+
+
+@dataclass
+class StageEvent:
+    """One line of the stage log: entered ``stage`` at host time ``time_s`` (perf_counter) after
+    ``iterations`` servo iterations in the previous stage, because ``reason``."""
+
+    stage: str
+    time_s: float
+    iterations: int
+    reason: str
+
+
+@dataclass
+class PickPlaceResult:
+    """What :func:`pick_and_place` did: ``log`` of stage transitions, total servo
+    ``iterations``, simulated ``time_s`` of the servo stages, the estimated positions (base
+    frame, m) of the piece top and of the destination square, and ``grasped``."""
+
+    log: list
+    iterations: int
+    time_s: float
+    piece_top_base: np.ndarray
+    destination_base: np.ndarray
+    grasped: bool
+
+
+def _plane_heights(cloud):
+    """Height (H, W) of each point above the dominant plane (the board) in a camera cloud."""
+    from solutions.perception import _ransac_plane
+
+    valid = np.all(np.isfinite(cloud), axis=2)
+    pts = cloud[valid]
+    if len(pts) < 100:
+        raise TargetLostError("the depth image is empty; nothing to servo on")
+    sub = pts[np.random.default_rng(0).choice(len(pts), min(3000, len(pts)), replace=False)]
+    c, n, _ = _ransac_plane(sub, np.random.default_rng(1), 0.002, iterations=100)
+    if n @ c > 0:
+        n = -n  # towards the camera
+    h = np.full(cloud.shape[:2], np.nan)
+    h[valid] = (pts - c) @ n
+    return h
+
+
+def measure_piece_top(frame, intrinsics, predicted_uv, min_height_m: float = 0.008,
+                      search_px: float = 60.0):
+    """The top of the piece nearest ``predicted_uv`` in a close-up RGB-D frame.
+
+    Heights are measured from the dominant plane (the board) fitted in this very frame, so the
+    measurement needs no calibration. Returns ``(top_cam (3,) m, top_uv (2,) px, area)`` with
+    the top's area in normalised units (pixels^2 / (fx fy)); raises TargetLostError when no
+    piece is within ``search_px`` of the prediction.
+    """
+    import cv2
+
+    from robots.perception import point_cloud, project
+
+    cloud = point_cloud(frame.depth, intrinsics)
+    h = _plane_heights(cloud)
+    mask = (np.nan_to_num(h, nan=-1) > min_height_m).astype(np.uint8)
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if count < 2:
+        raise TargetLostError("no piece stands on the board in view")
+    d = np.linalg.norm(centroids[1:] - np.asarray(predicted_uv, float), axis=1)
+    d[stats[1:, cv2.CC_STAT_AREA] < 10] = np.inf
+    k = int(np.argmin(d))
+    if not np.isfinite(d[k]) or d[k] > search_px:
+        raise TargetLostError(f"no piece within {search_px:.0f} px of where it was expected")
+    blob = labels == k + 1
+    top = blob & (h > np.nanmax(h[blob]) - 0.006)
+    top_cam = cloud[top].mean(axis=0)
+    area = float(top.sum()) / (intrinsics.fx * intrinsics.fy)
+    return top_cam, project(top_cam, intrinsics)[0], area
+
+
+class StagedPickAndPlace:
+    """The staged approach-to-grasp controller for an eye-in-hand RGB-D camera and a suction
+    cup: search -> approach -> coarse -> precise -> grasp -> lift -> place.
+
+    ``method``: "open_loop" (look-then-move: the piece's position from the overview image,
+    mapped through the calibration, then a blind move), "pbvs" (position-based servo on the
+    piece's 3-D top point, measured in each close-up frame) or "ibvs" (decoupled image-based
+    law on the top's (x, y, area) in each frame). ``flange_T_cam`` is the calibration the
+    controller believes (it may be wrong: that is the point of the benchmark).
+    Every stage has an iteration budget; ``log`` records each transition.
+    """
+
+    def __init__(self, cell, flange_T_cam, square_m: float, method: str = "ibvs",
+                 overview_height_m: float = 0.63, search_xy=((0.48, 0.0), (0.4, 0.0), (0.56, 0.0)),
+                 hover_m: float = 0.2, gain: float = 2.5, dt: float = 0.2,
+                 tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None):
+        if method not in ("open_loop", "pbvs", "ibvs"):
+            raise ValueError(f"method must be 'open_loop', 'pbvs' or 'ibvs', got {method!r}")
+        self.cell, self.robot, self.camera = cell, cell.robot, cell.camera
+        if self.robot.tool is None or not hasattr(self.robot.tool, "grasp"):
+            raise ValueError("pick-and-place needs a suction cup or gripper on the robot")
+        self.flange_T_cam = as_pose(flange_T_cam, "flange_T_cam")
+        self.square_m, self.method = float(square_m), method
+        self.overview_height_m, self.search_xy = overview_height_m, search_xy
+        self.hover_m, self.gain, self.dt = hover_m, gain, dt
+        self.tolerance_m, self.max_iterations = tolerance_m, max_iterations
+        self.log: list[StageEvent] = []
+        self.iterations, self.servo_time = 0, 0.0
+        self._stage_iterations = 0
+        self.on_stage = on_stage  # called as on_stage(stage_name, controller) on each transition
+
+    # ----- bookkeeping
+
+    def _enter(self, stage: str, reason: str) -> None:
+        self.log.append(StageEvent(stage, time.perf_counter(), self._stage_iterations, reason))
+        self._stage_iterations = 0
+        if self.on_stage is not None:
+            self.on_stage(stage, self)
+
+    def _base_T_cam(self) -> np.ndarray:
+        return compose(self.robot.flange_pose(), self.flange_T_cam)
+
+    def _tcp_down_at(self, point_base, above_m: float) -> np.ndarray:
+        """Flange pose putting the TCP ``above_m`` over a base point, tool pointing down, with
+        the flange's current yaw kept."""
+        yaw_x = self.robot.flange_pose()[:3, 0].copy()
+        yaw_x[2] = 0.0
+        yaw_x /= np.linalg.norm(yaw_x)
+        R = np.column_stack([yaw_x, np.cross([0, 0, -1.0], yaw_x), [0, 0, -1.0]])
+        base_T_tcp = make_pose(R, np.asarray(point_base, float) + [0, 0, above_m])
+        return compose(base_T_tcp, invert(self.robot.tool.flange_T_tcp))
+
+    # ----- stages
+
+    def search(self):
+        """Look down at the board from overview poses until it is found; returns
+        (base_T_chess, pieces) with the pieces' tops in the base frame."""
+        from robots.perception import detect_chess_board
+        from solutions.perception import detect_pieces
+
+        intr = self.camera.intrinsics
+        for x, y in self.search_xy:
+            base_T_cam = make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]),
+                                   [x, y, self.overview_height_m])
+            try:
+                move_in_steps(self.robot, compose(base_T_cam, invert(self.flange_T_cam)), 0.25)
+            except (RuntimeError, ValueError):
+                continue  # unreachable overview: try the next one
+            frame = self.camera.capture()
+            base_T_cam = self._base_T_cam()
+            board = detect_chess_board(frame, intr, self.square_m,
+                                       white_side_cam=invert(base_T_cam)[:3, 3])
+            if board is None:
+                continue
+            pieces = detect_pieces(frame, intr, board.cam_T_chess, self.square_m)
+            return compose(base_T_cam, board.cam_T_chess), {
+                p.square: (p, transform_points(base_T_cam, p.top_cam[None])[0]) for p in pieces}
+        raise TargetLostError("search found no chess board from any overview pose; "
+                              "check search_xy / overview_height_m for this arm")
+
+    def _servo_over(self, point_base, above_m: float, measure) -> None:
+        """Coarse move over a point, then (pbvs/ibvs) servo until the measured point sits where
+        the calibration says it must be seen when the TCP is ``above_m`` over it."""
+        move_in_steps(self.robot, self._tcp_down_at(point_base, above_m), 0.25)
+        if self.method == "open_loop":
+            return  # look-then-move: no image is used after the search
+        self._enter("precise", "over the target (position from the overview image)")
+        from robots.perception import project
+
+        # Where the point must appear: TCP above_m over it, expressed in the camera frame.
+        p_star = transform_points(invert(self.flange_T_cam) @ self.robot.tool.flange_T_tcp,
+                                  [[0, 0, above_m]])[0]
+        x_star = p_star[:2] / p_star[2]
+        predicted = None
+
+        def step(frame, gain):
+            nonlocal predicted
+            if predicted is None:  # first frame: where the overview estimate says it is
+                cam = transform_points(invert(self._base_T_cam()), [point_base])[0]
+                predicted = project(cam, self.camera.intrinsics)[0]
+            p, uv, area = measure(frame, predicted)
+            predicted = uv
+            check_in_view(uv, self.camera.intrinsics, 5.0)
+            if self.method == "pbvs":
+                v = np.zeros(6)
+                v[:3] = gain * (p - p_star)
+                return float(np.linalg.norm(p - p_star)), v
+            a_star = area * (p[2] / p_star[2]) ** 2
+            v = decoupled_velocity([p[0] / p[2], p[1] / p[2], area, np.nan],
+                                   [x_star[0], x_star[1], a_star, np.nan], p[2], gain)
+            return float(np.linalg.norm(p - p_star)), v
+
+        result = run_servo(self.robot, self.camera, self.flange_T_cam, step, self.tolerance_m,
+                           self.gain, self.dt, self.max_iterations, max_linear=0.05,
+                           max_angular=0.3)
+        self.iterations += result.iterations
+        self._stage_iterations = result.iterations
+        self.servo_time += result.time_s
+
+    def _descend_and_grasp(self, top_above_m: float) -> bool:
+        """Straight down to 12 mm over the expected contact, then a guarded descent: 2 mm
+        steps down the tool axis, trying the vacuum at each, at most 24 mm further."""
+        tool = self.robot.tool
+        fast = top_above_m - 0.012
+        self.robot.move_to(compose(self.robot.flange_pose(), make_pose(t=[0, 0, fast])),
+                           speed=0.1)  # flange z is the tool axis
+        for _ in range(12):
+            if tool.grasp():
+                return True
+            self.robot.move_to(compose(self.robot.flange_pose(), make_pose(t=[0, 0, 0.002])),
+                               speed=0.02)
+        return tool.grasp()
+
+    def run(self, from_square: str, to_square: str) -> PickPlaceResult:
+        from robots.perception import square_centre
+
+        self._enter("search", "start")
+        base_T_chess, pieces = self.search()
+        if from_square not in pieces:
+            raise ValueError(f"no piece found on {from_square}; pieces seen: {sorted(pieces)}")
+        if to_square in pieces:
+            raise ValueError(f"{to_square} is occupied; capture moves are not supported")
+        piece, top_base = pieces[from_square]
+        dest = transform_points(base_T_chess, square_centre(to_square, self.square_m)[None])[0]
+
+        self._enter("approach", f"board found, {piece.colour} {piece.kind} on {from_square}")
+        self._enter("coarse", "moving over the piece")
+        intr = self.camera.intrinsics
+        self._servo_over(top_base, self.hover_m,
+                         lambda frame, uv: measure_piece_top(frame, intr, uv))
+        self._enter("grasp", "aligned over the piece")
+        grasped = self._descend_and_grasp(self.hover_m)
+        if not grasped:
+            self.robot.stop()
+            raise ServoError(f"the suction cup found nothing to hold over {from_square}")
+        base_T_tcp_grasp = self.robot.tcp_pose()
+        self._enter("lift", "holding the piece")
+        self.robot.move_to(compose(make_pose(t=[0, 0, 0.08]), self.robot.flange_pose()), speed=0.1)
+        self._enter("place", f"carrying to {to_square}")
+        # Move the piece by the board displacement from its square to the new one, relative to
+        # where the cup actually took it: whatever offset the grasp had (calibration error),
+        # the piece keeps, so it lands as centred as it stood. Only the board's rotation
+        # estimate matters here, not its position.
+        shift = base_T_chess[:3, :3] @ (square_centre(to_square, self.square_m)
+                                        - square_centre(from_square, self.square_m))
+        shift[2] = 0.0
+        place = base_T_tcp_grasp.copy()
+        place[:3, 3] += shift + [0, 0, 0.001]
+        flange_T_tcp = self.robot.tool.flange_T_tcp
+        above = compose(make_pose(t=[0, 0, self.hover_m]), place)
+        move_in_steps(self.robot, compose(above, invert(flange_T_tcp)), 0.25)
+        self.robot.move_to(compose(place, invert(flange_T_tcp)), speed=0.05)
+        self.robot.tool.release()
+        self.robot.move_to(compose(make_pose(t=[0, 0, 0.06]), self.robot.flange_pose()), speed=0.1)
+        self._enter("done", f"released on {to_square}")
+        return PickPlaceResult(self.log, self.iterations, self.servo_time, top_base, dest, grasped)
+
+
+def pick_and_place(cell, from_square: str, to_square: str, method: str = "ibvs",
+                   flange_T_cam=None, square_m: float | None = None, **options) -> PickPlaceResult:
+    """Move the piece on ``from_square`` to ``to_square`` with the staged controller.
+
+    ``cell``: a Workcell with an eye-in-hand RGB-D camera and a suction cup. ``flange_T_cam``:
+    the hand-eye calibration (a (4, 4) array, a CalibrationResult or a YAML path); in the
+    simulator it defaults to the camera's nominal (design) mount, on a real robot it is
+    required. ``square_m`` defaults to the simulator's board (0.05 m; 0.03 on the Cobotta).
+    Options go to :class:`StagedPickAndPlace`. Raises ServoError (the robot stopped) if a
+    stage fails.
+    """
+    from robots.calibration_io import CalibrationResult, load_calibration
+
+    if flange_T_cam is None:
+        truth = getattr(cell, "truth", None)
+        if truth is None or getattr(truth, "nominal_flange_T_cam", None) is None:
+            raise ValueError("give flange_T_cam: the hand-eye calibration of the wrist camera")
+        flange_T_cam = truth.nominal_flange_T_cam
+    elif isinstance(flange_T_cam, (str, bytes)) or hasattr(flange_T_cam, "__fspath__"):
+        flange_T_cam = load_calibration(flange_T_cam).pose
+    elif isinstance(flange_T_cam, CalibrationResult):
+        flange_T_cam = flange_T_cam.pose
+    if square_m is None:
+        square_m = 0.03 if cell.robot.name == "cobotta" else 0.05
+    controller = StagedPickAndPlace(cell, flange_T_cam, square_m, method, **options)
+    try:
+        return controller.run(from_square, to_square)
+    except BaseException:
+        cell.robot.stop()
+        raise
