@@ -1,0 +1,148 @@
+"""The student-code worker: runs one submission's code and calls its functions on request.
+
+Started by :mod:`autograder.grading` as ``python -I -m autograder._worker REQ_FD REPLY_FD MEM_MB CPU_S FILE_MB``,
+which sets those resource limits on itself before any student code runs, with a scrubbed environment, in an empty temporary directory
+and (where the OS allows) in its own user, PID, mount and network namespaces with the course
+directory hidden. It holds no secret and no ground truth: it receives problem *inputs* only and
+sends back whatever the student's function returned. Everything it sends is re-validated by the
+grader, so student code that patches this module gains nothing but a zero.
+
+Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s}`` runs one notebook
+cell in the shared namespace under an alarm (an exception or timeout ends that cell only);
+``{"op": "call", "name": f, "args": [...], "timeout": s}`` calls a function by name;
+``{"op": "quit"}``.
+"""
+
+from __future__ import annotations
+
+import builtins
+import io
+import resource
+import signal
+import sys
+import time
+import traceback
+
+from autograder import wire
+
+OUTPUT_KEEP = 4096
+
+
+class _Timeout(BaseException):
+    """Raised by the alarm; a BaseException so ``except Exception`` in student code misses it."""
+
+
+class _CappedWriter(io.TextIOBase):
+    """stdout/stderr replacement: counts everything, keeps only the first few KB."""
+
+    def __init__(self):
+        self.head, self.total = [], 0
+
+    def write(self, s):
+        s = str(s)
+        kept = sum(len(x) for x in self.head)
+        if kept < OUTPUT_KEEP:
+            self.head.append(s[: OUTPUT_KEEP - kept])
+        self.total += len(s)
+        return len(s)
+
+    def writable(self):
+        return True
+
+
+def _on_alarm(signum, frame):
+    raise _Timeout()
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, _Timeout):
+        return "timed out"
+    message = str(exc)
+    if len(message) > 300:
+        message = message[:300] + "..."
+    return f"{type(exc).__name__}: {message}" if message else type(exc).__name__
+
+
+def _where(exc: BaseException) -> str:
+    """The student's own line that raised, e.g. "cell 4, line 7" (no grader frames)."""
+    for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+        if frame.filename.startswith("<cell"):
+            return f"{frame.filename.strip('<>')}, line {frame.lineno}"
+    return ""
+
+
+def _run_guarded(fn, timeout_s: float):
+    signal.setitimer(signal.ITIMER_REAL, float(timeout_s))
+    try:
+        return fn()
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+
+
+def _limit(which: int, value: int) -> None:
+    # soft = hard: student code may lower a limit but never raise it again.
+    resource.setrlimit(which, (value, value))
+
+
+def main(argv: list[str]) -> int:
+    req_fd, rep_fd = int(argv[0]), int(argv[1])
+    memory_mb, cpu_s, file_mb = (int(x) for x in argv[2:5])
+    _limit(resource.RLIMIT_AS, memory_mb * 1024 * 1024)
+    _limit(resource.RLIMIT_CPU, cpu_s)
+    _limit(resource.RLIMIT_FSIZE, file_mb * 1024 * 1024)
+    _limit(resource.RLIMIT_CORE, 0)
+    signal.signal(signal.SIGALRM, _on_alarm)
+    # Writing past RLIMIT_FSIZE would kill us with SIGXFSZ; an OSError in the student's cell
+    # is the better outcome.
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    out = _CappedWriter()
+    sys.stdin, sys.stdout, sys.stderr = io.StringIO(""), out, out
+    namespace = {"__name__": "__main__", "__builtins__": builtins}
+    send, receive = wire.send, wire.receive  # bound now: student code may patch the module
+
+    while True:
+        try:
+            request = receive(req_fd)
+        except wire.WireError:
+            return 0
+        op = request.get("op")
+        if op == "quit":
+            return 0
+        if op == "cell":
+            started = time.monotonic()
+            index = request.get("index", 0)
+            try:
+                code = compile(str(request.get("source", "")), f"<cell {index}>", "exec")
+                _run_guarded(lambda: exec(code, namespace), request.get("timeout", 10.0))
+                reply = {"ok": True}
+            except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
+                reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+            reply["seconds"] = time.monotonic() - started
+            reply["output_chars"] = out.total
+            send(rep_fd, reply)
+        elif op == "call":
+            name = str(request.get("name"))
+            func = namespace.get(name)
+            if not callable(func):
+                send(rep_fd, {"ok": False, "error": f"no function named {name} is defined"})
+                continue
+            args = request.get("args", [])
+            started = time.monotonic()
+            try:
+                value = _run_guarded(lambda: func(*args), request.get("timeout", 10.0))
+                reply = {"ok": True, "value": value}
+            except BaseException as exc:  # noqa: BLE001
+                reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+            reply["seconds"] = time.monotonic() - started
+            reply["output_chars"] = out.total
+            try:
+                send(rep_fd, reply)
+            except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
+                send(rep_fd, {"ok": False, "error": f"returned a value that is not an array "
+                                                    f"or number ({exc})"})
+        else:
+            send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,435 @@
+"""Graded-function specifications, scoring, and the student-facing ``check``.
+
+A lab's graded functions are pure (arrays in, arrays out), so each is graded the same way: draw
+problems with a seeded generator, call the function on the inputs, and measure the output
+against the truth in physical units (degrees, millimetres). Each function has a few named
+checks ("rotation", "translation", ...); each check awards credit by accuracy band, as a
+multiple of a per-problem tolerance:
+
+* noise-free problems (lab 0): the tolerance is a small multiple of float64 rounding, so any
+  correct formula earns full credit, sloppy arithmetic (float32) half, a wrong formula none;
+* noisy problems (lab 1 on): the tolerance comes from the noise level and the number of
+  measurements (what a least-squares estimator achieves), so a correct method earns full
+  credit with overwhelming probability and a wrong one, off by far more, cannot.
+
+The same code scores three ways: :func:`check` on public seeds in the student's notebook
+(prints the score and why), :func:`hidden_test` inside nbgrader's kernel (only a cross-check:
+that kernel runs student code and can be tampered with), and :mod:`autograder.grading`, which
+scores outputs from an isolated worker against truth it never lets out of its own process.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from autograder import synthetic
+from robots import geometry as geo
+
+__all__ = [
+    "Check",
+    "Trial",
+    "FunctionSpec",
+    "TrialOutcome",
+    "CheckResult",
+    "FunctionResult",
+    "SPECS",
+    "PUBLIC_SEEDS",
+    "spec_for",
+    "make_trials",
+    "score_function",
+    "evaluate",
+    "check",
+    "hidden_test",
+]
+
+PUBLIC_SEEDS = (0, 1, 2)
+# The seeds nbgrader's in-kernel hidden tests use; not secret (the kernel is not trusted), just
+# different from the practice seeds. The authoritative grade uses secret per-student seeds.
+KERNEL_SEEDS = (1001, 1002)
+
+
+class OutputError(ValueError):
+    """A student's return value that cannot be scored (wrong type, shape, NaN)."""
+
+
+@dataclass(frozen=True)
+class Check:
+    """One measured aspect of an answer.
+
+    ``bands`` are ``(multiple_of_tolerance, credit)`` pairs, tightest first: an error within
+    ``multiple * tol`` earns ``credit``. ``unit`` names the error's unit for feedback.
+    """
+
+    name: str
+    unit: str
+    weight: float
+    bands: tuple[tuple[float, float], ...]
+    describe: str = ""
+
+    def credit(self, error: float, tol: float) -> float:
+        if not math.isfinite(error):
+            return 0.0
+        for multiple, credit in self.bands:
+            if error <= multiple * tol:
+                return credit
+        return 0.0
+
+
+@dataclass
+class Trial:
+    """One problem: the inputs the student's function gets, and what only the grader keeps."""
+
+    args: tuple
+    truth: Any
+    tol: dict[str, float]
+    label: str = ""
+    # Edge cases earn credit only when the whole answer is right, so a trivial output (the
+    # identity for a zero rotation) cannot collect partial credit on them.
+    all_or_nothing: bool = False
+
+
+@dataclass(frozen=True)
+class FunctionSpec:
+    """How to grade one student function, found in the notebook by ``name``."""
+
+    name: str
+    points: float
+    n_trials: int
+    make_trial: Callable[[np.random.Generator, int], Trial]
+    measure: Callable[[Any, Trial], dict[str, float]]
+    checks: tuple[Check, ...]
+    signature: str
+    time_limit_s: float = 10.0
+
+
+@dataclass
+class TrialOutcome:
+    """What a call returned (``value``) or why it failed (``error``)."""
+
+    value: Any = None
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass
+class CheckResult:
+    name: str
+    unit: str
+    credit: float               # 0..1, mean over problems
+    n_full: int
+    n_trials: int
+    worst_error: float
+    median_error: float
+    tolerance: float            # the full-credit threshold on the worst problem, in ``unit``
+    describe: str = ""
+
+
+@dataclass
+class FunctionResult:
+    """The score of one function and the reasons, in words a student can act on."""
+
+    name: str
+    points: float
+    max_points: float
+    checks: list[CheckResult] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def fraction(self) -> float:
+        return self.points / self.max_points if self.max_points else 0.0
+
+    @property
+    def failed_checks(self) -> list[str]:
+        return [c.name for c in self.checks if c.credit < 1.0]
+
+    def summary(self) -> str:
+        lines = [f"{self.name}: {self.points:g} / {self.max_points:g} points"]
+        for c in self.checks:
+            status = "ok  " if c.credit >= 1.0 else ("part" if c.credit > 0 else "FAIL")
+            unit = f" {c.unit}" if c.unit else ""
+            worst = ("none (no usable answer on some problems)" if not math.isfinite(c.worst_error)
+                     else f"{c.worst_error:.3g}{unit}")
+            lines.append(f"  [{status}] {c.name}: {c.n_full}/{c.n_trials} problems within "
+                         f"{c.tolerance:.3g}{unit}; worst error {worst}"
+                         + (f"  ({c.describe})" if c.describe and c.credit < 1 else ""))
+        for e in self.errors:
+            lines.append(f"  ! {e}")
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- output validation
+
+
+def as_output_pose(value) -> np.ndarray:
+    """The student's return value as a finite (4, 4) float array, or OutputError saying why."""
+    if isinstance(value, (list, tuple)):
+        try:
+            value = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise OutputError("returned a list that is not a 4x4 array of numbers") from None
+    if not isinstance(value, np.ndarray):
+        raise OutputError(f"returned {type(value).__name__}, expected a (4, 4) numpy array")
+    if value.shape != (4, 4):
+        raise OutputError(f"returned shape {value.shape}, expected (4, 4)")
+    value = value.astype(float)
+    if not np.all(np.isfinite(value)):
+        raise OutputError("returned NaN or inf")
+    if np.abs(value[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-9:
+        raise OutputError(f"returned a last row {value[3]}, a pose's is [0, 0, 0, 1]")
+    return value
+
+
+def pose_errors(T: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """rotation (deg) and translation (mm) errors of a returned pose; inf if R is no rotation."""
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) <= 0:
+        rot = math.inf  # not a rotation: no angle to speak of
+    else:
+        rot = float(geo.rotation_error_deg(geo.project_to_so3(R), truth[:3, :3]))
+        # project_to_so3 forgives a slightly non-orthonormal block; charge what it removed.
+        rot += float(np.degrees(np.abs(R - geo.project_to_so3(R)).max()))
+    return {
+        "rotation": rot,
+        "translation": float(np.linalg.norm(T[:3, 3] - truth[:3, 3]) * 1000.0),
+    }
+
+
+def _measure_pose(value, trial: Trial) -> dict[str, float]:
+    return pose_errors(as_output_pose(value), trial.truth)
+
+
+# Exact-arithmetic problems: any correct float64 formula lands within 1e-6 deg / 1e-6 mm
+# (about 1e7 times float64 rounding on metre-scale poses); float32 arithmetic lands near
+# 1e-4, which earns half; a wrong formula is off by degrees and millimetres.
+_EXACT_TOL = {"rotation": 1e-6, "translation": 1e-6}
+_EXACT_BANDS = ((1.0, 1.0), (1e3, 0.5))
+
+
+def _pose_checks(what: str) -> tuple[Check, ...]:
+    return (
+        Check("rotation", "deg", 0.5, _EXACT_BANDS, f"the rotation block of {what}"),
+        Check("translation", "mm", 0.5, _EXACT_BANDS, f"the translation column of {what}"),
+    )
+
+
+def _random_pose(rng: np.random.Generator, max_trans_m: float = 1.0) -> np.ndarray:
+    R = Rotation.from_rotvec(_random_rotvec(rng)).as_matrix()
+    return geo.make_pose(R, rng.uniform(-max_trans_m, max_trans_m, 3))
+
+
+def _random_rotvec(rng: np.random.Generator, angle=None) -> np.ndarray:
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return axis * (rng.uniform(0.05, np.pi - 0.05) if angle is None else angle)
+
+
+# --------------------------------------------------------------------------- lab 0 specs
+
+
+def _trial_invert(rng, index: int) -> Trial:
+    T = _random_pose(rng)
+    return Trial(args=(T,), truth=geo.invert(T), tol=dict(_EXACT_TOL), label="random pose")
+
+
+def _trial_compose(rng, index: int) -> Trial:
+    n = 1 + index % 5  # chains of 1 to 5 poses, so a one-pose "chain" is tested too
+    chain = [_random_pose(rng, 0.5) for _ in range(n)]
+    return Trial(args=(chain,), truth=geo.compose(*chain), tol=dict(_EXACT_TOL),
+                 label=f"chain of {n}")
+
+
+def _trial_rotvec(rng, index: int) -> Trial:
+    # The first problems are the edge cases of Rodrigues' formula: no rotation (0/0 if the
+    # axis is computed as r/|r|), a tiny one, and a half-turn.
+    angle = {0: 0.0, 1: 1e-9, 2: np.pi}.get(index)
+    rvec = _random_rotvec(rng, angle)
+    t = rng.uniform(-1.0, 1.0, 3)
+    label = {0: "zero rotation", 1: "tiny rotation", 2: "half turn"}.get(index, "random")
+    return Trial(args=(rvec, t), truth=geo.pose_from_rotvec(rvec, t), tol=dict(_EXACT_TOL),
+                 label=label, all_or_nothing=index in (0, 1, 2))
+
+
+INVERT_POSE = FunctionSpec(
+    name="invert_pose", points=3.0, n_trials=6, make_trial=_trial_invert, measure=_measure_pose,
+    checks=_pose_checks("b_T_a = inv(a_T_b): R^T and -R^T t"),
+    signature="invert_pose(a_T_b: (4, 4) array) -> b_T_a (4, 4)",
+)
+COMPOSE_CHAIN = FunctionSpec(
+    name="compose_chain", points=3.0, n_trials=6, make_trial=_trial_compose,
+    measure=_measure_pose,
+    checks=_pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
+    signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
+)
+POSE_FROM_ROTVEC = FunctionSpec(
+    name="pose_from_rotvec", points=4.0, n_trials=8, make_trial=_trial_rotvec,
+    measure=_measure_pose,
+    checks=_pose_checks("Rodrigues' formula, including a zero rotation vector"),
+    signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
+)
+
+
+# --------------------------------------------------------------------------- lab 1: a noisy fit
+
+
+def _trial_fit_rigid(rng, index: int) -> Trial:
+    n = int(rng.integers(6, 16))
+    sigma_mm = float(rng.uniform(0.5, 2.0))
+    p = synthetic.make_flange(rng, n_points=n, noise_mm=sigma_mm, fixed_orientation=False)
+    # A least-squares rigid fit has 6 parameters, so the fitted map's error summed over the n
+    # points has expectation 6 sigma^2 (3 axes each): RMS over points sigma*sqrt(6/n). Three
+    # times that is > 5 standard deviations of the chi-square(6) tail: a correct fit passes.
+    tol = 3.0 * sigma_mm * math.sqrt(6.0 / n)
+    return Trial(args=(p.cam_points, p.base_points), truth=(p.base_T_cam_true, p.cam_points),
+                 tol={"mapping": tol},
+                 label=f"{n} points, {sigma_mm:.2f} mm noise")
+
+
+def _measure_fit(value, trial: Trial) -> dict[str, float]:
+    T = as_output_pose(value)
+    truth, cam_points = trial.truth
+    if not math.isfinite(pose_errors(T, truth)["rotation"]):
+        raise OutputError("returned a rotation block that is not a proper rotation (det +1)")
+    mapped = cam_points @ T[:3, :3].T + T[:3, 3]
+    true_mapped = cam_points @ truth[:3, :3].T + truth[:3, 3]
+    rms = float(np.sqrt(np.mean(np.sum((mapped - true_mapped) ** 2, axis=1)))) * 1000.0
+    return {"mapping": rms}
+
+
+FIT_RIGID = FunctionSpec(
+    name="fit_rigid", points=4.0, n_trials=5, make_trial=_trial_fit_rigid, measure=_measure_fit,
+    checks=(
+        Check("mapping", "mm", 1.0, ((1.0, 1.0), (2.0, 0.5)),
+              "RMS distance between your map and the true one over the measured points"),
+    ),
+    signature="fit_rigid(src: (N, 3), dst: (N, 3)) -> dst_T_src (4, 4)",
+)
+
+SPECS: dict[str, tuple[FunctionSpec, ...]] = {
+    "lab0_frames": (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC),
+    "lab1_flange": (FIT_RIGID,),
+}
+
+
+def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
+    """The spec of graded function ``name`` (searched in every lab unless ``assignment``)."""
+    groups = [SPECS[assignment]] if assignment else SPECS.values()
+    for group in groups:
+        for spec in group:
+            if spec.name == name:
+                return spec
+    known = sorted(s.name for g in SPECS.values() for s in g)
+    raise ValueError(f"no graded function named {name!r}; graded functions are {known}")
+
+
+# --------------------------------------------------------------------------- scoring
+
+
+def make_trials(spec: FunctionSpec, rng: np.random.Generator) -> list[Trial]:
+    """``spec.n_trials`` problems drawn from ``rng``."""
+    return [spec.make_trial(rng, i) for i in range(spec.n_trials)]
+
+
+def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
+    """The practice problems of a public seed (the same generator as the hidden ones)."""
+    return make_trials(spec, np.random.default_rng([20240917, int(seed)]))
+
+
+def score_function(spec: FunctionSpec, trials: list[Trial],
+                   outcomes: list[TrialOutcome]) -> FunctionResult:
+    """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem."""
+    if len(trials) != len(outcomes):
+        raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
+    per_check = {c.name: [] for c in spec.checks}
+    errors: list[str] = []
+    for trial, outcome in zip(trials, outcomes):
+        measured = None
+        if outcome.error is None:
+            try:
+                measured = spec.measure(outcome.value, trial)
+            except OutputError as exc:
+                problem = f"on a {trial.label} problem: {exc}"
+                if problem not in errors:
+                    errors.append(problem)
+        elif f"on a {trial.label} problem: {outcome.error}" not in errors:
+            errors.append(f"on a {trial.label} problem: {outcome.error}")
+        rows = {}
+        for c in spec.checks:
+            err = math.inf if measured is None else float(measured[c.name])
+            rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]))
+        if trial.all_or_nothing and min(r[2] for r in rows.values()) < 1.0:
+            rows = {k: (r[0], r[1], 0.0) for k, r in rows.items()}
+        for name, row in rows.items():
+            per_check[name].append(row)
+    results, total = [], 0.0
+    weight_sum = sum(c.weight for c in spec.checks)
+    for c in spec.checks:
+        rows = per_check[c.name]
+        errs = np.array([r[0] for r in rows])
+        credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
+        worst = int(np.argmax(np.where(np.isfinite(errs), errs, np.inf))) if rows else 0
+        results.append(CheckResult(
+            name=c.name, unit=c.unit, credit=credit,
+            n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
+            worst_error=float(errs.max()) if rows else math.inf,
+            median_error=float(np.median(errs)) if rows else math.inf,
+            tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe))
+        total += c.weight * credit
+    points = round(spec.points * total / weight_sum, 2)
+    return FunctionResult(spec.name, points, spec.points, results, errors[:5])
+
+
+def _call_in_process(func, trial: Trial) -> TrialOutcome:
+    # Fresh copies: a function that writes into its input must not corrupt the next check.
+    args = tuple(_copy(a) for a in trial.args)
+    started = time.perf_counter()
+    try:
+        value = func(*args)
+    except Exception as exc:  # noqa: BLE001 - report any error as the student's
+        return TrialOutcome(error=f"{type(exc).__name__}: {exc}",
+                            seconds=time.perf_counter() - started)
+    return TrialOutcome(value=value, seconds=time.perf_counter() - started)
+
+
+def _copy(a):
+    if isinstance(a, np.ndarray):
+        return a.copy()
+    if isinstance(a, list):
+        return [_copy(x) for x in a]
+    return a
+
+
+def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResult:
+    """Score ``func`` in this process on the problems of the given public ``seeds``."""
+    spec = spec_for(name or getattr(func, "__name__", ""))
+    trials = [t for s in seeds for t in public_trials(spec, s)]
+    result = score_function(spec, trials, [_call_in_process(func, t) for t in trials])
+    return result
+
+
+def check(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResult:
+    """Score your function on practice problems and print the score it would get, and why.
+
+    The hidden grade uses the same problem generator and the same scoring on fresh problems,
+    so a function that gets full marks here for the right reasons gets them there.
+
+    Args:
+        func: your function, e.g. ``check(invert_pose)``.
+        name: the graded function's name if ``func`` is called differently.
+        seeds: public practice seeds (ints).
+    """
+    result = evaluate(func, name, seeds)
+    print(result.summary())
+    return result
+
+
+def hidden_test(func, name: str | None = None) -> None:
+    """nbgrader's hidden test: assert full marks on the kernel seeds (a cross-check only)."""
+    result = evaluate(func, name, KERNEL_SEEDS)
+    assert result.fraction >= 1.0, result.summary()

@@ -1,0 +1,467 @@
+"""The independent grader: scores one submission without trusting anything in it.
+
+Why not just trust nbgrader's hidden-test cells? They run in the same kernel as the student's
+code, which can swallow failing asserts, patch numpy or the kernel, or find the expected
+answer on the caller's stack. So here the truth and the score never enter the student's
+process:
+
+1. The submitted notebook is read as JSON (a mangled or renamed notebook still works) and
+   every code cell is kept in order, except hidden-test cells and IPython magics.
+2. That code runs in a fresh worker process (:mod:`autograder._worker`) under resource
+   limits (address space, CPU seconds, file size, wall clock with a hard kill), with a
+   scrubbed environment, in an empty temporary directory, and, where Linux user namespaces
+   are available, in its own PID, mount and network namespaces with the course directory
+   hidden and all capabilities dropped.
+3. Problems are drawn from the secret seed, a per-run nonce that never reaches the disk
+   before the workers are gone, the assignment, the student id and the function name. Only
+   the inputs go to the worker; its replies are decoded defensively (no pickle) and scored
+   here, against truth that stays here.
+
+A crash, hang, NaN or exception costs the student the problems it touched, nothing else; a
+worker that dies is restarted for the next function.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import os
+import re
+import secrets
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from autograder import checks, wire
+
+__all__ = [
+    "SECRET_ENV",
+    "PRIVATE_DIR",
+    "Limits",
+    "SubmissionGrade",
+    "load_secret",
+    "create_secret",
+    "problem_rng",
+    "extract_code",
+    "scan_for_tampering",
+    "sandbox_available",
+    "Worker",
+    "grade_notebook",
+]
+
+SECRET_ENV = "COBOTLAB_GRADING_SECRET"
+PRIVATE_DIR = ".cobotlab"          # inside the course directory; never under source/ or release/
+SECRET_FILE = "secret"
+HIDDEN_MARK = "BEGIN HIDDEN TESTS"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Resource limits for one submission's worker."""
+
+    memory_mb: int = 2048          # address space; numpy + matplotlib need about 1 GB of it
+    cpu_s: int = 120               # CPU seconds over the worker's whole life
+    file_mb: int = 16              # largest file the student code may write
+    cell_timeout_s: float = 10.0   # each notebook cell while loading
+    load_timeout_s: float = 90.0   # loading, restarts after hung cells included
+    call_timeout_s: float | None = None   # per call; None: the function spec's own limit
+
+
+@dataclass
+class SubmissionGrade:
+    """One student's result: per-function scores, tamper flags, and notes for the instructor."""
+
+    student_id: str
+    assignment: str
+    functions: list[checks.FunctionResult] = field(default_factory=list)
+    flags: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def score(self) -> float:
+        return round(sum(f.points for f in self.functions), 2)
+
+    @property
+    def max_score(self) -> float:
+        return round(sum(f.max_points for f in self.functions), 2)
+
+
+# --------------------------------------------------------------------------- secret and seeds
+
+
+def create_secret(course_dir) -> Path:
+    """Write a new random grading secret to ``<course>/.cobotlab/secret`` (mode 0600)."""
+    private = Path(course_dir) / PRIVATE_DIR
+    private.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path = private / SECRET_FILE
+    if not path.exists():
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(secrets.token_hex(32) + "\n")
+    return path
+
+
+def load_secret(course_dir=None) -> str:
+    """The grading secret: ``$COBOTLAB_GRADING_SECRET``, else ``<course>/.cobotlab/secret``."""
+    value = os.environ.get(SECRET_ENV, "").strip()
+    if not value and course_dir is not None:
+        path = Path(course_dir) / PRIVATE_DIR / SECRET_FILE
+        if path.is_file():
+            value = path.read_text().strip()
+    if len(value) < 16:
+        raise ValueError(
+            f"no grading secret (at least 16 characters) found: set ${SECRET_ENV} or run "
+            "init_course(DIR) / `cobotlab course init DIR`, which writes "
+            f"DIR/{PRIVATE_DIR}/{SECRET_FILE}"
+        )
+    return value
+
+
+def problem_rng(secret: str, nonce: str, assignment: str, student_id: str,
+                function: str) -> np.random.Generator:
+    """The generator for one student's hidden problems of one function.
+
+    HMAC-SHA256 keyed by the secret over the run nonce and the names, so students get
+    different problems, a student cannot predict theirs, and a replay with the same nonce
+    reproduces them.
+    """
+    message = "\x1f".join([nonce, assignment, student_id, function]).encode()
+    digest = hmac.new(secret.encode(), message, hashlib.sha256).digest()
+    return np.random.default_rng(int.from_bytes(digest, "big"))
+
+
+# --------------------------------------------------------------------------- notebook reading
+
+
+def _cell_source(cell) -> str:
+    source = cell.get("source", "") if isinstance(cell, dict) else ""
+    if isinstance(source, list):
+        source = "".join(s for s in source if isinstance(s, str))
+    return source if isinstance(source, str) else ""
+
+
+def _strip_magics(source: str) -> str | None:
+    """Drop IPython-only lines (``%...``, ``!...``); None for a cell magic (``%%...``) cell."""
+    if source.lstrip().startswith("%%"):
+        return None
+    return "\n".join("pass  # magic removed" if line.lstrip().startswith(("%", "!")) else line
+                     for line in source.splitlines())
+
+
+def extract_code(notebook_paths) -> tuple[list[str], list[str]]:
+    """(code cells in order, notes) from one or more notebooks, hidden-test cells left out.
+
+    Reads raw JSON and tolerates missing metadata, deleted, duplicated or reordered cells:
+    graded functions are found later by name, not by cell id.
+    """
+    if isinstance(notebook_paths, (str, Path)):
+        notebook_paths = [notebook_paths]
+    cells, notes = [], []
+    for path in notebook_paths:
+        try:
+            nb = json.loads(Path(path).read_text(encoding="utf-8", errors="replace"))
+            raw_cells = nb.get("cells", []) if isinstance(nb, dict) else []
+        except (OSError, ValueError) as exc:
+            notes.append(f"{Path(path).name}: unreadable notebook ({type(exc).__name__})")
+            continue
+        for cell in raw_cells if isinstance(raw_cells, list) else []:
+            if not isinstance(cell, dict) or cell.get("cell_type") != "code":
+                continue
+            source = _cell_source(cell)
+            if HIDDEN_MARK in source:
+                continue
+            source = _strip_magics(source)
+            if source and source.strip():
+                cells.append(source)
+    return cells, notes
+
+
+# Patterns that have no business in a lab-0 answer; a match is flagged for the instructor
+# to look at (it does not change the score, which is computed independently anyway).
+_TAMPER_PATTERNS = {
+    "exception_handler": r"set_custom_exc|sys\.excepthook|showtraceback",
+    "kernel_patch": r"\.kernel\b|do_execute|run_cell|ipykernel|shell_handlers",
+    "sys_modules": r"sys\.modules\s*\[[^\]]*\]\s*=|sys\.modules\.(?:update|pop|__setitem__)",
+    "numpy_patch": r"\b(?:np|numpy)(?:\.\w+)+\s*=(?!=)|setattr\(\s*(?:np|numpy)\b",
+    "grader_patch": r"\bautograder\b(?!\.checks import check\b)",
+    "secret_probe": r"COBOTLAB_GRADING_SECRET|\.cobotlab\b|os\.environ|getenv",
+    "stack_inspection": r"_getframe|inspect\.(?:stack|currentframe)|f_back|f_locals",
+    "signal_handling": r"\bsignal\.(?:signal|setitimer|alarm)|\bsetrlimit\b",
+}
+
+
+def scan_for_tampering(cells: list[str]) -> list[str]:
+    """Names of suspicious patterns found in the student's code (see ``_TAMPER_PATTERNS``)."""
+    code = "\n".join(cells)
+    code = "\n".join(line for line in code.splitlines()
+                     if "from autograder.checks import check" not in line)
+    return [f"suspicious_{name}" for name, pattern in _TAMPER_PATTERNS.items()
+            if re.search(pattern, code)]
+
+
+# --------------------------------------------------------------------------- the worker
+
+
+@lru_cache(maxsize=1)
+def sandbox_available() -> bool:
+    """True when unprivileged namespaces (``unshare``) and ``setpriv`` work on this machine."""
+    if not (shutil.which("unshare") and shutil.which("setpriv")):
+        return False
+    probe = ["unshare", "--user", "--map-root-user", "--pid", "--fork", "--mount-proc", "--net",
+             "--", "setpriv", "--bounding-set=-all", "--no-new-privs", "--", "true"]
+    try:
+        return subprocess.run(probe, capture_output=True, timeout=10, check=False).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        return False
+
+
+def _worker_env(home: str) -> dict[str, str]:
+    """A clean environment: nothing of the grader's (no secret), one BLAS thread."""
+    return {"PATH": "/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8", "MPLBACKEND": "Agg",
+            "MPLCONFIGDIR": home, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+            "MKL_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1", "PYTHONHASHSEED": "0"}
+
+
+def sandbox_prefix(hide: list[str], isolate_network: bool = True) -> list[str]:
+    """Command prefix running a program in new namespaces with ``hide`` paths masked.
+
+    Each hidden directory gets an empty, mode-000 tmpfs on top (a hidden file gets
+    /dev/null bound over it); then every capability is dropped, so the program cannot
+    unmount them, and it sees only its own processes.
+    """
+    mounts = []
+    for path in hide:
+        if os.path.isdir(path):
+            mounts.append(f"mount -t tmpfs -o size=16k,mode=000 none {shlex.quote(path)}")
+        elif os.path.exists(path):
+            mounts.append(f"mount --bind /dev/null {shlex.quote(path)}")
+    script = " && ".join(mounts + ['exec setpriv --bounding-set=-all --inh-caps=-all '
+                                   '--no-new-privs -- "$@"'])
+    flags = ["--user", "--map-root-user", "--mount", "--kill-child"]
+    flags += ["--pid", "--fork", "--mount-proc"] + (["--net"] if isolate_network else [])
+    return ["unshare", *flags, "--", "sh", "-c", script, "sandbox"]
+
+
+class WorkerFailure(Exception):
+    """The worker timed out, died or broke the protocol; it has been killed."""
+
+
+class CellHang(WorkerFailure):
+    """A notebook cell hung past its hard deadline while loading (``index`` says which)."""
+
+    def __init__(self, index: int, message: str):
+        super().__init__(message)
+        self.index = index
+
+
+class Worker:
+    """A student-code worker process, spoken to over two private pipes.
+
+    Loads the notebook one cell at a time, skipping the indices in ``skip``; a cell that
+    hangs past its hard deadline raises :class:`CellHang` so the caller can restart without
+    it. ``load_report`` lists what each cell did.
+    """
+
+    def __init__(self, cells: list[str], limits: Limits, hide: list[str] = (),
+                 skip: set[int] = frozenset()):
+        self.limits = limits
+        self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
+        req_r, self._req_w = os.pipe()
+        self._rep_r, rep_w = os.pipe()
+        python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
+                  str(limits.memory_mb), str(limits.cpu_s), str(limits.file_mb)]
+        hide = [p for p in hide if not _contains(p, sys.executable) and not _contains(p, _PKG)]
+        command = (sandbox_prefix(list(hide)) + python) if sandbox_available() else python
+        self._stderr = open(os.path.join(self.workdir, ".worker-stderr"), "w+b")
+        self.proc = subprocess.Popen(
+            command, cwd=self.workdir, env=_worker_env(self.workdir), stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL, stderr=self._stderr, pass_fds=(req_r, rep_w),
+            start_new_session=True)
+        os.close(req_r)
+        os.close(rep_w)
+        self.load_report: list[dict] = []
+        for index, source in enumerate(cells):
+            if index in skip:
+                self.load_report.append({"index": index, "ok": False, "error": "skipped"})
+                continue
+            try:
+                reply = self._request({"op": "cell", "index": index, "source": source,
+                                       "timeout": limits.cell_timeout_s},
+                                      limits.cell_timeout_s + 2.0)
+            except WorkerFailure as exc:
+                raise CellHang(index, f"cell {index}: {exc}") from None
+            self.load_report.append(dict(reply, index=index))
+
+    def _request(self, message: dict, timeout_s: float) -> dict:
+        try:
+            wire.send(self._req_w, message)
+            return wire.receive(self._rep_r, time.monotonic() + timeout_s)
+        except (wire.WireError, OSError) as exc:
+            timed_out = "timed out" in str(exc)
+            self.close()
+            code = self.proc.returncode
+            if timed_out:
+                raise WorkerFailure(f"timed out after {timeout_s:g} s") from None
+            reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
+                      -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
+            raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
+                                "are enforced)") from None
+
+    def call(self, name: str, args: tuple, timeout_s: float) -> checks.TrialOutcome:
+        """Call ``name(*args)`` in the worker; a hang or death raises WorkerFailure."""
+        # The worker's own alarm fires first; the extra second is for a worker that blocks it.
+        reply = self._request({"op": "call", "name": name, "args": list(args),
+                               "timeout": timeout_s}, timeout_s + 2.0)
+        seconds = reply.get("seconds", 0.0)
+        seconds = float(seconds) if isinstance(seconds, (int, float)) else 0.0
+        if reply.get("ok") is True and "value" in reply:
+            return checks.TrialOutcome(value=reply["value"], seconds=seconds)
+        error = reply.get("error")
+        where = reply.get("where")
+        text = str(error)[:400] if error else "the call failed"
+        if isinstance(where, str) and where:
+            text += f" ({where[:60]})"
+        return checks.TrialOutcome(error=text, seconds=seconds)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pass
+        for fd in (self._req_w, self._rep_r):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self._req_w = self._rep_r = -1
+        self._stderr.close()
+        shutil.rmtree(self.workdir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+_PKG = str(Path(__file__).resolve().parent)
+
+
+def _contains(parent: str, child: str) -> bool:
+    try:
+        return os.path.commonpath([os.path.realpath(parent), os.path.realpath(child)]) == \
+            os.path.realpath(parent)
+    except ValueError:
+        return False
+
+
+# --------------------------------------------------------------------------- one submission
+
+
+def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str, nonce: str,
+                   limits: Limits = Limits(), hide: list[str] = ()) -> SubmissionGrade:
+    """Grade one submission (its notebook file or files) on its own hidden problems.
+
+    ``hide`` lists paths the student code must not see (the course directory). Never
+    raises because of anything in the submission: every failure becomes a zero on the
+    problems it touched and a note.
+    """
+    started = time.monotonic()
+    specs = checks.SPECS.get(assignment)
+    if specs is None:
+        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
+                         f"known assignments: {sorted(checks.SPECS)}")
+    grade = SubmissionGrade(student_id=student_id, assignment=assignment)
+    cells, grade.notes = extract_code(notebook_paths)
+    grade.flags += scan_for_tampering(cells)
+    if not cells:
+        grade.notes.append("no code cells found")
+
+    worker: Worker | None = None
+    skip: set[int] = set()
+    load_deadline = time.monotonic() + limits.load_timeout_s
+    try:
+        for spec in specs:
+            trials = checks.make_trials(spec, problem_rng(secret, nonce, assignment,
+                                                          student_id, spec.name))
+            outcomes: list[checks.TrialOutcome] = []
+            failure = None
+            for trial in trials:
+                if failure is not None:  # one hang is enough: do not wait on every problem
+                    outcomes.append(checks.TrialOutcome(error=failure))
+                    continue
+                try:
+                    if worker is None or not worker.alive:
+                        if worker is not None:
+                            worker.close()
+                        worker = _start_worker(cells, limits, hide, skip, grade, load_deadline)
+                        _note_load(grade, worker.load_report)
+                    timeout = limits.call_timeout_s or spec.time_limit_s
+                    outcome = worker.call(spec.name, trial.args, timeout)
+                    outcomes.append(outcome)
+                    if outcome.error and outcome.error.startswith("timed out"):
+                        failure = f"skipped: an earlier problem timed out after {timeout:g} s"
+                except WorkerFailure as exc:
+                    failure = str(exc)
+                    outcomes.append(checks.TrialOutcome(error=failure))
+                    if worker is not None:
+                        worker.close()
+                    worker = None
+            grade.functions.append(checks.score_function(spec, trials, outcomes))
+    finally:
+        if worker is not None:
+            worker.close()
+    grade.seconds = time.monotonic() - started
+    return grade
+
+
+def _start_worker(cells, limits: Limits, hide, skip: set[int], grade: SubmissionGrade,
+                  load_deadline: float) -> Worker:
+    """A loaded worker; cells that hang or time out are skipped on every later restart."""
+    while True:
+        if time.monotonic() > load_deadline:
+            raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s")
+        try:
+            worker = Worker(cells, limits, hide, skip)
+        except CellHang as exc:
+            skip.add(exc.index)
+            grade.notes.append(f"  cell error: {exc} (skipped from then on)")
+            continue
+        # A cell stopped by its alarm would only cost the same seconds again next restart.
+        skip.update(r["index"] for r in worker.load_report
+                    if str(r.get("error", "")).startswith("timed out"))
+        return worker
+
+
+def _note_load(grade: SubmissionGrade, report: list[dict]) -> None:
+    if any("loaded" in n for n in grade.notes):
+        return  # a restarted worker repeats the same load
+    failed = [c for c in report if isinstance(c, dict) and not c.get("ok")
+              and c.get("error") != "skipped"]
+    grade.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
+    for c in failed[:5]:
+        grade.notes.append(f"  cell error: {str(c.get('error'))[:200]} ({c.get('where', '')})")
+    chars = max([c.get("output_chars", 0) for c in report if isinstance(c, dict)
+                 and isinstance(c.get("output_chars"), int)] or [0])
+    if chars > 100_000:
+        grade.notes.append(f"printed {chars} characters while loading (output discarded)")

@@ -1,0 +1,32 @@
+"""Correct, but prints megabytes at top level and on every call: earns full marks, no more.
+
+earned: 10
+min: 10
+"""
+# %% extra
+print("spam " * 1_000_000)
+# %% replace invert_pose
+def invert_pose(a_T_b):
+    print("x" * 200_000)
+    R, t = a_T_b[:3, :3], a_T_b[:3, 3]
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R.T, -R.T @ t
+    return out
+# %% replace compose_chain
+def compose_chain(poses):
+    import sys
+    sys.stderr.write("y" * 200_000)
+    out = np.eye(4)
+    for T in poses:
+        out = out @ T
+    return out
+# %% replace pose_from_rotvec
+def pose_from_rotvec(rvec, t):
+    theta = np.linalg.norm(rvec)
+    T = np.eye(4)
+    if theta > 0:
+        kx, ky, kz = rvec / theta
+        K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+        T[:3, :3] = np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
+    T[:3, 3] = t
+    return T

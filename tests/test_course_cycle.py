@@ -1,0 +1,231 @@
+"""The full nbgrader cycle on lab 0 with real nbgrader, and the adversarial corpus.
+
+generate_assignment -> student submissions -> nbgrader autograde -> grade_course, then the
+gradebook, feedback and release are inspected. Runs in about a minute on 2 cores.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+from autograder import grading
+from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
+
+ASSIGNMENT = "lab0_frames"
+SOURCE_NB = LABS_DIR / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
+ADVERSARIAL = Path(__file__).parent / "adversarial"
+FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
+
+pytestmark = pytest.mark.slow
+
+
+def _nbgrader(course: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
+    done = subprocess.run([sys.executable, "-m", "nbgrader", *args], cwd=course, env=env,
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done
+
+
+@pytest.fixture(scope="module")
+def released(tmp_path_factory) -> Path:
+    """A course with lab 0 generated (released) once; tests copy it."""
+    course = init_course(tmp_path_factory.mktemp("course") / "course")
+    _nbgrader(course, "generate_assignment", ASSIGNMENT)
+    return course
+
+
+def _fresh_course(released: Path, tmp_path: Path) -> Path:
+    course = tmp_path / "course"
+    shutil.copytree(released, course)
+    config = course / "nbgrader_config.py"
+    config.write_text(config.read_text().replace(str(released), str(course)))
+    return course
+
+
+def _solution_sources() -> dict[str, str]:
+    nb = json.loads(SOURCE_NB.read_text())
+    out = {}
+    for cell in nb["cells"]:
+        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if gid in FUNCTIONS:
+            out[gid] = "".join(cell["source"]).replace("    ### BEGIN SOLUTION\n", "").replace(
+                "\n    ### END SOLUTION", "")
+    return out
+
+
+def _submit(course: Path, student: str, replace: dict[str, str] | None = None,
+            extra: str | None = None, mangle: bool = False) -> None:
+    """Write submitted/<student>/lab0_frames/ from the released notebook with edits."""
+    nb = json.loads((course / "release" / ASSIGNMENT / f"{ASSIGNMENT}.ipynb").read_text())
+    cells = nb["cells"]
+    for cell in cells:
+        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if replace and gid in replace:
+            cell["source"] = replace[gid]
+    if extra is not None:
+        at = next(i for i, c in enumerate(cells)
+                  if c["metadata"].get("nbgrader", {}).get("grade_id") == "imports") + 1
+        cells.insert(at, {"cell_type": "code", "metadata": {}, "execution_count": None,
+                          "outputs": [], "source": extra})
+    if mangle:
+        kept = []
+        for cell in cells:
+            meta = cell["metadata"].get("nbgrader", {})
+            if meta.get("grade"):
+                continue  # test cells deleted
+            if meta.get("solution"):
+                twin = copy.deepcopy(cell)
+                twin["metadata"]["nbgrader"]["grade_id"] = "retyped_" + meta["grade_id"]
+                kept.append(twin)
+                cell = dict(cell, metadata={})  # nbgrader metadata stripped
+            kept.append(cell)
+        kept.reverse()  # reordered: the graded functions are found by name, not position
+        nb["cells"] = kept
+    out = course / "submitted" / student / ASSIGNMENT
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{ASSIGNMENT}.ipynb").write_text(json.dumps(nb))
+    (out / "timestamp.txt").write_text("2026-11-20 10:00:00.000000 UTC")
+
+
+def _read_grades(course: Path) -> dict[str, dict]:
+    with open(course / "grades.csv") as f:
+        return {row["student_id"]: row for row in csv.DictReader(f)}
+
+
+# --------------------------------------------------------------------------- notebooks
+
+
+def test_source_notebook_runs_with_solutions_and_hidden_tests():
+    nb = nbformat.read(SOURCE_NB, as_version=4)
+    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), \
+        "the source notebook must be saved without outputs"
+    NotebookClient(nb, timeout=60, kernel_name="python3",
+                   resources={"metadata": {"path": str(SOURCE_NB.parent)}}).execute()
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+              if o.output_type == "error"]
+    assert not errors, errors
+    hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
+    assert len(hidden) == len(FUNCTIONS)
+
+
+def test_release_has_no_solution_hidden_tests_or_secret(released):
+    text = (released / "release" / ASSIGNMENT / f"{ASSIGNMENT}.ipynb").read_text()
+    secret = grading.load_secret(released)
+    for needle in ("BEGIN SOLUTION", "END SOLUTION", "BEGIN HIDDEN", "hidden_test",
+                   "-R.T @ t", "out = out @ T", "np.sin(theta) * K", secret):
+        assert needle not in text, needle
+    assert text.count("raise NotImplementedError()") == len(FUNCTIONS)
+    released_files = [p for p in (released / "release").rglob("*") if p.is_file()]
+    assert all(secret not in p.read_text(errors="ignore") for p in released_files)
+    assert not any(grading.PRIVATE_DIR in p.parts for p in released_files)
+
+
+# --------------------------------------------------------------------------- full cycle
+
+
+def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
+    course = _fresh_course(released, tmp_path)
+    solutions = _solution_sources()
+    _submit(course, "ref", replace=solutions)
+    _submit(course, "blank")
+    wrong = {
+        # forgets to rotate the translation: rotation right, translation wrong
+        "invert_pose": solutions["invert_pose"].replace("-R.T @ t", "-t"),
+        # multiplies in the wrong order: right only for one-pose chains
+        "compose_chain": solutions["compose_chain"].replace("out @ T", "T @ out"),
+        # no guard for the zero rotation vector: 0/0 on that problem only
+        "pose_from_rotvec": solutions["pose_from_rotvec"].replace("theta > 1e-12", "True"),
+    }
+    _submit(course, "wrong", replace=wrong)
+    _nbgrader(course, "autograde", ASSIGNMENT)
+    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True)
+    assert [r["student_id"] for r in rows] == ["blank", "ref", "wrong"]
+    grades = _read_grades(course)
+    assert list(next(iter(grades.values())).keys())[:11] == [
+        "assignment", "duedate", "timestamp", "student_id", "last_name", "first_name", "email",
+        "raw_score", "late_submission_penalty", "score", "max_score"]
+    assert float(grades["ref"]["score"]) == 10.0 and float(grades["ref"]["max_score"]) == 10.0
+    assert float(grades["blank"]["score"]) == 0.0
+    # 1.5 (rotation of the inverse) + 1 (2 of 6 chains have one pose) + 3.5 (7 of 8 rotvecs)
+    assert float(grades["wrong"]["score"]) == pytest.approx(6.0)
+    assert all(grades[s]["flags"] == "" for s in grades), grades
+    assert grades["ref"]["timestamp"]
+
+    feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
+    assert "translation: FAILED" in feedback and " mm" in feedback and " deg" in feedback
+    secret = grading.load_secret(course)
+    for path in (course / "feedback_cobotlab").rglob("*.html"):
+        text = path.read_text()
+        assert "hidden_test" not in text and "HIDDEN" not in text and secret not in text
+    assert secret not in (course / "grades.csv").read_text()
+
+
+# --------------------------------------------------------------------------- adversarial
+
+
+def _parse_case(path: Path) -> dict:
+    text = path.read_text()
+    header, _, body = text.partition('"""\n#')
+    case = {"earned": None, "min": 0.0, "flags": [], "replace": {}, "extra": None,
+            "mangle": False}
+    for line in header.splitlines():
+        key, _, value = line.partition(":")
+        if key in ("earned", "min"):
+            case[key] = float(value)
+        elif key == "flags":
+            case["flags"] = [v.strip() for v in value.split(",") if v.strip()]
+    chunks = ("#" + body).split("# %% ")[1:]
+    for chunk in chunks:
+        directive, _, code = chunk.partition("\n")
+        words = directive.split()
+        if words[0] == "extra":
+            case["extra"] = code
+        elif words[0] == "replace":
+            case["replace"][words[1]] = code
+        elif words[0] == "mangle":
+            case["mangle"] = True
+    assert case["earned"] is not None, f"{path.name} has no 'earned:' line"
+    return case
+
+
+def test_adversarial_corpus_graded_in_one_batch(released, tmp_path):
+    course = _fresh_course(released, tmp_path)
+    cases = {p.stem: _parse_case(p) for p in sorted(ADVERSARIAL.glob("*.py"))}
+    assert len(cases) >= 12
+    for name, case in cases.items():
+        _submit(course, name, replace=case["replace"], extra=case["extra"],
+                mangle=case["mangle"])
+    _submit(course, "reference", replace=_solution_sources())
+    # nbgrader's own (trusting) autograde, for the cross-check, on the cases built to fool it
+    # and on one built to wedge it; the other cases run through the independent grader only
+    # (nbgrader costs ~8 s a notebook here and proves nothing more on them).
+    for student in ("reference", "sys_modules", "numpy_patch", "kernel_patch", "forge_protocol"):
+        run_nbgrader_autograde(course, ASSIGNMENT, student, timeout_s=60, cell_timeout_s=4)
+    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60)
+    rows = grade_course(course, ASSIGNMENT, workers=2, limits=limits, quiet=True)
+    grades = {r["student_id"]: r for r in rows}
+    assert set(grades) == set(cases) | {"reference"}, "every submission gets a row"
+    assert grades["reference"]["score"] == 10.0 and grades["reference"]["flags"] == ""
+    for name, case in cases.items():
+        row = grades[name]
+        assert row["score"] <= case["earned"] + 1e-9, (name, row)
+        assert row["score"] >= case["min"] - 1e-9, (name, row)
+        flags = row["flags"].split(";")
+        for wanted in case["flags"]:
+            assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
+    secret = grading.load_secret(course)
+    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
+        assert secret not in path.read_text(), path

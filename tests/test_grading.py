@@ -1,0 +1,223 @@
+"""The grading engine without nbgrader: scoring bands, seeds, the wire format and the worker.
+
+Real worker processes, real limits; each test well under a few seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+
+import numpy as np
+import pytest
+
+from autograder import checks, grading, wire
+from robots import geometry as geo
+from solutions.registration import fit_rigid
+
+SECRET = "s" * 40
+LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
+
+
+def _notebook(tmp_path, *cells, name="nb.ipynb"):
+    nb = {"cells": [{"cell_type": "code", "metadata": {}, "outputs": [], "source": c}
+                    for c in cells], "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
+    path = tmp_path / name
+    path.write_text(json.dumps(nb))
+    return path
+
+
+REFERENCE = """
+import numpy as np
+def invert_pose(T):
+    out = np.eye(4); out[:3, :3] = T[:3, :3].T; out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+def compose_chain(poses):
+    out = np.eye(4)
+    for T in poses:
+        out = out @ T
+    return out
+def pose_from_rotvec(r, t):
+    th = np.linalg.norm(r); T = np.eye(4); T[:3, 3] = t
+    if th > 0:
+        x, y, z = r / th; K = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+        T[:3, :3] = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
+    return T
+"""
+
+
+# --------------------------------------------------------------------------- scoring
+
+
+def test_reference_functions_get_full_marks_on_public_seeds():
+    assert checks.evaluate(geo.invert, "invert_pose").fraction == 1.0
+    assert checks.evaluate(lambda p: geo.compose(*p), "compose_chain").fraction == 1.0
+    assert checks.evaluate(geo.pose_from_rotvec, "pose_from_rotvec").fraction == 1.0
+
+
+def test_wrong_methods_get_partial_or_zero_with_reasons():
+    def forgets_rotation(T):
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = T[:3, :3].T, -T[:3, 3]
+        return out
+
+    result = checks.evaluate(forgets_rotation, "invert_pose")
+    assert result.fraction == 0.5 and result.failed_checks == ["translation"]
+    assert checks.evaluate(lambda T: np.eye(4), "invert_pose").points == 0
+    assert checks.evaluate(lambda p: geo.compose(*p[::-1]), "compose_chain").fraction == \
+        pytest.approx(1 / 3)
+    # float32 arithmetic lands in the half-credit band, not full marks
+    single = checks.evaluate(lambda T: geo.invert(T).astype(np.float32), "invert_pose")
+    assert 0.4 < single.fraction < 1.0
+
+
+def test_trivial_answer_gets_nothing_even_on_edge_cases():
+    assert checks.evaluate(lambda r, t: np.eye(4), "pose_from_rotvec").points == 0
+
+
+@pytest.mark.parametrize("bad, why", [
+    (np.full((4, 4), np.nan), "NaN"), (np.eye(3), "shape"), ("eye", "str"),
+    (np.zeros((4, 4)), "last row"), ([[1, 2], [3]], "list")])
+def test_unusable_outputs_score_zero_and_say_why(bad, why):
+    result = checks.evaluate(lambda T: bad, "invert_pose")
+    assert result.points == 0 and result.errors
+
+
+def test_noise_derived_tolerance_passes_reference_and_fails_wrong_methods():
+    spec = checks.spec_for("fit_rigid")
+    rng = np.random.default_rng(7)
+    trials = [t for _ in range(6) for t in checks.make_trials(spec, rng)]
+    ref = checks.score_function(spec, trials, [checks._call_in_process(fit_rigid, t)
+                                               for t in trials])
+    assert ref.fraction == 1.0, ref.summary()
+
+    def no_centroid(src, dst):  # SVD of the raw cross-covariance: a classic slip
+        U, _, Vt = np.linalg.svd(src.T @ dst)
+        R = geo.project_to_so3(Vt.T @ U.T)
+        return geo.make_pose(R, dst.mean(0) - R @ src.mean(0))
+
+    wrong = checks.score_function(spec, trials, [checks._call_in_process(no_centroid, t)
+                                                 for t in trials])
+    assert wrong.fraction == 0.0, wrong.summary()
+
+
+def test_check_prints_the_score(capsys):
+    checks.check(geo.invert, "invert_pose")
+    assert "invert_pose: 3 / 3 points" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="no graded function"):
+        checks.check(geo.invert, "not_a_function")
+
+
+# --------------------------------------------------------------------------- seeds and secret
+
+
+def test_problem_rng_is_per_student_per_run_and_reproducible():
+    a = grading.problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
+    again = grading.problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
+    assert np.array_equal(a, again)
+    for other in [(SECRET, "n1", "lab0_frames", "bob", "invert_pose"),
+                  (SECRET, "n2", "lab0_frames", "alice", "invert_pose"),
+                  ("t" * 40, "n1", "lab0_frames", "alice", "invert_pose")]:
+        assert not np.array_equal(a, grading.problem_rng(*other).random(3))
+
+
+def test_secret_from_env_or_course_file(tmp_path, monkeypatch):
+    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    with pytest.raises(ValueError, match="grading secret"):
+        grading.load_secret(tmp_path)
+    path = grading.create_secret(tmp_path)
+    assert oct(path.stat().st_mode & 0o777) == "0o600"
+    assert grading.load_secret(tmp_path) == path.read_text().strip()
+    monkeypatch.setenv(grading.SECRET_ENV, "e" * 20)
+    assert grading.load_secret(tmp_path) == "e" * 20
+
+
+# --------------------------------------------------------------------------- wire format
+
+
+def test_wire_round_trip_and_forged_messages(tmp_path):
+    value = {"a": np.arange(6.0).reshape(2, 3), "b": (1, "x", [True, None]), "c": 2.5}
+    back = wire.decode(json.loads(json.dumps(wire.encode(value))))
+    assert np.array_equal(back["a"], value["a"]) and back["b"] == (1, "x", [True, None])
+    for forged in [{"__nd__": "AAAA", "dtype": "O", "shape": [1]},
+                   {"__nd__": "AAAAAAAAAAA=", "dtype": "f8", "shape": [5]},
+                   {"__nd__": "", "dtype": "f8", "shape": [10**9]},
+                   {"__nd__": "", "dtype": "f8", "shape": [-1]}]:
+        with pytest.raises(wire.WireError):
+            wire.decode(forged)
+    r, w = os.pipe()
+    os.write(w, struct.pack("<Q", 2**40))
+    with pytest.raises(wire.WireError, match="exceeds"):
+        wire.receive(r)
+    os.close(r), os.close(w)
+
+
+# --------------------------------------------------------------------------- the worker
+
+
+def test_extract_code_skips_hidden_tests_and_magics(tmp_path):
+    path = _notebook(tmp_path, "%matplotlib inline\nx = 1", "### BEGIN HIDDEN TESTS\nboom",
+                     "%%bash\nls", "!pip install x\ny = 2")
+    cells, notes = grading.extract_code(path)
+    assert len(cells) == 2 and "boom" not in "".join(cells) and "pip" not in "".join(cells)
+    bad = tmp_path / "bad.ipynb"
+    bad.write_text("{not json")
+    cells, notes = grading.extract_code(bad)
+    assert cells == [] and "unreadable" in notes[0]
+
+
+def test_reference_notebook_full_marks_through_the_worker(tmp_path):
+    grade = grading.grade_notebook(_notebook(tmp_path, REFERENCE), "lab0_frames", "alice",
+                                   SECRET, "n", LIMITS)
+    assert grade.score == grade.max_score == 10.0 and grade.flags == []
+
+
+def test_worker_sees_no_secret_no_course_and_cannot_stop_the_grader(tmp_path, monkeypatch):
+    monkeypatch.setenv(grading.SECRET_ENV, SECRET)
+    course = tmp_path / "course"
+    grading.create_secret(course)
+    probe = """
+import os
+def env():
+    return sorted(os.environ)
+def cwd():
+    return os.getcwd()
+def secret():
+    return open(SECRET_PATH).read()
+def kill_parent():
+    import signal
+    os.kill(os.getppid(), signal.SIGKILL)
+    return 1
+def hog():
+    return len(bytearray(8 * 1024**3))
+""".replace("SECRET_PATH", repr(str(course / ".cobotlab" / "secret")))
+    with grading.Worker([probe], LIMITS, hide=[str(course)]) as worker:
+        names = worker.call("env", (), 3).value
+        assert grading.SECRET_ENV not in names and "PATH" in names
+        assert not worker.call("cwd", (), 3).value.startswith(str(course))
+        if grading.sandbox_available():
+            assert "PermissionError" in worker.call("secret", (), 3).error
+        assert "MemoryError" in worker.call("hog", (), 3).error
+        try:
+            worker.call("kill_parent", (), 3)
+        except grading.WorkerFailure:
+            pass  # it may only kill itself
+    assert os.getpid() > 0  # still here
+
+
+def test_mangled_and_renamed_notebooks_are_graded_by_name(tmp_path):
+    other = _notebook(tmp_path, "import numpy as np\ndef invert_pose(T):\n    return np.eye(4)",
+                      name="renamed_copy.ipynb")
+    main = _notebook(tmp_path, REFERENCE, name="lab0_frames.ipynb")
+    grade = grading.grade_notebook([other, main], "lab0_frames", "bob", SECRET, "n", LIMITS)
+    assert grade.score == 10.0
+
+
+def test_tampering_patterns_are_flagged():
+    flags = grading.scan_for_tampering([
+        "get_ipython().set_custom_exc((Exception,), f)", "sys.modules['numpy'] = x",
+        "np.allclose = lambda *a: True", "os.environ['X']"])
+    assert {"suspicious_exception_handler", "suspicious_sys_modules", "suspicious_numpy_patch",
+            "suspicious_secret_probe"} <= set(flags)
+    assert grading.scan_for_tampering(["from autograder.checks import check\nx = np.eye(4)"]) == []
