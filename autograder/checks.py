@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder import synthetic
 from robots import geometry as geo
 
 __all__ = [
@@ -107,6 +106,11 @@ class FunctionSpec:
     checks: tuple[Check, ...]
     signature: str
     time_limit_s: float = 10.0
+    # Closed-loop grading (a control law): ``drive(call, trial)`` calls the student's function
+    # as often as it needs, ``call(*args)`` returning its value or raising StudentCallError,
+    # and returns what ``measure`` scores. None: one call with ``trial.args``.
+    # ``time_limit_s`` then bounds the whole loop of one trial.
+    drive: Callable | None = None
 
 
 @dataclass
@@ -201,120 +205,33 @@ def pose_errors(T: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     }
 
 
-def _measure_pose(value, trial: Trial) -> dict[str, float]:
+def measure_pose(value, trial: Trial) -> dict[str, float]:
     return pose_errors(as_output_pose(value), trial.truth)
 
 
 # Exact-arithmetic problems: any correct float64 formula lands within 1e-6 deg / 1e-6 mm
 # (about 1e7 times float64 rounding on metre-scale poses); float32 arithmetic lands near
 # 1e-4, which earns half; a wrong formula is off by degrees and millimetres.
-_EXACT_TOL = {"rotation": 1e-6, "translation": 1e-6}
-_EXACT_BANDS = ((1.0, 1.0), (1e3, 0.5))
+EXACT_TOL = {"rotation": 1e-6, "translation": 1e-6}
+EXACT_BANDS = ((1.0, 1.0), (1e3, 0.5))
 
 
-def _pose_checks(what: str) -> tuple[Check, ...]:
+def pose_checks(what: str) -> tuple[Check, ...]:
     return (
-        Check("rotation", "deg", 0.5, _EXACT_BANDS, f"the rotation block of {what}"),
-        Check("translation", "mm", 0.5, _EXACT_BANDS, f"the translation column of {what}"),
+        Check("rotation", "deg", 0.5, EXACT_BANDS, f"the rotation block of {what}"),
+        Check("translation", "mm", 0.5, EXACT_BANDS, f"the translation column of {what}"),
     )
 
 
-def _random_pose(rng: np.random.Generator, max_trans_m: float = 1.0) -> np.ndarray:
-    R = Rotation.from_rotvec(_random_rotvec(rng)).as_matrix()
+def random_pose(rng: np.random.Generator, max_trans_m: float = 1.0) -> np.ndarray:
+    R = Rotation.from_rotvec(random_rotvec(rng)).as_matrix()
     return geo.make_pose(R, rng.uniform(-max_trans_m, max_trans_m, 3))
 
 
-def _random_rotvec(rng: np.random.Generator, angle=None) -> np.ndarray:
+def random_rotvec(rng: np.random.Generator, angle=None) -> np.ndarray:
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
     return axis * (rng.uniform(0.05, np.pi - 0.05) if angle is None else angle)
-
-
-# --------------------------------------------------------------------------- lab 0 specs
-
-
-def _trial_invert(rng, index: int) -> Trial:
-    T = _random_pose(rng)
-    return Trial(args=(T,), truth=geo.invert(T), tol=dict(_EXACT_TOL), label="random pose")
-
-
-def _trial_compose(rng, index: int) -> Trial:
-    n = 1 + index % 5  # chains of 1 to 5 poses, so a one-pose "chain" is tested too
-    chain = [_random_pose(rng, 0.5) for _ in range(n)]
-    return Trial(args=(chain,), truth=geo.compose(*chain), tol=dict(_EXACT_TOL),
-                 label=f"chain of {n}")
-
-
-def _trial_rotvec(rng, index: int) -> Trial:
-    # The first problems are the edge cases of Rodrigues' formula: no rotation (0/0 if the
-    # axis is computed as r/|r|), a tiny one, and a half-turn.
-    angle = {0: 0.0, 1: 1e-9, 2: np.pi}.get(index)
-    rvec = _random_rotvec(rng, angle)
-    t = rng.uniform(-1.0, 1.0, 3)
-    label = {0: "zero rotation", 1: "tiny rotation", 2: "half turn"}.get(index, "random")
-    return Trial(args=(rvec, t), truth=geo.pose_from_rotvec(rvec, t), tol=dict(_EXACT_TOL),
-                 label=label, all_or_nothing=index in (0, 1, 2))
-
-
-INVERT_POSE = FunctionSpec(
-    name="invert_pose", points=3.0, n_trials=6, make_trial=_trial_invert, measure=_measure_pose,
-    checks=_pose_checks("b_T_a = inv(a_T_b): R^T and -R^T t"),
-    signature="invert_pose(a_T_b: (4, 4) array) -> b_T_a (4, 4)",
-)
-COMPOSE_CHAIN = FunctionSpec(
-    name="compose_chain", points=3.0, n_trials=6, make_trial=_trial_compose,
-    measure=_measure_pose,
-    checks=_pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
-    signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
-)
-POSE_FROM_ROTVEC = FunctionSpec(
-    name="pose_from_rotvec", points=4.0, n_trials=8, make_trial=_trial_rotvec,
-    measure=_measure_pose,
-    checks=_pose_checks("Rodrigues' formula, including a zero rotation vector"),
-    signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
-)
-
-
-# --------------------------------------------------------------------------- lab 1: a noisy fit
-
-
-def _trial_fit_rigid(rng, index: int) -> Trial:
-    n = int(rng.integers(6, 16))
-    sigma_mm = float(rng.uniform(0.5, 2.0))
-    p = synthetic.make_flange(rng, n_points=n, noise_mm=sigma_mm, fixed_orientation=False)
-    # A least-squares rigid fit has 6 parameters, so the fitted map's error summed over the n
-    # points has expectation 6 sigma^2 (3 axes each): RMS over points sigma*sqrt(6/n). Three
-    # times that is > 5 standard deviations of the chi-square(6) tail: a correct fit passes.
-    tol = 3.0 * sigma_mm * math.sqrt(6.0 / n)
-    return Trial(args=(p.cam_points, p.base_points), truth=(p.base_T_cam_true, p.cam_points),
-                 tol={"mapping": tol},
-                 label=f"{n} points, {sigma_mm:.2f} mm noise")
-
-
-def _measure_fit(value, trial: Trial) -> dict[str, float]:
-    T = as_output_pose(value)
-    truth, cam_points = trial.truth
-    if not math.isfinite(pose_errors(T, truth)["rotation"]):
-        raise OutputError("returned a rotation block that is not a proper rotation (det +1)")
-    mapped = cam_points @ T[:3, :3].T + T[:3, 3]
-    true_mapped = cam_points @ truth[:3, :3].T + truth[:3, 3]
-    rms = float(np.sqrt(np.mean(np.sum((mapped - true_mapped) ** 2, axis=1)))) * 1000.0
-    return {"mapping": rms}
-
-
-FIT_RIGID = FunctionSpec(
-    name="fit_rigid", points=4.0, n_trials=5, make_trial=_trial_fit_rigid, measure=_measure_fit,
-    checks=(
-        Check("mapping", "mm", 1.0, ((1.0, 1.0), (2.0, 0.5)),
-              "RMS distance between your map and the true one over the measured points"),
-    ),
-    signature="fit_rigid(src: (N, 3), dst: (N, 3)) -> dst_T_src (4, 4)",
-)
-
-SPECS: dict[str, tuple[FunctionSpec, ...]] = {
-    "lab0_frames": (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC),
-    "lab1_flange": (FIT_RIGID,),
-}
 
 
 def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
@@ -385,16 +302,51 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     return FunctionResult(spec.name, points, spec.points, results, errors[:5])
 
 
-def _call_in_process(func, trial: Trial) -> TrialOutcome:
-    # Fresh copies: a function that writes into its input must not corrupt the next check.
-    args = tuple(_copy(a) for a in trial.args)
+class StudentCallError(Exception):
+    """A call of the student's function inside a closed-loop ``drive`` failed."""
+
+
+def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float) -> TrialOutcome:
+    """One trial: a single ``call_once(args, timeout_s) -> TrialOutcome``, or the spec's
+    closed loop of them (``spec.drive``) within ``time_limit_s`` in all."""
+    if spec.drive is None:
+        return call_once(trial.args, time_limit_s)
     started = time.perf_counter()
+
+    def call(*args):
+        left = time_limit_s - (time.perf_counter() - started)
+        if left <= 0:
+            raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s")
+        outcome = call_once(args, left)
+        if outcome.error is not None:
+            raise StudentCallError(outcome.error)
+        return outcome.value
+
     try:
-        value = func(*args)
-    except Exception as exc:  # noqa: BLE001 - report any error as the student's
-        return TrialOutcome(error=f"{type(exc).__name__}: {exc}",
+        value = spec.drive(call, trial)
+    except StudentCallError as exc:
+        return TrialOutcome(error=str(exc), seconds=time.perf_counter() - started)
+    except OutputError as exc:
+        return TrialOutcome(error=f"returned an unusable value in the loop: {exc}",
                             seconds=time.perf_counter() - started)
     return TrialOutcome(value=value, seconds=time.perf_counter() - started)
+
+
+def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> TrialOutcome:
+    def once(args, timeout_s):
+        # Fresh copies: a function that writes into its input must not corrupt the next check.
+        args = tuple(_copy(a) for a in args)
+        started = time.perf_counter()
+        try:
+            value = func(*args)
+        except Exception as exc:  # noqa: BLE001 - report any error as the student's
+            return TrialOutcome(error=f"{type(exc).__name__}: {exc}",
+                                seconds=time.perf_counter() - started)
+        return TrialOutcome(value=value, seconds=time.perf_counter() - started)
+
+    if spec is None:
+        return once(trial.args, math.inf)
+    return run_trial(spec, trial, once, spec.time_limit_s)
 
 
 def _copy(a):
@@ -409,7 +361,7 @@ def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResul
     """Score ``func`` in this process on the problems of the given public ``seeds``."""
     spec = spec_for(name or getattr(func, "__name__", ""))
     trials = [t for s in seeds for t in public_trials(spec, s)]
-    result = score_function(spec, trials, [_call_in_process(func, t) for t in trials])
+    result = score_function(spec, trials, [_call_in_process(func, t, spec) for t in trials])
     return result
 
 
@@ -433,3 +385,10 @@ def hidden_test(func, name: str | None = None) -> None:
     """nbgrader's hidden test: assert full marks on the kernel seeds (a cross-check only)."""
     result = evaluate(func, name, KERNEL_SEEDS)
     assert result.fraction >= 1.0, result.summary()
+
+
+# Each lab's graded functions live in autograder/specs/<assignment>.py. Imported last: those
+# modules build on the classes and helpers defined above.
+from autograder.specs import collect_specs  # noqa: E402
+
+SPECS: dict[str, tuple[FunctionSpec, ...]] = collect_specs()

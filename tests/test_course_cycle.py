@@ -6,117 +6,48 @@ gradebook, feedback and release are inspected. Runs in about a minute on 2 cores
 
 from __future__ import annotations
 
-import copy
-import csv
-import json
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
-import nbformat
+import course_kit as kit
 import pytest
-from nbclient import NotebookClient
 
 from autograder import grading
-from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
+from autograder.course import grade_course, run_nbgrader_autograde
 
 ASSIGNMENT = "lab0_frames"
-SOURCE_NB = LABS_DIR / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
 ADVERSARIAL = Path(__file__).parent / "adversarial"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 
 pytestmark = pytest.mark.slow
 
 
-def _nbgrader(course: Path, *args: str) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
-    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
-    done = subprocess.run([sys.executable, "-m", "nbgrader", *args], cwd=course, env=env,
-                          capture_output=True, text=True, timeout=600, check=False)
-    assert done.returncode == 0, done.stdout + done.stderr
-    return done
-
-
 @pytest.fixture(scope="module")
 def released(tmp_path_factory) -> Path:
     """A course with lab 0 generated (released) once; tests copy it."""
-    course = init_course(tmp_path_factory.mktemp("course") / "course")
-    _nbgrader(course, "generate_assignment", ASSIGNMENT)
-    return course
+    return kit.released_course(tmp_path_factory.mktemp("course"), ASSIGNMENT)
 
 
 def _fresh_course(released: Path, tmp_path: Path) -> Path:
-    course = tmp_path / "course"
-    shutil.copytree(released, course)
-    config = course / "nbgrader_config.py"
-    config.write_text(config.read_text().replace(str(released), str(course)))
-    return course
+    return kit.fresh_course(released, tmp_path)
 
 
 def _solution_sources() -> dict[str, str]:
-    nb = json.loads(SOURCE_NB.read_text())
-    out = {}
-    for cell in nb["cells"]:
-        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
-        if gid in FUNCTIONS:
-            out[gid] = "".join(cell["source"]).replace("    ### BEGIN SOLUTION\n", "").replace(
-                "\n    ### END SOLUTION", "")
-    return out
+    return kit.solution_sources(ASSIGNMENT, FUNCTIONS)
 
 
-def _submit(course: Path, student: str, replace: dict[str, str] | None = None,
-            extra: str | None = None, mangle: bool = False) -> None:
-    """Write submitted/<student>/lab0_frames/ from the released notebook with edits."""
-    nb = json.loads((course / "release" / ASSIGNMENT / f"{ASSIGNMENT}.ipynb").read_text())
-    cells = nb["cells"]
-    for cell in cells:
-        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
-        if replace and gid in replace:
-            cell["source"] = replace[gid]
-    if extra is not None:
-        at = next(i for i, c in enumerate(cells)
-                  if c["metadata"].get("nbgrader", {}).get("grade_id") == "imports") + 1
-        cells.insert(at, {"cell_type": "code", "metadata": {}, "execution_count": None,
-                          "outputs": [], "source": extra})
-    if mangle:
-        kept = []
-        for cell in cells:
-            meta = cell["metadata"].get("nbgrader", {})
-            if meta.get("grade"):
-                continue  # test cells deleted
-            if meta.get("solution"):
-                twin = copy.deepcopy(cell)
-                twin["metadata"]["nbgrader"]["grade_id"] = "retyped_" + meta["grade_id"]
-                kept.append(twin)
-                cell = dict(cell, metadata={})  # nbgrader metadata stripped
-            kept.append(cell)
-        kept.reverse()  # reordered: the graded functions are found by name, not position
-        nb["cells"] = kept
-    out = course / "submitted" / student / ASSIGNMENT
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{ASSIGNMENT}.ipynb").write_text(json.dumps(nb))
-    (out / "timestamp.txt").write_text("2026-11-20 10:00:00.000000 UTC")
+def _submit(course: Path, student: str, replace=None, extra=None, mangle=False) -> None:
+    kit.submit(course, ASSIGNMENT, student, replace=replace, extra=extra, mangle=mangle)
 
 
-def _read_grades(course: Path) -> dict[str, dict]:
-    with open(course / "grades.csv") as f:
-        return {row["student_id"]: row for row in csv.DictReader(f)}
+_read_grades = kit.read_grades
+_nbgrader = kit.nbgrader
 
 
 # --------------------------------------------------------------------------- notebooks
 
 
 def test_source_notebook_runs_with_solutions_and_hidden_tests():
-    nb = nbformat.read(SOURCE_NB, as_version=4)
-    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), \
-        "the source notebook must be saved without outputs"
-    NotebookClient(nb, timeout=60, kernel_name="python3",
-                   resources={"metadata": {"path": str(SOURCE_NB.parent)}}).execute()
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
-              if o.output_type == "error"]
-    assert not errors, errors
+    nb = kit.execute_source(ASSIGNMENT, timeout_s=60)
     hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
     assert len(hidden) == len(FUNCTIONS)
 

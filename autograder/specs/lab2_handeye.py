@@ -1,0 +1,205 @@
+"""Lab 2 (AX = XB eye-in-hand calibration): the graded functions and their scoring.
+
+Every problem comes from :func:`autograder.synthetic.make_hand_eye` (the generator students
+practise on) with pose noise on both the robot and the camera side. Conventions (eye-in-hand,
+X = flange_T_cam): for poses i < j,
+``A = inv(base_T_flange[i]) @ base_T_flange[j]`` and ``B = cam_T_target[i] @ inv(cam_T_target[j])``,
+so that ``A @ X == X @ B``.
+
+Tolerances of the solvers come from the noise level. A motion's rotation axis is known to about
+sigma_R / theta (sigma_R: the combined rotation noise of one robot and one camera pose, theta:
+the motion's angle, radians), and n poses carry about n independent measurements, so R_X is
+known to ``rot_scale = sigma_R / (theta_rms sqrt(n))``. t_X is known to
+``trans_scale = sigma_t / (theta_rms sqrt(n)) + d_max * rot_scale``: its own noise, amplified
+the same way, plus the rotation error swung over the lever arm d_max (the farthest board
+distance). Over 800 problems the reference Tsai-Lenz and axes-LS solvers stay below 13 x
+rot_scale and 7 x trans_scale (median 3 and 2.3); an inverted X or swapped A / B is off by
+hundreds of these units (the smallest seen: 2 on rotation when R_X is near the identity, but
+then 24 on translation). Full credit: within 25 x rot_scale and 12 x trans_scale.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from autograder import synthetic
+from autograder.checks import Check, FunctionSpec, OutputError, Trial, measure_pose
+from robots import geometry as geo
+
+ROT_K = 25.0
+TRANS_K = 12.0
+SOLVER_BANDS = ((1.0, 1.0), (2.0, 0.5))
+# Motions and residuals are exact arithmetic on the inputs: any correct float64 formula lands
+# within ~1e-15 of the truth; 1e-9 leaves room for any summation order.
+EXACT_BANDS = ((1.0, 1.0),)
+EXACT_ABS = 1e-9
+# Least tolerance (deg, mm), for noise-free problems: float64 rounding, as in lab 0.
+FLOOR = 1e-6
+
+
+def _noise(rng) -> synthetic.NoiseModel:
+    """Noise of a careful lab setup: robot 0.01-0.05 deg / 0.1-0.5 mm, camera (solvePnP on a
+    board at 0.35-0.7 m) 0.05-0.3 deg / 0.2-1.5 mm, one standard deviation per axis."""
+    return synthetic.NoiseModel(
+        robot_rot_deg=float(rng.uniform(0.01, 0.05)), robot_trans_mm=float(rng.uniform(0.1, 0.5)),
+        cam_rot_deg=float(rng.uniform(0.05, 0.3)), cam_trans_mm=float(rng.uniform(0.2, 1.5)))
+
+
+def motion_pairs_truth(base_T_flange, cam_T_target, strategy: str):
+    """(A, B), each (M, 4, 4), for the pose pairs of ``strategy`` (see the module docstring)."""
+    n = len(base_T_flange)
+    if strategy == "all":
+        pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    else:
+        pairs = [(i, i + 1) for i in range(n - 1)]
+    A = np.array([geo.invert(base_T_flange[i]) @ base_T_flange[j] for i, j in pairs])
+    B = np.array([cam_T_target[i] @ geo.invert(cam_T_target[j]) for i, j in pairs])
+    return A, B
+
+
+def solver_tolerances(problem: synthetic.HandEyeProblem, A: np.ndarray) -> dict[str, float]:
+    """Full-credit thresholds (deg, mm) for X on ``problem`` solved from motions ``A``."""
+    nm, n = problem.noise, problem.n_poses
+    sigma_R = math.radians(math.hypot(nm.robot_rot_deg, nm.cam_rot_deg))
+    sigma_t_mm = math.hypot(nm.robot_trans_mm, nm.cam_trans_mm)
+    theta_rms = float(np.sqrt(np.mean(np.radians(geo.rotation_angle_deg(A[:, :3, :3])) ** 2)))
+    rot_scale = sigma_R / (theta_rms * math.sqrt(n))  # radians
+    d_max_mm = 1000.0 * float(np.max(np.linalg.norm(problem.cam_T_target[:, :3, 3], axis=1)))
+    trans_scale = sigma_t_mm / (theta_rms * math.sqrt(n)) + d_max_mm * rot_scale
+    return {"rotation": max(ROT_K * math.degrees(rot_scale), FLOOR),
+            "translation": max(TRANS_K * trans_scale, FLOOR)}
+
+
+# --------------------------------------------------------------------------- motions
+
+
+def _trial_motions(rng, index: int) -> Trial:
+    n = int(rng.integers(4, 9))
+    strategy = ("all", "consecutive")[index % 2]
+    p = synthetic.make_hand_eye(rng, n_poses=n, noise=_noise(rng))
+    truth = motion_pairs_truth(p.base_T_flange, p.cam_T_target, strategy)
+    return Trial(args=(p.base_T_flange, p.cam_T_target, strategy), truth=truth,
+                 tol={"A": EXACT_ABS, "B": EXACT_ABS}, label=f"{n} poses, strategy {strategy!r}")
+
+
+def _as_stack(value, m: int, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise OutputError(f"{what} is not an array of numbers") from None
+    if arr.shape != (m, 4, 4):
+        raise OutputError(f"{what} has shape {arr.shape}, expected ({m}, 4, 4): one motion per "
+                          "pose pair of the strategy, pairs (i, j) with i < j in order")
+    if not np.all(np.isfinite(arr)):
+        raise OutputError(f"{what} contains NaN or inf")
+    return arr
+
+
+def _measure_motions(value, trial: Trial) -> dict[str, float]:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise OutputError("expected a pair (A, B) of (M, 4, 4) arrays")
+    A_true, B_true = trial.truth
+    A = _as_stack(value[0], len(A_true), "A")
+    B = _as_stack(value[1], len(B_true), "B")
+    return {"A": float(np.abs(A - A_true).max()), "B": float(np.abs(B - B_true).max())}
+
+
+# --------------------------------------------------------------------------- solvers
+
+
+def _trial_solver(rng, index: int) -> Trial:
+    n = int(rng.integers(6, 16))
+    p = synthetic.make_hand_eye(rng, n_poses=n, noise=_noise(rng))
+    A, B = motion_pairs_truth(p.base_T_flange, p.cam_T_target, "all")
+    return Trial(args=(A, B), truth=p.X_true, tol=solver_tolerances(p, A),
+                 label=f"{n} poses ({len(A)} motions)")
+
+
+def _solver_checks(method: str) -> tuple[Check, ...]:
+    return (
+        Check("rotation", "deg", 0.5, SOLVER_BANDS,
+              f"R_X by {method}; an inverted X or A and B swapped is off by degrees"),
+        Check("translation", "mm", 0.5, SOLVER_BANDS,
+              "t_X from the stacked (R_A - I) t_X = R_X t_B - t_A"),
+    )
+
+
+# --------------------------------------------------------------------------- residuals
+
+
+def course_residuals(A, B, X) -> tuple[float, float]:
+    """(1/n) sum ||R_A R_X - R_X R_B||_F^2 and (1/n) sum ||R_A t_X + t_A - R_X t_B - t_X||^2."""
+    RA, tA, RB, tB = A[:, :3, :3], A[:, :3, 3], B[:, :3, :3], B[:, :3, 3]
+    R, t = X[:3, :3], X[:3, 3]
+    rot = np.mean(np.sum((RA @ R - R @ RB) ** 2, axis=(1, 2)))
+    trans = np.mean(np.sum((RA @ t + tA - tB @ R.T - t) ** 2, axis=1))
+    return float(rot), float(trans)
+
+
+def _trial_residual(which: int):
+    def make(rng, index: int) -> Trial:
+        n = int(rng.integers(4, 12))
+        p = synthetic.make_hand_eye(rng, n_poses=n, noise=_noise(rng))
+        A, B = motion_pairs_truth(p.base_T_flange, p.cam_T_target, "all")
+        # X a little off the truth, as an estimate is: residuals well above rounding.
+        X = synthetic.perturb_pose(p.X_true, math.radians(0.5), 0.002, rng)
+        return Trial(args=(A, B, X), truth=course_residuals(A, B, X)[which],
+                     tol={"value": 1e-9}, label=f"{len(A)} motions")
+    return make
+
+
+def _measure_scalar(value, trial: Trial) -> dict[str, float]:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.ndarray, np.generic)):
+        raise OutputError(f"returned {type(value).__name__}, expected a number (float)")
+    arr = np.asarray(value, dtype=float)
+    if arr.size != 1:
+        raise OutputError(f"returned shape {arr.shape}, expected a single number: the mean "
+                          "over all motions")
+    v = float(arr.reshape(()))
+    if not math.isfinite(v):
+        raise OutputError("returned NaN or inf")
+    return {"value": abs(v - trial.truth) / abs(trial.truth)}
+
+
+# --------------------------------------------------------------------------- specs
+
+
+MOTIONS = FunctionSpec(
+    name="motions", points=3.0, n_trials=6, make_trial=_trial_motions, measure=_measure_motions,
+    checks=(
+        Check("A", "", 0.5, EXACT_BANDS,
+              "A = inv(base_T_flange[i]) @ base_T_flange[j] for the strategy's pairs i < j"),
+        Check("B", "", 0.5, EXACT_BANDS,
+              "B = cam_T_target[i] @ inv(cam_T_target[j]) (the order matters)"),
+    ),
+    signature="motions(base_T_flange (n, 4, 4), cam_T_target (n, 4, 4), strategy 'all' | "
+              "'consecutive') -> (A (M, 4, 4), B (M, 4, 4))",
+)
+TSAI_LENZ = FunctionSpec(
+    name="tsai_lenz", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
+    checks=_solver_checks("Tsai-Lenz"),
+    signature="tsai_lenz(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+)
+AXES_LS = FunctionSpec(
+    name="axes_ls", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
+    checks=_solver_checks("least squares on the rotation axes, projected onto SO(3)"),
+    signature="axes_ls(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+)
+ROTATION_RESIDUAL = FunctionSpec(
+    name="rotation_residual", points=2.0, n_trials=4, make_trial=_trial_residual(0),
+    measure=_measure_scalar,
+    checks=(Check("value", "relative", 1.0, EXACT_BANDS,
+                  "(1/n) sum ||R_A R_X - R_X R_B||_F^2: squared Frobenius norm, mean over n"),),
+    signature="rotation_residual(A (M, 4, 4), B (M, 4, 4), X (4, 4)) -> float",
+)
+TRANSLATION_RESIDUAL = FunctionSpec(
+    name="translation_residual", points=2.0, n_trials=4, make_trial=_trial_residual(1),
+    measure=_measure_scalar,
+    checks=(Check("value", "relative", 1.0, EXACT_BANDS,
+                  "(1/n) sum ||R_A t_X + t_A - R_X t_B - t_X||^2 in m^2, mean over n"),),
+    signature="translation_residual(A (M, 4, 4), B (M, 4, 4), X (4, 4)) -> float (m^2)",
+)
+
+SPECS = (MOTIONS, TSAI_LENZ, AXES_LS, ROTATION_RESIDUAL, TRANSLATION_RESIDUAL)

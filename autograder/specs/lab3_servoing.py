@@ -1,0 +1,280 @@
+"""Lab 3 (visual servoing to chess pieces): the graded functions and how they are scored.
+
+* ``interaction_matrix(x, y, Z)`` is compared with central finite differences of the point
+  projection under each of the six camera twist components, computed here.
+* ``ibvs_velocity(s, s_star, Z, gain)`` is graded in closed loop: the grader flies a free camera
+  (pure kinematics, no images) from a hidden offset, calls the student's law once per control
+  period with the features it sees, integrates the returned twist and scores where the camera
+  ends up (and the first twist against the law's formula).
+* ``piece_position(depth, uv, K)`` reads a noisy synthetic depth image with holes and is scored
+  against the true surface point seen at pixel ``uv``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
+
+from autograder.checks import Check, FunctionSpec, OutputError, Trial
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _hat(xi: np.ndarray) -> np.ndarray:
+    """4x4 se(3) matrix of a twist (vx, vy, vz, wx, wy, wz)."""
+    M = np.zeros((4, 4))
+    w = xi[3:]
+    M[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
+    M[:3, 3] = xi[:3]
+    return M
+
+
+def _move(T: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """Pose after a constant body twist for dt seconds (the exact SE(3) exponential, in
+    closed form: scipy's general expm costs milliseconds a call)."""
+    xi = np.asarray(twist, float) * dt
+    v, w = xi[:3], xi[3:]
+    theta = float(np.linalg.norm(w))
+    W = _hat(np.r_[0, 0, 0, w])[:3, :3]
+    if theta < 1e-8:
+        V = np.eye(3) + 0.5 * W
+    else:
+        V = (np.eye(3) + (1 - np.cos(theta)) / theta ** 2 * W
+             + (theta - np.sin(theta)) / theta ** 3 * W @ W)
+    step = np.eye(4)
+    step[:3, :3] = Rotation.from_rotvec(w).as_matrix()
+    step[:3, 3] = V @ v
+    return T @ step
+
+
+def _as_array(value, shape: tuple, what: str) -> np.ndarray:
+    if isinstance(value, (list, tuple)):
+        try:
+            value = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise OutputError(f"returned a list that is not a {shape} array of numbers") from None
+    if not isinstance(value, np.ndarray):
+        raise OutputError(f"returned {type(value).__name__}, expected {what}")
+    if value.shape != shape:
+        raise OutputError(f"returned shape {value.shape}, expected {shape} ({what})")
+    value = value.astype(float)
+    if not np.all(np.isfinite(value)):
+        raise OutputError("returned NaN or inf")
+    return value
+
+
+def _look_at_pose(rng, distance: float) -> np.ndarray:
+    """A camera pose looking at the origin from ``distance`` m, tilted up to 25 degrees."""
+    tilt = Rotation.from_rotvec(np.radians(25) * rng.uniform(-1, 1, 3) * [1, 1, 0])
+    R = tilt.as_matrix() @ np.diag([1.0, -1.0, -1.0])  # z down onto the target
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R[:, 2] * distance
+    return T
+
+
+# --------------------------------------------------------------------------- interaction matrix
+
+
+def _trial_interaction(rng, index: int) -> Trial:
+    n = int(rng.integers(1, 7))
+    # Points in front of the camera, within a 90-degree field of view, 0.15 to 1.5 m away.
+    Z = rng.uniform(0.15, 1.5, n)
+    x, y = rng.uniform(-0.8, 0.8, n), rng.uniform(-0.6, 0.6, n)
+    if index == 0:
+        x[0], y[0] = 0.0, 0.0  # on the optical axis: the rotation terms' edge case
+    P = np.column_stack([x * Z, y * Z, Z])
+    h = 1e-6
+    L = np.zeros((2 * n, 6))
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = 1.0
+        # The camera moves with body twist e, the points stay: they move by exp(-h e^) in it.
+        plus = (expm(_hat(-h * e)) @ np.c_[P, np.ones(n)].T).T[:, :3]
+        minus = (expm(_hat(h * e)) @ np.c_[P, np.ones(n)].T).T[:, :3]
+        d = (plus[:, :2] / plus[:, 2:] - minus[:, :2] / minus[:, 2:]) / (2 * h)
+        L[:, k] = d.reshape(-1)
+    # Central differences with h = 1e-6 are good to about 1e-9 of the entries' scale.
+    scale = float(np.abs(L).max())
+    tol = 1e-6 * scale
+    return Trial(args=(x, y, Z), truth=L, tol={"translation": tol, "rotation": tol},
+                 label=f"{n} point{'s' if n > 1 else ''}")
+
+
+def _measure_interaction(value, trial: Trial) -> dict[str, float]:
+    L = _as_array(value, trial.truth.shape, "the (2n, 6) interaction matrix, rows x1, y1, x2, ...")
+    err = np.abs(L - trial.truth)
+    return {"translation": float(err[:, :3].max()), "rotation": float(err[:, 3:].max())}
+
+
+INTERACTION_MATRIX = FunctionSpec(
+    name="interaction_matrix", points=4.0, n_trials=6, make_trial=_trial_interaction,
+    measure=_measure_interaction,
+    checks=(
+        Check("translation", "", 0.5, ((1.0, 1.0), (100.0, 0.5)),
+              "columns vx, vy, vz (the -1/Z and x/Z, y/Z terms) against finite differences"),
+        Check("rotation", "", 0.5, ((1.0, 1.0), (100.0, 0.5)),
+              "columns wx, wy, wz (the xy, 1 + x^2, 1 + y^2 terms and their signs)"),
+    ),
+    signature="interaction_matrix(x: (n,), y: (n,), Z: (n,)) -> L (2n, 6)",
+)
+
+
+# --------------------------------------------------------------------------- IBVS in closed loop
+
+SERVO_DT = 0.1             # s, one control period
+SERVO_ITERATIONS = 80
+SERVO_MAX_LINEAR = 0.5     # m/s: a saturation, as on any robot
+SERVO_MAX_ANGULAR = 1.5    # rad/s
+SERVO_FOV = 1.0            # |x|, |y| beyond this (a 90-degree view) and the target is lost
+
+
+def _features(T_cam, pts_world):
+    P = (np.linalg.inv(T_cam) @ np.c_[pts_world, np.ones(len(pts_world))].T).T[:, :3]
+    return P[:, :2] / P[:, 2:], P[:, 2]
+
+
+def _reference_ibvs(s, s_star, Z, gain):
+    x, y = s[:, 0], s[:, 1]
+    L = np.zeros((len(s), 2, 6))
+    L[:, 0] = np.column_stack([-1 / Z, 0 * Z, x / Z, x * y, -(1 + x * x), y])
+    L[:, 1] = np.column_stack([0 * Z, -1 / Z, y / Z, 1 + y * y, -x * y, -x])
+    return -gain * np.linalg.pinv(L.reshape(-1, 6)) @ (s - s_star).reshape(-1)
+
+
+def _trial_ibvs(rng, index: int) -> Trial:
+    n = 4 + index % 3  # 4, 5 or 6 points: a square (chess-square corners) and extra points
+    side = rng.uniform(0.05, 0.1)
+    square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * side / 2
+    extra = rng.uniform([-side, -side, 0.0], [side, side, 0.04], (n - 4, 3))
+    pts = np.vstack([square, extra])
+    goal = _look_at_pose(rng, rng.uniform(0.25, 0.5))
+    # Start: translated by 3-8 cm and turned by 5-20 degrees about the target centre.
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    angle = np.radians(rng.uniform(5, 20))
+    orbit = np.eye(4)
+    orbit[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
+    start = orbit @ goal
+    start[:3, 3] += rng.uniform(0.03, 0.08) * direction / np.linalg.norm(direction)
+    gain = float(rng.uniform(1.0, 2.5))
+    # A correct law reaches the goal to micrometres; the tolerance leaves room for any
+    # sound variant (a different pseudo-inverse) and none for a law that stalls or diverges.
+    return Trial(args=(), truth={"pts": pts, "start": start, "goal": goal, "gain": gain},
+                 tol={"position": 0.1, "rotation": 0.01, "velocity": 1e-6},
+                 label=f"{n} points, offset {np.degrees(angle):.0f} deg, gain {gain:.2f}")
+
+
+def _drive_ibvs(call, trial: Trial) -> dict:
+    pts, goal, gain = trial.truth["pts"], trial.truth["goal"], trial.truth["gain"]
+    s_star, _ = _features(goal, pts)
+    T = trial.truth["start"].copy()
+    velocity_error = math.inf
+    for k in range(SERVO_ITERATIONS):
+        s, Z = _features(T, pts)
+        if np.any(Z <= 0.02) or np.any(np.abs(s) > SERVO_FOV):
+            break  # the target left the view: the servo is over, wherever the camera is
+        if np.sqrt(np.mean(np.sum((s - s_star) ** 2, axis=1))) < 1e-9:
+            break
+        v = _as_array(call(s.copy(), s_star.copy(), Z.copy(), gain), (6,),
+                      "the camera twist (vx, vy, vz, wx, wy, wz)")
+        if k == 0:
+            ref = _reference_ibvs(s, s_star, Z, gain)
+            velocity_error = float(np.linalg.norm(v - ref) / np.linalg.norm(ref))
+        nv, nw = np.linalg.norm(v[:3]), np.linalg.norm(v[3:])
+        v = v * min(1.0, SERVO_MAX_LINEAR / max(nv, 1e-300), SERVO_MAX_ANGULAR / max(nw, 1e-300))
+        T = _move(T, v, SERVO_DT)
+    delta = np.linalg.inv(goal) @ T
+    return {"position": float(np.linalg.norm(delta[:3, 3]) * 1000.0),
+            "rotation": float(np.degrees(Rotation.from_matrix(delta[:3, :3]).magnitude())),
+            "velocity": velocity_error}
+
+
+def _measure_ibvs(value, trial: Trial) -> dict[str, float]:
+    return value  # the closed loop above measured it
+
+
+IBVS_VELOCITY = FunctionSpec(
+    name="ibvs_velocity", points=4.0, n_trials=6, make_trial=_trial_ibvs,
+    measure=_measure_ibvs, drive=_drive_ibvs,
+    checks=(
+        Check("position", "mm", 0.35, ((1.0, 1.0), (10.0, 0.5)),
+              f"camera position error to the goal after {SERVO_ITERATIONS} periods of "
+              f"{SERVO_DT} s (does the law converge? check the sign of the gain)"),
+        Check("rotation", "deg", 0.35, ((1.0, 1.0), (10.0, 0.5)),
+              "camera rotation error to the goal at the end of the closed loop"),
+        Check("velocity", "", 0.3, ((1.0, 1.0),),
+              "relative error of the first twist against v = -gain pinv(L) (s - s*)"),
+    ),
+    signature="ibvs_velocity(s: (n, 2), s_star: (n, 2), Z: (n,), gain: float) -> v (6,)",
+    time_limit_s=20.0,
+)
+
+
+# --------------------------------------------------------------------------- piece position
+
+
+def _trial_piece(rng, index: int) -> Trial:
+    h, w = 240, 320
+    f = rng.uniform(280, 330)
+    K = np.array([[f, 0, w / 2 - 0.5 + rng.uniform(-4, 4)],
+                  [0, f, h / 2 - 0.5 + rng.uniform(-4, 4)], [0, 0, 1.0]])
+    # The board plane: a point 0.2-0.5 m ahead, normal up to 15 degrees off the optical axis.
+    n = Rotation.from_rotvec(np.radians(15) * rng.uniform(-1, 1, 3) * [1, 1, 0]).apply([0, 0, -1])
+    c = np.array([0.0, 0.0, rng.uniform(0.2, 0.5)])
+    # A pawn-like round top: a sphere of radius 9 mm whose centre is 25 mm above the board,
+    # somewhere in the middle of the image.
+    r = 0.009
+    foot = c + np.array([*rng.uniform(-0.04, 0.04, 2), 0.0])
+    foot -= ((foot - c) @ n) * n
+    centre = foot + 0.025 * n
+    top = centre + r * n
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu, float)], axis=-1)
+    z_plane = (c @ n) / (rays @ n)
+    # Ray-sphere intersection (nearest root) in z-depth: |z ray - centre|^2 = r^2.
+    a = np.sum(rays ** 2, axis=-1)
+    b = rays @ centre
+    disc = b * b - a * (centre @ centre - r * r)
+    z_sphere = np.where(disc >= 0, (b - np.sqrt(np.maximum(disc, 0))) / a, np.inf)
+    depth = np.minimum(z_plane, z_sphere)
+    sigma = rng.uniform(0.0005, 0.0015)
+    depth = depth + rng.normal(0.0, sigma, depth.shape)
+    depth[rng.random(depth.shape) < 0.03] = np.nan  # scattered dropouts, as on a RealSense
+    uv = np.array([K[0, 0] * top[0] / top[2] + K[0, 2], K[1, 1] * top[1] / top[2] + K[1, 2]])
+    hole = index % 2 == 1
+    if hole:
+        # A shiny top: no depth in the 3x3 pixels around the requested one.
+        u0, v0 = np.rint(uv).astype(int)
+        depth[v0 - 1:v0 + 2, u0 - 1:u0 + 2] = np.nan
+    # Truth: the sphere's surface point on the ray through uv.
+    ray = np.array([(uv[0] - K[0, 2]) / f, (uv[1] - K[1, 2]) / f, 1.0])
+    bb, aa = ray @ centre, ray @ ray
+    z = (bb - np.sqrt(bb * bb - aa * (centre @ centre - r * r))) / aa
+    # mm: a 5x5 window median sits up to ~0.5 mm deeper than the top (the sphere curves away
+    # by d^2 / 2r across the window) and carries about sigma / 4 of noise; measured worst
+    # 0.85 of this tolerance over 200 problems with a 5x5 median.
+    tol = 1.0 + 1000.0 * sigma
+    return Trial(args=(depth.astype(float), uv, K), truth=ray * z, tol={"position": tol},
+                 label=f"{1000 * sigma:.1f} mm noise" + (", hole at the pixel" if hole else ""))
+
+
+def _measure_piece(value, trial: Trial) -> dict[str, float]:
+    p = _as_array(value, (3,), "the point (X, Y, Z) in the camera frame, metres")
+    return {"position": float(np.linalg.norm(p - trial.truth) * 1000.0)}
+
+
+PIECE_POSITION = FunctionSpec(
+    name="piece_position", points=2.0, n_trials=6, make_trial=_trial_piece,
+    measure=_measure_piece,
+    checks=(
+        Check("position", "mm", 1.0, ((1.0, 1.0), (3.0, 0.5)),
+              "distance to the true surface point at the pixel (a depth hole there needs the "
+              "median of the valid neighbours; X = (u - cx) Z / fx)"),
+    ),
+    signature="piece_position(depth: (H, W) metres, uv: (2,) px, K: (3, 3)) -> p_cam (3,)",
+)
+
+SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)

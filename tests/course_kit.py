@@ -1,0 +1,123 @@
+"""Helpers for tests that run the real nbgrader cycle on a lab (any assignment).
+
+generate_assignment -> submissions made from the released notebook -> nbgrader autograde ->
+autograder.course.grade_course. Each lab's test file uses these with its own assignment name.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import nbformat
+from nbclient import NotebookClient
+
+from autograder import grading
+from autograder.course import LABS_DIR, init_course
+
+
+def source_notebook(assignment: str) -> Path:
+    return LABS_DIR / assignment / f"{assignment}.ipynb"
+
+
+def nbgrader(course: Path, *args: str) -> subprocess.CompletedProcess:
+    """Run nbgrader in ``course`` without the grading secret in its environment."""
+    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
+    done = subprocess.run([sys.executable, "-m", "nbgrader", *args], cwd=course, env=env,
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done
+
+
+def released_course(root: Path, assignment: str) -> Path:
+    """A new course under ``root`` with ``assignment`` generated (released) once."""
+    course = init_course(root / "course")
+    nbgrader(course, "generate_assignment", assignment)
+    return course
+
+
+def fresh_course(released: Path, tmp_path: Path) -> Path:
+    """A copy of a released course, so each test grades its own submissions."""
+    course = tmp_path / "course"
+    shutil.copytree(released, course)
+    config = course / "nbgrader_config.py"
+    config.write_text(config.read_text().replace(str(released), str(course)))
+    return course
+
+
+def solution_sources(assignment: str, functions) -> dict[str, str]:
+    """The reference solution cell of each graded function, solution markers removed."""
+    nb = json.loads(source_notebook(assignment).read_text())
+    out = {}
+    for cell in nb["cells"]:
+        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if gid in functions:
+            out[gid] = "".join(cell["source"]).replace("    ### BEGIN SOLUTION\n", "").replace(
+                "\n    ### END SOLUTION", "")
+    return out
+
+
+def submit(course: Path, assignment: str, student: str, replace: dict[str, str] | None = None,
+           extra: str | None = None, mangle: bool = False) -> None:
+    """Write submitted/<student>/<assignment>/ from the released notebook with edits.
+
+    ``replace`` maps grade ids to new cell sources; ``extra`` is a code cell inserted after
+    the cell with grade id "imports"; ``mangle`` deletes test cells, duplicates and retypes
+    solution cells (stripping their nbgrader metadata) and reverses the cell order.
+    """
+    nb = json.loads((course / "release" / assignment / f"{assignment}.ipynb").read_text())
+    cells = nb["cells"]
+    for cell in cells:
+        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if replace and gid in replace:
+            cell["source"] = replace[gid]
+    if extra is not None:
+        at = next(i for i, c in enumerate(cells)
+                  if c["metadata"].get("nbgrader", {}).get("grade_id") == "imports") + 1
+        cells.insert(at, {"cell_type": "code", "metadata": {}, "execution_count": None,
+                          "outputs": [], "source": extra})
+    if mangle:
+        kept = []
+        for cell in cells:
+            meta = cell["metadata"].get("nbgrader", {})
+            if meta.get("grade"):
+                continue  # test cells deleted
+            if meta.get("solution"):
+                twin = copy.deepcopy(cell)
+                twin["metadata"]["nbgrader"]["grade_id"] = "retyped_" + meta["grade_id"]
+                kept.append(twin)
+                cell = dict(cell, metadata={})  # nbgrader metadata stripped
+            kept.append(cell)
+        kept.reverse()  # reordered: the graded functions are found by name, not position
+        nb["cells"] = kept
+    out = course / "submitted" / student / assignment
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{assignment}.ipynb").write_text(json.dumps(nb))
+    (out / "timestamp.txt").write_text("2026-11-20 10:00:00.000000 UTC")
+
+
+def read_grades(course: Path) -> dict[str, dict]:
+    with open(course / "grades.csv") as f:
+        return {row["student_id"]: row for row in csv.DictReader(f)}
+
+
+def execute_source(assignment: str, timeout_s: int = 180) -> nbformat.NotebookNode:
+    """Run the source notebook (with solutions and hidden tests) top to bottom; fail on any
+    error output or saved output."""
+    path = source_notebook(assignment)
+    nb = nbformat.read(path, as_version=4)
+    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), \
+        "the source notebook must be saved without outputs"
+    NotebookClient(nb, timeout=timeout_s, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+              if o.output_type == "error"]
+    assert not errors, errors
+    return nb
