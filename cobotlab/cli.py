@@ -11,7 +11,7 @@ import sys
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="cobotlab",
         description="Course labs for robot hand-eye calibration and visual servoing.",
     )
@@ -20,21 +20,98 @@ def _build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         "demo",
-        help="solve seeded hand-eye problems with every method and print errors against the truth",
+        help="the whole chain in simulation: calibrate the cameras, then pick and place chess pieces",
         description=(
-            "Draw a seeded eye-in-hand and an eye-to-hand problem (board corners with pixel "
-            "noise, robot poses with encoder-level noise), solve each with every reference "
-            "method and with OpenCV, and print the error of each against the known truth."
+            "Run the course chain in the PyBullet simulator: (1) flange calibration of a fixed "
+            "camera, (2) eye-in-hand calibration with every method (ours and OpenCV's), the "
+            "default result saved to OUT/flange_T_cam.yaml, (3) three chess pieces picked and "
+            "placed by visual servoing with that calibration. Prints each part's errors against "
+            "the simulator's truth and writes OUT/report.html with figures. With --synthetic: "
+            "only the table of hand-eye methods on synthetic data (no simulator)."
         ),
     )
-    demo.add_argument("--seed", type=int, default=0, help="problem seed (default 0)")
-    demo.add_argument("--poses", type=int, default=15, help="number of robot poses (default 15)")
-    demo.add_argument("--pixel-noise", type=float, default=0.3,
-                      help="corner pixel noise, px (default 0.3)")
-    demo.add_argument("--robot-noise-deg", type=float, default=0.05,
-                      help="robot rotation noise per axis, degrees (default 0.05)")
-    demo.add_argument("--robot-noise-mm", type=float, default=0.2,
-                      help="robot translation noise per axis, mm (default 0.2)")
+    demo.add_argument("--robot", default="panda",
+                      help="arm to simulate: panda (default) or aubo_i5; ur10e and cobotta are "
+                           "refused with the reason (the chess part does not work on them yet)")
+    demo.add_argument("--seed", type=int, default=0, help="scene and noise seed (default 0)")
+    demo.add_argument("--noise", default="low", help="none, low (default) or high: image noise "
+                      "and robot encoder offsets")
+    demo.add_argument("--out", default="out", help="folder for report.html, figures and the "
+                      "calibration YAML (default out/)")
+    demo.add_argument("--quick", action="store_true",
+                      help="fewer poses and 320x240 calibration images (for tests)")
+    demo.add_argument("--poses", type=int, default=None,
+                      help="eye-in-hand views (default 15, 10 with --quick; --synthetic: 15)")
+    demo.add_argument("--synthetic", action="store_true",
+                      help="only the synthetic table of every hand-eye method (no simulator)")
+    synthetic = demo.add_argument_group("--synthetic only")
+    synthetic.add_argument("--pixel-noise", type=float, default=None,
+                           help="corner pixel noise, px (default 0.3)")
+    synthetic.add_argument("--robot-noise-deg", type=float, default=None,
+                           help="robot rotation noise per axis, degrees (default 0.05)")
+    synthetic.add_argument("--robot-noise-mm", type=float, default=None,
+                           help="robot translation noise per axis, mm (default 0.2)")
+
+    cal = sub.add_parser(
+        "calibrate",
+        help="solve the hand-eye calibration of a saved capture folder and write the YAML",
+        description=(
+            "Load a capture folder written by robots.capture (poses.npz, images/, meta.yaml), "
+            "solve X (flange_T_cam for eye_in_hand, base_T_cam for eye_to_hand), print it with "
+            "the residual of each view and the views the robust solver flagged, and save it "
+            "with robots.calibration_io."
+        ),
+    )
+    cal.add_argument("capture_dir", metavar="CAPTURE_DIR", help="a folder written by save_capture")
+    cal.add_argument("--mount", default="eye_in_hand",
+                     help="eye_in_hand (camera on the flange, default) or eye_to_hand")
+    cal.add_argument("--method", default="nonlinear",
+                     help="nonlinear (default, robust), tsai, park, daniilidis or axes_ls")
+    cal.add_argument("--out", default=None,
+                     help="result YAML (default CAPTURE_DIR/flange_T_cam.yaml or base_T_cam.yaml)")
+
+    data = sub.add_parser(
+        "data",
+        help="list the real datasets shipped with cobotlab, or copy one out",
+        description="Real captures shipped inside the package, with their source and licence.",
+    )
+    data_sub = data.add_subparsers(dest="data_command", metavar="ACTION", required=True)
+    data_sub.add_parser("list", help="name, description, source and licence of each dataset")
+    export = data_sub.add_parser("export", help="copy a dataset's files (and README) to a folder")
+    export.add_argument("name", metavar="NAME", help="a name from `cobotlab data list`")
+    export.add_argument("dest", metavar="DIR", help="folder to copy into (created if needed)")
+
+    course = sub.add_parser("course", help="lay out an nbgrader course for the labs")
+    course_sub = course.add_subparsers(dest="course_command", metavar="ACTION", required=True)
+    init = course_sub.add_parser(
+        "init",
+        help="write nbgrader_config.py, source/<lab>/ for every lab, and the grading secret",
+        description=(
+            "Lay out an nbgrader course in DIR: nbgrader_config.py, source/<assignment>/ for "
+            "every lab, and the grading secret in DIR/.cobotlab/secret (mode 0600; keep it "
+            "private). Safe to run again after adding a lab: sources and the secret are kept. "
+            "Then `nbgrader generate_assignment <assignment>` in DIR makes the student version."
+        ),
+    )
+    init.add_argument("dir", metavar="DIR", help="course directory (created if needed)")
+
+    grade = sub.add_parser(
+        "grade",
+        help="autograde every submission of an assignment on hidden problems; write grades.csv",
+        description=(
+            "Grade every submission in COURSE/submitted/*/ASSIGNMENT: nbgrader's autograde "
+            "(each student alone, time- and memory-limited) for its cell results, then the "
+            "isolated grader on fresh hidden problems drawn from the course secret. Writes "
+            "COURSE/grades.csv (nbgrader's export columns plus flags) and per-student "
+            "feedback HTML in COURSE/feedback_cobotlab/, and prints a summary."
+        ),
+    )
+    grade.add_argument("course_dir", metavar="COURSE", help="course directory (from `course init`)")
+    grade.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
+    grade.add_argument("--workers", type=int, default=1, help="parallel graders (default 1)")
+    grade.add_argument("--no-nbgrader", action="store_true",
+                       help="skip nbgrader's autograde; use the results gradebook.db already has")
+
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
     check = robot_sub.add_parser(
@@ -88,6 +165,154 @@ def _robot_check(kind, host, arm, jog: bool = False) -> None:
     print("disconnected; " + ("nothing moved." if moves == 0 else f"{moves} jog move(s) made."))
 
 
+def _demo(args) -> None:
+    if args.synthetic:
+        from cobotlab.demo import run_synthetic
+
+        defaults = {"n_poses": 15, "pixel_px": 0.3, "robot_rot_deg": 0.05, "robot_trans_mm": 0.2}
+        given = {"n_poses": args.poses, "pixel_px": args.pixel_noise,
+                 "robot_rot_deg": args.robot_noise_deg, "robot_trans_mm": args.robot_noise_mm}
+        run_synthetic(seed=args.seed, **{k: defaults[k] if v is None else v
+                                         for k, v in given.items()})
+        return
+    for flag, value in (("--pixel-noise", args.pixel_noise),
+                        ("--robot-noise-deg", args.robot_noise_deg),
+                        ("--robot-noise-mm", args.robot_noise_mm)):
+        if value is not None:
+            raise ValueError(f"{flag} applies to --synthetic only; the simulation's noise is set "
+                             "with --noise none|low|high")
+    from cobotlab.demo import run_demo
+
+    run_demo(robot=args.robot, seed=args.seed, noise=args.noise, out=args.out, quick=args.quick,
+             n_poses=args.poses)
+
+
+def _calibrate(capture_dir, mount: str, method: str, out) -> None:
+    """``cobotlab calibrate``: solve a saved capture, print X and its residuals, save the YAML."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from cobotlab.demo import per_pose_residuals
+    from robots.calibration_io import save_calibration
+    from robots.capture import load_capture
+    from robots.geometry import rpy_from_pose
+    from solutions import handeye
+
+    if mount not in handeye.MOUNTS:
+        raise ValueError(f"--mount must be eye_in_hand or eye_to_hand, got {mount!r}")
+    if method not in handeye.METHODS:
+        raise ValueError(f"unknown --method {method!r}; choose one of {', '.join(handeye.METHODS)}")
+    capture = load_capture(capture_dir)
+    has_pose = np.all(np.isfinite(capture.cam_T_target), axis=(1, 2))
+    F, C = capture.pose_pairs()
+    views = capture.pose_indices[has_pose]
+    if len(F) < 3:
+        raise ValueError(f"{capture_dir} has {len(F)} views with a target pose; a hand-eye "
+                         "calibration needs at least 3 (better 10-15) with varied orientations")
+    solve = (handeye.calibrate_eye_in_hand_report if mount == "eye_in_hand"
+             else handeye.calibrate_eye_to_hand_report)
+    result = solve(F, C, method=method)
+    X = result.X
+    parent = "flange" if mount == "eye_in_hand" else "base"
+    rot, trans = per_pose_residuals(F, C, X, mount)
+    flagged = [int(views[i]) for i in result.outlier_pose_indices]
+
+    print(f"capture: {capture_dir} ({capture.robot_name or 'robot ?'}, "
+          f"{capture.camera_name or 'camera ?'}, {len(F)} views, "
+          f"{len(capture.failed_indices)} failed at capture)")
+    print(f"{parent}_T_cam by {method} ({mount}):")
+    for row in X:
+        print("  [" + "  ".join(f"{v:11.6f}" for v in row) + "]")
+    print("translation (mm): " + "  ".join(f"{v:.2f}" for v in X[:3, 3] * 1000))
+    print("rpy (deg, R = Rz(yaw) Ry(pitch) Rx(roll)): "
+          + "  ".join(f"{v:.3f}" for v in rpy_from_pose(X, degrees=True)))
+    print(f"motion residuals: rotation {result.rotation_residual:.3g} (Frobenius^2), "
+          f"translation {np.sqrt(result.translation_residual) * 1000:.3f} mm (rms)")
+    print("residual per view (the board pose each view implies vs their mean):")
+    worst = max(float(np.median(trans)) * 5, 1e-3)  # far above the typical view
+    for k, (r, t) in enumerate(zip(rot, trans)):
+        mark = "  <- flagged by the robust solver" if int(views[k]) in flagged else (
+            "  <- large" if t > worst else "")
+        print(f"  view {int(views[k]):3d}: {t * 1000:8.3f} mm {r:8.4f} deg{mark}")
+    print(f"flagged views: {flagged or 'none'}")
+    out = Path(out) if out else Path(capture_dir) / f"{parent}_T_cam.yaml"
+    save_calibration(out, X, parent, "cam", method, len(F),
+                     {"rotation_residual": result.rotation_residual,
+                      "translation_residual_m2": result.translation_residual,
+                      "per_pose_rotation_deg": rot, "per_pose_translation_m": trans},
+                     robot_id=capture.robot_name, camera_id=capture.camera_name)
+    print(f"saved {out}")
+
+
+def _datasets() -> dict:
+    """Shipped datasets: folder name -> (folder Traversable, title, source line, licence line),
+    read from each data folder's README (its title, first paragraph and Licence section)."""
+    from importlib import resources
+
+    found = {}
+    root = resources.files("autograder").joinpath("data")
+    for folder in sorted(root.iterdir(), key=lambda f: f.name):
+        readme = folder.joinpath("README.md")
+        if not readme.is_file():
+            continue
+        lines = readme.read_text().splitlines()
+        title = next((l[2:].strip() for l in lines if l.startswith("# ")), folder.name)
+        body = lines[lines.index(next(l for l in lines if l.startswith("# "))) + 1:]
+        paragraph = []
+        for line in body:
+            if line.strip():
+                paragraph.append(line.strip())
+            elif paragraph:
+                break
+        source = " ".join(paragraph)
+        licence = ""
+        if "## Licence" in lines:
+            after = lines[lines.index("## Licence") + 1:]
+            licence = next((l.strip() for l in after if l.strip()), "")
+        found[folder.name] = (folder, title, source, licence)
+    return found
+
+
+def _data_list() -> None:
+    for name, (folder, title, source, licence) in _datasets().items():
+        files = [f.name for f in folder.iterdir() if f.is_file()]
+        print(f"{name}: {title}")
+        print(f"  source:  {source}")
+        print(f"  licence: {licence or 'see README.md'}")
+        print(f"  files:   {', '.join(sorted(files))}")
+
+
+def _data_export(name: str, dest) -> None:
+    import shutil
+    from importlib import resources
+    from pathlib import Path
+
+    datasets = _datasets()
+    if name not in datasets:
+        raise ValueError(f"no dataset named {name!r}; `cobotlab data list` shows: "
+                         f"{', '.join(datasets) or 'none'}")
+    folder = datasets[name][0]
+    dest = Path(dest)
+    files = [f for f in folder.iterdir() if f.is_file()]
+    clashes = [f.name for f in files if (dest / f.name).exists()]
+    if clashes:
+        raise FileExistsError(f"{dest} already has {', '.join(clashes)}; export into an empty "
+                              "folder or remove those files first")
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        with resources.as_file(f) as source:
+            shutil.copyfile(source, dest / f.name)
+        print(f"copied {dest / f.name}")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage mistakes reported as one line, like every other error."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -96,10 +321,22 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         if args.command == "demo":
-            from cobotlab.demo import run_demo
+            _demo(args)
+        elif args.command == "calibrate":
+            _calibrate(args.capture_dir, args.mount, args.method, args.out)
+        elif args.command == "data" and args.data_command == "list":
+            _data_list()
+        elif args.command == "data" and args.data_command == "export":
+            _data_export(args.name, args.dest)
+        elif args.command == "course" and args.course_command == "init":
+            from autograder.course import init_course
 
-            run_demo(seed=args.seed, n_poses=args.poses, pixel_px=args.pixel_noise,
-                     robot_rot_deg=args.robot_noise_deg, robot_trans_mm=args.robot_noise_mm)
+            print(f"course laid out in {init_course(args.dir)}")
+        elif args.command == "grade":
+            from autograder.course import grade_course
+
+            grade_course(args.course_dir, args.assignment, workers=args.workers,
+                         run_nbgrader=not args.no_nbgrader)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog)
     except KeyboardInterrupt:
@@ -108,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # one line for users; --debug shows where it came from
         if args.debug:
             raise
-        print(f"cobotlab: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"cobotlab: error: {message}", file=sys.stderr)
         return 2
     return 0
 

@@ -1,39 +1,196 @@
-"""The command line: help, one-line errors, --debug tracebacks."""
+"""The command line: help, one-line errors, --debug tracebacks, demo, calibrate, data."""
 
+import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+import yaml
 
 from cobotlab import cli
+from robots.calibration_io import load_calibration
+from robots.geometry import compose, invert, make_pose, rotation_error_deg, translation_error
+
+
+def _one_line_error(capsys, argv, *fragments):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("cobotlab: error:"), err
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    for fragment in fragments:
+        assert fragment in err, err
+    return err
 
 
 def test_help_lists_the_commands(capsys):
     with pytest.raises(SystemExit) as excinfo:
         cli.main(["--help"])
     assert excinfo.value.code == 0
-    assert "demo" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    for command in ("demo", "calibrate", "data", "robot"):
+        assert command in out
 
 
 def test_errors_are_one_line_without_debug(capsys):
-    assert cli.main(["demo", "--poses", "2"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("cobotlab: error:") and "n_poses" in err
-    assert "Traceback" not in err and len(err.splitlines()) == 1
+    _one_line_error(capsys, ["demo", "--synthetic", "--poses", "2"], "n_poses")
 
 
 def test_debug_shows_the_exception():
     with pytest.raises(ValueError, match="n_poses"):
-        cli.main(["--debug", "demo", "--poses", "2"])
+        cli.main(["--debug", "demo", "--synthetic", "--poses", "2"])
 
 
-def test_console_script_runs_the_demo():
-    out = subprocess.run([sys.executable, "-m", "cobotlab.cli", "demo", "--poses", "6"],
-                         capture_output=True, text=True, timeout=120)
+@pytest.mark.parametrize("argv, fragments", [
+    (["demo", "--robot", "kuka"], ["unknown robot 'kuka'", "panda"]),
+    (["demo", "--robot", "cobotta"], ["does not run on the cobotta", "--robot panda"]),
+    (["demo", "--robot", "ur10e"], ["does not run on the ur10e"]),
+    (["demo", "--noise", "loud"], ["unknown noise level 'loud'", "none, low, high"]),
+    (["demo", "--seed", "-1"], ["seed must be a non-negative integer"]),
+    (["demo", "--poses", "3"], ["n_poses must be at least 6"]),
+    (["demo", "--pixel-noise", "1"], ["--pixel-noise applies to --synthetic only"]),
+    (["calibrate", "/nonexistent/capture"], ["has no poses.npz"]),
+    (["calibrate", ".", "--method", "magic"], ["unknown --method 'magic'", "tsai"]),
+    (["calibrate", ".", "--mount", "eye_on_ceiling"], ["--mount must be eye_in_hand or eye_to_hand"]),
+    (["data", "export", "nope", "somewhere"], ["no dataset named 'nope'", "bionicdl_aubo_i5_flange"]),
+])
+def test_bad_arguments_give_one_line_errors(capsys, argv, fragments):
+    _one_line_error(capsys, argv, *fragments)
+
+
+def test_usage_mistakes_are_one_line_too(capsys):
+    with pytest.raises(SystemExit) as excinfo:
+        cli.main(["demo", "--bogus"])
+    assert excinfo.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "unrecognized arguments: --bogus" in err
+
+
+def test_synthetic_demo_table_runs_in_a_subprocess():
+    out = subprocess.run([sys.executable, "-m", "cobotlab.cli", "demo", "--synthetic", "--poses",
+                          "6"], check=False, capture_output=True, text=True,
+                         timeout=120)
     assert out.returncode == 0, out.stderr
     for expected in ("eye_in_hand", "eye_to_hand", "nonlinear", "opencv PARK"):
         assert expected in out.stdout
     assert "failed" not in out.stdout
+
+
+def _table_errors(text: str, label: str) -> tuple[float, float]:
+    """(deg, mm) from a printed row '  <label>   <deg> deg   <mm> mm'."""
+    match = re.search(re.escape(label) + r"\s+([\d.]+) deg\s+([\d.]+) mm", text)
+    assert match, f"no row {label!r} in:\n{text}"
+    return float(match.group(1)), float(match.group(2))
+
+
+def test_quick_demo_calibrates_picks_and_writes_the_report(tmp_path):
+    out_dir = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-m", "cobotlab.cli", "demo", "--quick", "--out",
+                          str(out_dir)], check=False, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    text = run.stdout
+    for name in ("report.html", "frames_3d.png", "residuals.png", "methods.png",
+                 "servo_errors.png", "board_before.png", "board_after.png", "flange_T_cam.yaml"):
+        assert (out_dir / name).is_file() and (out_dir / name).stat().st_size > 0, name
+    page = (out_dir / "report.html").read_text()
+    for image in ("frames_3d.png", "methods.png", "servo_errors.png", "board_after.png"):
+        assert f'src="{image}"' in page
+    # Errors against the truth: the camera is mounted 3 mm / 1.5 deg off its design pose, and
+    # the calibrations must find it to well under that.
+    deg, mm = _table_errors(text, "flange calibration   base_T_cam")
+    assert deg < 0.3 and mm < 2.0
+    deg, mm = _table_errors(text, "eye-in-hand (nonlinear) flange_T_cam")
+    assert deg < 0.2 and mm < 1.0
+    assert "3/3 pieces placed" in text
+    assert "capture:" in run.stderr and "pick:" in run.stderr  # the progress bars
+    assert re.search(r"elapsed: [\d.]+ s", text)
+    saved = load_calibration(out_dir / "flange_T_cam.yaml")
+    assert saved.parent == "flange" and saved.child == "cam" and saved.method == "nonlinear"
+
+
+# --------------------------------------------------------------------------- calibrate
+
+
+@pytest.fixture(scope="module")
+def sim_capture(tmp_path_factory):
+    """A real eye-in-hand capture folder from the simulator (10 views, 320x240) and the truth."""
+    from robots.capture import capture_pose_pairs, chessboard_detector
+    from robots.geometry import pose_from_rpy
+    from sim_backends.world import create_workcell
+
+    folder = tmp_path_factory.mktemp("capture") / "run1"
+    with create_workcell(arm="panda", mount="eye_in_hand", seed=4, width=320, height=240,
+                         mount_error=(3.0, 1.0)) as cell:
+        truth = cell.truth
+        board = truth.board
+        cols, rows = board.pattern_size
+        square = float(np.linalg.norm(board.object_points[1] - board.object_points[0]))
+        centre = compose(truth.base_T_board, make_pose(t=board.object_points.mean(axis=0)))
+        rng = np.random.default_rng(4)
+        poses = []
+        for azimuth in np.linspace(0, 2 * np.pi, 10, endpoint=False):
+            tilt = np.deg2rad(rng.uniform(12, 25))
+            # Camera 0.45 m from the board centre, looking at it, image x along board x.
+            cam = compose(centre, pose_from_rpy(0, 0, azimuth), pose_from_rpy(tilt, 0, 0),
+                          pose_from_rpy(0, 0, -azimuth), make_pose(t=[0, 0, -0.45]))
+            poses.append(compose(cam, invert(truth.nominal_flange_T_cam)))
+        capture = capture_pose_pairs(cell.robot, cell.camera, poses,
+                                     chessboard_detector(cols, rows, square), folder=folder,
+                                     progress=False, settle_s=0.0, speed=0.25)
+        assert len(capture) >= 8, capture.failed_reasons
+        return folder, truth.flange_T_cam.copy(), capture
+
+
+def test_calibrate_solves_a_saved_capture_and_writes_the_yaml(capsys, sim_capture, tmp_path):
+    folder, true_X, capture = sim_capture
+    out = tmp_path / "result.yaml"
+    assert cli.main(["calibrate", str(folder), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "flange_T_cam by nonlinear (eye_in_hand)" in text
+    assert text.count("view ") >= len(capture) and "flagged views:" in text
+    result = load_calibration(out)
+    assert result.n_samples == len(capture) and result.method == "nonlinear"
+    assert translation_error(result.pose, true_X) < 1e-3
+    assert rotation_error_deg(result.pose, true_X) < 0.1
+    doc = yaml.safe_load(out.read_text())
+    assert len(doc["residuals"]["per_pose_translation_m"]) == len(capture)
+
+
+def test_calibrate_default_output_and_other_method(capsys, sim_capture):
+    folder, true_X, _ = sim_capture
+    assert cli.main(["calibrate", str(folder), "--method", "tsai"]) == 0
+    assert "flange_T_cam by tsai" in capsys.readouterr().out
+    result = load_calibration(folder / "flange_T_cam.yaml")
+    assert result.method == "tsai" and translation_error(result.pose, true_X) < 2e-3
+
+
+# --------------------------------------------------------------------------- data
+
+
+def test_data_list_shows_provenance_and_licence(capsys):
+    assert cli.main(["data", "list"]) == 0
+    out = capsys.readouterr().out
+    assert "bionicdl_aubo_i5_flange" in out
+    assert "ancorasir/BionicDL-CobotLearning-Project2" in out
+    assert re.search(r"licence: .*MIT License", out)
+
+
+def test_data_export_copies_the_files_and_refuses_to_overwrite(capsys, tmp_path):
+    from autograder.datasets import load_aubo_flange_capture
+
+    dest = tmp_path / "aubo"
+    assert cli.main(["data", "export", "bionicdl_aubo_i5_flange", str(dest)]) == 0
+    assert (dest / "README.md").is_file()
+    with np.load(dest / "calibration_data.npz") as data:
+        cam, base = load_aubo_flange_capture()
+        np.testing.assert_array_equal(data["arr_0"], cam)
+        np.testing.assert_array_equal(data["arr_1"], base)
+    capsys.readouterr()
+    _one_line_error(capsys, ["data", "export", "bionicdl_aubo_i5_flange", str(dest)],
+                    "already has", "calibration_data.npz")
+
+
+# --------------------------------------------------------------------------- robot check
 
 
 def test_robot_check_reads_the_cell_and_moves_nothing(capsys):
@@ -57,3 +214,16 @@ def test_robot_check_jog_moves_only_after_a_yes(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "moved." in out and "you answered no" in out
     assert out.rstrip().endswith("1 jog move(s) made.")
+
+
+def test_course_init_lays_out_the_course_and_grade_names_a_missing_batch(tmp_path, capsys):
+    course = tmp_path / "course"
+    assert cli.main(["course", "init", str(course)]) == 0
+    assert (course / "nbgrader_config.py").is_file()
+    assert (course / "source" / "lab0_frames" / "lab0_frames.ipynb").is_file()
+    secret = course / ".cobotlab" / "secret"
+    assert secret.is_file() and (secret.stat().st_mode & 0o077) == 0
+    capsys.readouterr()
+    assert cli.main(["grade", str(course), "lab0_frames", "--no-nbgrader"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no submissions for 'lab0_frames'" in err and len(err.splitlines()) == 1
