@@ -46,6 +46,8 @@ __all__ = [
     "evaluate",
     "check",
     "hidden_test",
+    "run_trial",
+    "StudentCallError",
 ]
 
 PUBLIC_SEEDS = (0, 1, 2)
@@ -234,13 +236,41 @@ def random_rotvec(rng: np.random.Generator, angle=None) -> np.ndarray:
     return axis * (rng.uniform(0.05, np.pi - 0.05) if angle is None else angle)
 
 
+def _current_assignment() -> str | None:
+    """The lab whose folder this process runs in, if any.
+
+    A notebook's kernel starts in the notebook's folder, which is named after the assignment
+    in labs/, in an nbgrader course (source/, release/, autograded/<student>/) and in a
+    student's download, so two labs may grade functions of the same name.
+    """
+    import os
+
+    name = os.path.basename(os.getcwd())
+    return name if name in SPECS else None
+
+
 def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
-    """The spec of graded function ``name`` (searched in every lab unless ``assignment``)."""
-    groups = [SPECS[assignment]] if assignment else SPECS.values()
-    for group in groups:
-        for spec in group:
+    """The spec of graded function ``name`` in ``assignment``.
+
+    Without ``assignment``: the lab of the current folder if it grades ``name``, else the one
+    lab that does; a name graded by several labs then needs ``assignment=``.
+    """
+    if assignment is not None and assignment not in SPECS:
+        raise ValueError(f"unknown assignment {assignment!r}; assignments are {sorted(SPECS)}")
+    here = assignment or _current_assignment()
+    if here is not None:
+        for spec in SPECS[here]:
             if spec.name == name:
                 return spec
+        if assignment is not None:
+            known = sorted(s.name for s in SPECS[assignment])
+            raise ValueError(f"{assignment} grades no function named {name!r}; it grades {known}")
+    matches = [(lab, spec) for lab, group in SPECS.items() for spec in group if spec.name == name]
+    if len(matches) == 1:
+        return matches[0][1]
+    if matches:
+        labs = ", ".join(lab for lab, _ in matches)
+        raise ValueError(f"{name!r} is graded in several labs ({labs}); pass assignment=")
     known = sorted(s.name for g in SPECS.values() for s in g)
     raise ValueError(f"no graded function named {name!r}; graded functions are {known}")
 
@@ -357,15 +387,17 @@ def _copy(a):
     return a
 
 
-def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResult:
+def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,
+             assignment: str | None = None) -> FunctionResult:
     """Score ``func`` in this process on the problems of the given public ``seeds``."""
-    spec = spec_for(name or getattr(func, "__name__", ""))
+    spec = spec_for(name or getattr(func, "__name__", ""), assignment)
     trials = [t for s in seeds for t in public_trials(spec, s)]
     result = score_function(spec, trials, [_call_in_process(func, t, spec) for t in trials])
     return result
 
 
-def check(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResult:
+def check(func, name: str | None = None, seeds=PUBLIC_SEEDS,
+          assignment: str | None = None) -> FunctionResult:
     """Score your function on practice problems and print the score it would get, and why.
 
     The hidden grade uses the same problem generator and the same scoring on fresh problems,
@@ -375,15 +407,16 @@ def check(func, name: str | None = None, seeds=PUBLIC_SEEDS) -> FunctionResult:
         func: your function, e.g. ``check(invert_pose)``.
         name: the graded function's name if ``func`` is called differently.
         seeds: public practice seeds (ints).
+        assignment: the lab, e.g. "lab1_flange"; found from the notebook's folder otherwise.
     """
-    result = evaluate(func, name, seeds)
+    result = evaluate(func, name, seeds, assignment)
     print(result.summary())
     return result
 
 
-def hidden_test(func, name: str | None = None) -> None:
+def hidden_test(func, name: str | None = None, assignment: str | None = None) -> None:
     """nbgrader's hidden test: assert full marks on the kernel seeds (a cross-check only)."""
-    result = evaluate(func, name, KERNEL_SEEDS)
+    result = evaluate(func, name, KERNEL_SEEDS, assignment)
     assert result.fraction >= 1.0, result.summary()
 
 

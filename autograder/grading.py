@@ -194,7 +194,9 @@ _TAMPER_PATTERNS = {
     "kernel_patch": r"\.kernel\b|do_execute|run_cell|ipykernel|shell_handlers",
     "sys_modules": r"sys\.modules\s*\[[^\]]*\]\s*=|sys\.modules\.(?:update|pop|__setitem__)",
     "numpy_patch": r"\b(?:np|numpy)(?:\.\w+)+\s*=(?!=)|setattr\(\s*(?:np|numpy)\b",
-    "grader_patch": r"\bautograder\b(?!\.checks import check\b)",
+    # Student-facing imports are fine: check, and the practice data of autograder.datasets
+    # and autograder.synthetic (lab 1 on); any other use of the package is looked at.
+    "grader_patch": r"\bautograder\b(?!\.checks import check\b|\.(?:datasets|synthetic) import\b)",
     "secret_probe": r"COBOTLAB_GRADING_SECRET|\.cobotlab\b|os\.environ|getenv",
     "stack_inspection": r"_getframe|inspect\.(?:stack|currentframe)|f_back|f_locals",
     "signal_handling": r"\bsignal\.(?:signal|setitimer|alarm)|\bsetrlimit\b",
@@ -417,7 +419,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                         worker = _start_worker(cells, limits, hide, skip, grade, load_deadline)
                         _note_load(grade, worker.load_report)
                     timeout = limits.call_timeout_s or spec.time_limit_s
-                    outcome = worker.call(spec.name, trial.args, timeout)
+                    outcome = checks.run_trial(
+                        spec, trial, lambda args, t, w=worker, f=spec.name: w.call(f, args, t), timeout)
                     outcomes.append(outcome)
                     if outcome.error and outcome.error.startswith("timed out"):
                         failure = f"skipped: an earlier problem timed out after {timeout:g} s"

@@ -18,7 +18,7 @@ its poses (it adds the noise to the Rodrigues vector).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation

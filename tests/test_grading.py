@@ -221,3 +221,19 @@ def test_tampering_patterns_are_flagged():
     assert {"suspicious_exception_handler", "suspicious_sys_modules", "suspicious_numpy_patch",
             "suspicious_secret_probe"} <= set(flags)
     assert grading.scan_for_tampering(["from autograder.checks import check\nx = np.eye(4)"]) == []
+
+
+def test_a_name_graded_by_two_labs_resolves_by_folder_or_assignment(tmp_path, monkeypatch):
+    labs = [lab for lab, group in checks.SPECS.items() if any(s.name == "per_axis_rmse" for s in group)]
+    if len(labs) < 2:
+        pytest.skip("no function name is graded by two labs yet")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="several labs"):
+        checks.spec_for("per_axis_rmse")
+    for lab in labs:
+        assert checks.spec_for("per_axis_rmse", lab) in checks.SPECS[lab]
+        (tmp_path / lab).mkdir()
+        monkeypatch.chdir(tmp_path / lab)
+        assert checks.spec_for("per_axis_rmse") in checks.SPECS[lab]
+    with pytest.raises(ValueError, match="unknown assignment"):
+        checks.spec_for("per_axis_rmse", "lab9")

@@ -1,0 +1,149 @@
+"""Lab 4 (stereo single-shot hand-to-eye) on the real nbgrader cycle.
+
+The source notebook runs with its solutions; the release holds no solution, hidden test or
+secret; a reference, a blank and a subtly wrong student (a flipped world frame and a Q
+reprojection divided by the wrong homogeneous coordinate) get full, zero and partial marks.
+nbgrader's own autograde runs on the reference only (it re-executes the whole sim notebook,
+about 40 s a student here); every student goes through the independent grader.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import course_kit as kit
+import numpy as np
+import pytest
+
+from autograder import checks, grading
+from autograder.course import grade_course, run_nbgrader_autograde
+from robots import geometry as geo
+from solutions import registration as reg
+
+ASSIGNMENT = "lab4_stereo"
+FUNCTIONS = ("frame_from_three_points", "reproject", "hand_to_eye_from_three_points",
+             "per_axis_rmse")
+MAX_SCORE = 10.0
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def released(tmp_path_factory) -> Path:
+    return kit.released_course(tmp_path_factory.mktemp("course"), ASSIGNMENT)
+
+
+def _solutions() -> dict[str, str]:
+    return kit.solution_sources(ASSIGNMENT, FUNCTIONS)
+
+
+def _wrong() -> dict[str, str]:
+    s = _solutions()
+    wrong = {
+        # left-handed construction: z = (p_xy - o) x x, a frame turned half a turn about x
+        "frame_from_three_points": s["frame_from_three_points"].replace(
+            "np.cross(x, np.asarray(p_xy, dtype=float) - o)",
+            "np.cross(np.asarray(p_xy, dtype=float) - o, x)"),
+        # divides by Z instead of W
+        "reproject": s["reproject"].replace("np.array([X, Y, Z]) / W", "np.array([X, Y, Z]) / Z"),
+    }
+    assert all(wrong[k] != s[k] for k in wrong), "the wrong edits must change the solutions"
+    return wrong
+
+
+def _namespace(sources: dict[str, str]) -> dict:
+    ns = {"np": np}
+    for name in FUNCTIONS:
+        exec(sources[name], ns)  # noqa: S102 - our own reference cells
+    return ns
+
+
+# --------------------------------------------------------------------------- specs
+
+
+def test_spec_passes_the_reference_solutions_and_fails_wrong_ones():
+    ns = _namespace(_solutions())
+    for name in FUNCTIONS:
+        spec = checks.spec_for(name, ASSIGNMENT)
+        trials = [t for s in range(6) for t in checks.public_trials(spec, s)]
+        result = checks.score_function(spec, trials,
+                                       [checks._call_in_process(ns[name], t) for t in trials])
+        assert result.fraction == 1.0, result.summary()
+    bad = _namespace({**_solutions(), **_wrong()})
+    for name in ("frame_from_three_points", "reproject"):
+        spec = checks.spec_for(name, ASSIGNMENT)
+        trials = checks.public_trials(spec, 0)
+        result = checks.score_function(spec, trials,
+                                       [checks._call_in_process(bad[name], t) for t in trials])
+        assert result.fraction <= 0.5, result.summary()
+    # The flip is the same on both sides of the chain, so it cancels in base_T_cam.
+    spec = checks.spec_for("hand_to_eye_from_three_points", ASSIGNMENT)
+    trials = checks.public_trials(spec, 0)
+    outcomes = [checks._call_in_process(bad["hand_to_eye_from_three_points"], t) for t in trials]
+    assert checks.score_function(spec, trials, outcomes).fraction == 1.0
+
+
+def test_notebook_solutions_agree_with_the_instructor_references():
+    ns = _namespace(_solutions())
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        p = rng.normal(size=(3, 3))
+        np.testing.assert_allclose(ns["frame_from_three_points"](*p),
+                                   reg.frame_from_three_points(*p), atol=1e-12)
+        T = geo.make_pose(geo.project_to_so3(rng.normal(size=(3, 3)) + 3 * np.eye(3)),
+                          rng.normal(size=3))
+        c, b = rng.normal(size=(12, 3)), rng.normal(size=(12, 3))
+        np.testing.assert_allclose(ns["per_axis_rmse"](T, c, b),
+                                   reg.per_axis_rmse(T, c, b, expressed_in="src"), atol=1e-12)
+
+
+# --------------------------------------------------------------------------- notebooks
+
+
+def test_source_notebook_runs_with_solutions_and_hidden_tests():
+    nb = kit.execute_source(ASSIGNMENT, timeout_s=180)
+    hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
+    assert len(hidden) == len(FUNCTIONS)
+    text = "\n".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
+                     for o in c.outputs)
+    assert "20 views seen by both cameras" in text
+    assert "per-axis RMSE on 12 check points" in text
+
+
+def test_release_has_no_solution_hidden_tests_or_secret(released):
+    text = (released / "release" / ASSIGNMENT / f"{ASSIGNMENT}.ipynb").read_text()
+    secret = grading.load_secret(released)
+    for needle in ("BEGIN SOLUTION", "END SOLUTION", "BEGIN HIDDEN", "hidden_test",
+                   "[X, Y, Z]) / W", "np.cross(x, np.asarray(p_xy", "base_T_world @ world_T_cam",
+                   "along_cam = residuals @ R", "solutions", secret):
+        assert needle not in text, needle
+    assert text.count("raise NotImplementedError()") == len(FUNCTIONS)
+    released_files = [p for p in (released / "release").rglob("*") if p.is_file()]
+    assert all(secret not in p.read_text(errors="ignore") for p in released_files)
+
+
+# --------------------------------------------------------------------------- full cycle
+
+
+def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
+    course = kit.fresh_course(released, tmp_path)
+    kit.submit(course, ASSIGNMENT, "ref", replace=_solutions())
+    kit.submit(course, ASSIGNMENT, "blank")
+    kit.submit(course, ASSIGNMENT, "wrong", replace={**_solutions(), **_wrong()})
+    run_nbgrader_autograde(course, ASSIGNMENT, "ref", timeout_s=300)
+    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True)
+    grades = {r["student_id"]: r for r in rows}
+    assert set(grades) == {"ref", "blank", "wrong"}
+    assert grades["ref"]["score"] == MAX_SCORE and grades["ref"]["max_score"] == MAX_SCORE
+    assert grades["blank"]["score"] == 0.0
+    # frame: translation right, rotation 180 deg off (1.5 of 3); reproject 0 of 3; the flip
+    # cancels in hand_to_eye (2); per_axis_rmse untouched (2)
+    assert grades["wrong"]["score"] == pytest.approx(5.5)
+    assert grades["ref"]["flags"] == "", grades["ref"]
+    # only nbgrader's missing cross-check (not run on them), nothing suspicious
+    assert all(not f.startswith("suspicious") for s in grades for f in grades[s]["flags"].split(";"))
+    secret = grading.load_secret(course)
+    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
+        assert secret not in path.read_text(), path
+    feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
+    assert "reproject" in feedback and " mm" in feedback
