@@ -23,7 +23,6 @@ import math
 import numpy as np
 
 from autograder import synthetic
-from robots import geometry as geo
 from autograder.checks import (
     EXACT_BANDS,
     Check,
@@ -33,6 +32,7 @@ from autograder.checks import (
     as_output_pose,
     pose_errors,
 )
+from robots import geometry as geo
 
 # The first PLANAR_TRIALS problems of fit_rigid are planar.
 PLANAR_TRIALS = 2
