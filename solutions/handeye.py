@@ -848,15 +848,19 @@ def _calibrate(base_T_flange, cam_T_target, mount, method, pairs, robust) -> Han
         return report
     robust = True if robust is None else bool(robust)
     m = _prepare(A, B, pose_pairs, validate=False)
-    start, X0, s_rot, s_trans = _best_start(m, robust)
-    kwargs = {"mount": mount, "X0": X0}
-    if "robust" in inspect.signature(refine).parameters:
-        kwargs["robust"] = robust
-    refined = refine(F, C, **kwargs)
+    # The absolute-pose refinement starts from Li's AX = YB closed form on the poses themselves
+    # (one linear solve: cheaper than trying every motion-based closed form, and as good a start).
+    refined = refine(F, C, mount=mount, robust=robust)
     X = _check_X(refined.X, "nonlinear (solutions.mle.refine_hand_eye)")
-    # Motion weights are a diagnostic here: the motion-based Huber rule applied at the final X.
-    w = _huber_weights(_motion_costs(m, X, s_rot, s_trans)) if robust else np.ones(len(m.RA))
-    out = _assemble(A, B, m, X, "nonlinear", w, pose_pairs, mount, start)
+    # Motion weights are a diagnostic here: the motion-based Huber rule applied at the final X,
+    # each residual block scaled by its median there.
+    w = np.ones(len(m.RA))
+    if robust:
+        E, e = _residual_blocks(m, X[:3, :3], X[:3, 3])
+        s_rot = max(float(np.median(np.sqrt(np.sum(E**2, axis=(1, 2))))), _ROT_SCALE_FLOOR)
+        s_trans = max(float(np.median(np.linalg.norm(e, axis=1))), _TRANS_SCALE_FLOOR_M)
+        w = _huber_weights(_motion_costs(m, X, s_rot, s_trans))
+    out = _assemble(A, B, m, X, "nonlinear", w, pose_pairs, mount, "li")
     out.notes.append("refined by solutions.mle.refine_hand_eye (absolute poses)")
     # The estimator that produced X decides which poses it rejected.
     pose_outliers = tuple(

@@ -15,12 +15,14 @@ In both, the camera should see the board at ``cam_T_target_i = inv(X) @ H_i @ Y`
 ``refine_hand_eye`` compares that prediction with the measured ``cam_T_target_i`` (the
 solvePnP result): per pose a 6-vector, the rotation vector (rad) of ``R_meas @ R_pred^T`` and
 the translation difference ``t_meas - t_pred`` (m), both in the camera frame, weighted by the
-inverse of their covariance. The covariance holds the camera's rotation and translation noise
-and, optionally, the robot's rotation noise, which moves the predicted board by the lever arm
-from the flange to the board (a 0.001 rad wrist error is 1 mm at 1 m). Noise levels are
-estimated from the residuals when not given (solve, estimate robustly, re-solve). A robust
-loss on each pose's normalised residual down-weights a mis-detected board, and the poses it
-rejects are reported by index.
+inverse of their covariance. The covariance is a sum of parts with unknown scales (variance
+components): the camera's noise, isotropic (a pose tracker) or shaped like a solvePnP pose of a
+flat board (depth and tilt several times worse than the rest, see ``_planar_target_shape``);
+isotropic translation noise; and the robot's rotation noise, which moves the predicted board
+by the lever arm from the flange to the board (a 0.001 rad wrist error is 1 mm at 1 m). The
+scales, and which camera model fits, are estimated from the residuals by REML (restricted
+maximum likelihood) unless given. A robust first fit sets aside suspect poses; each is named
+an outlier, by index, only if the fitted noise model cannot explain it either.
 
 ``refine_reprojection`` minimises the corner reprojection error (pixels) instead: the exact
 maximum-likelihood estimate under pixel noise when the robot poses are accurate.
@@ -34,16 +36,20 @@ cam2base = ``base_T_cam`` (= X here). This module takes ``base_T_flange`` as is 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2 as chi2_dist
+from scipy.stats import f as f_dist
 
 from robots import geometry as geo
 from solutions import robot_world
 
 __all__ = [
     "MOUNTS",
+    "NOISE_MODELS",
     "OUTLIER_CHI2",
     "HandEyeRefinement",
     "pose_residuals",
@@ -53,13 +59,24 @@ __all__ = [
 
 MOUNTS = ("eye_in_hand", "eye_to_hand")
 
-#: A pose is reported as an outlier when its squared normalised residual (chi-square with 6
-#: degrees of freedom for a good pose) exceeds this: the 99.99 % quantile, so a good pose is
-#: misnamed about once in 10 000.
+#: A pose is a suspect when its squared normalised residual (chi-square with 6 degrees of
+#: freedom for a good pose) exceeds this under the first, isotropic fit: the 99.99 % quantile.
 OUTLIER_CHI2 = 27.86
+#: The final outlier test uses the same 99.99 % level, on the law the statistic follows when the
+#: noise is estimated from the same poses (see ``_outlier_limit``).
+_OUTLIER_LEVEL = 0.9999
 #: Scale of the robust loss on the squared normalised pose residual: the 95 % quantile of
 #: chi-square(6), so good poses keep most of their weight.
 LOSS_SCALE_CHI2 = 12.59
+#: Camera-side noise models of ``refine_hand_eye`` ("auto" picks one by likelihood).
+NOISE_MODELS = ("auto", "isotropic", "planar_target")
+#: Half-width of the virtual board that shapes a PnP pose's covariance, as a fraction of the
+#: viewing distance (a board filling a fair part of the image); see ``_planar_target_shape``.
+_BOARD_HALF_WIDTH = 0.2
+#: The noise model is re-estimated until its variances move by less than this fraction and the
+#: board's middle by less than _SHIFT_TOL_M: weights a few per cent off cost no accuracy.
+_NOISE_TOL = 0.1
+_SHIFT_TOL_M = 0.01
 _MAD_TO_SIGMA = 1.4826
 _SIGMA_FLOOR_RAD = 1e-12
 _SIGMA_FLOOR_M = 1e-12
@@ -80,6 +97,12 @@ class HandEyeRefinement:
     ``reprojection_rms_px``: RMS corner reprojection error (pixels) when corners were used,
     ``pixel_sigma_px`` the corner noise estimated from it. ``per_pose_chi2``: each pose's
     squared normalised residual (pose-based) or RMS reprojection error in pixels (corners).
+    ``noise_model``: the camera-side noise model ``refine_hand_eye`` used ("isotropic" or
+    "planar_target"); with "planar_target", ``rotation_sigma_rad`` is 0 (the PnP shape
+    replaces it) and ``image_sigma_rad`` is the fitted scale of that shape: the corner noise in
+    normalised image coordinates (pixels / focal length) of the virtual board that explains
+    the residuals. It grows in proportion to the real pixel noise, but equals it only for a
+    board like the virtual one (16 corners spanning 40 % of the viewing distance).
     """
 
     X: np.ndarray
@@ -96,6 +119,8 @@ class HandEyeRefinement:
     reprojection_rms_px: float | None = None
     pixel_sigma_px: float | None = None
     per_pose_chi2: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    noise_model: str = "isotropic"
+    image_sigma_rad: float | None = None
 
     @property
     def outlier_pose_indices(self) -> tuple[int, ...]:
@@ -244,50 +269,270 @@ class _PoseProblem:
 
 
 
-def _covariance_parts(var_cam_rot, var_trans, var_robot_rot, e):
-    """The three (N, 6, 6) covariance parts of the pose residual, in camera axes.
+def _planar_target_shape(C: np.ndarray) -> np.ndarray | None:
+    """Covariance shape (N, 6, 6) of solvePnP poses of a flat board, per unit image noise.
 
-    Camera rotation noise (variance per axis, rad^2) on the rotation; translation noise
-    (m^2, camera and robot translation noise together) on the translation; robot rotation noise
-    delta (rad^2), which moves the predicted board as (rotation, translation) =
-    (delta, -[e]x delta), e being the flange-to-board lever arm in camera axes.
+    A pose found by PnP on a flat board is far from isotropic: depth and tilt come from the
+    board's apparent size and foreshortening, so they are several times worse than the
+    sideways position and the roll, and the origin (a corner of the board) inherits the tilt
+    error through its offset from the board's middle. The board itself is not passed in, so the
+    shape is built for a virtual one: a 4 x 4 grid in the target plane z = 0, centred where the
+    optical axes meet that plane (median over views: a camera looks at the board) and
+    ``2 * _BOARD_HALF_WIDTH`` times the viewing distance wide. Each view's Fisher information
+    of its corner directions (normalised image coordinates, pixels / focal length, unit noise)
+    is inverted into the covariance of ``_PoseProblem``'s residual (rotation vector and
+    translation in camera axes). Only the shape is used; its scale, (pixel noise / focal
+    length)^2, is estimated from the residuals, and the weights change little if the real board
+    is half or twice the assumed size.
+
+    Returns None when the poses do not look like views of a board in its z = 0 plane (most
+    optical axes miss the plane, or a virtual corner would lie behind a camera).
+    """
+    R, t = C[:, :3, :3], C[:, :3, 3]
+    eye = -np.einsum("nji,nj->ni", R, t)  # camera centre in target coordinates
+    axis = R[:, 2, :]                      # optical axis in target coordinates
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = -eye[:, 2] / axis[:, 2]    # distance along the axis to the plane z = 0
+    ahead = np.isfinite(reach) & (reach > 0)
+    if 2 * ahead.sum() <= len(C):
+        return None
+    middle = np.median(eye[ahead, :2] + reach[ahead, None] * axis[ahead, :2], axis=0)
+    half = _BOARD_HALF_WIDTH * float(np.median(reach[ahead]))
+    grid = np.linspace(-half, half, 4)
+    gx, gy = np.meshgrid(middle[0] + grid, middle[1] + grid)
+    board = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    Rp = np.einsum("nij,kj->nki", R, board)  # (N, 16, 3) corner offsets from the origin
+    p = Rp + t[:, None, :]
+    if np.any(p[..., 2] < 0.1 * half):
+        return None
+    # d(x/z, y/z)/d p times d p/d(rotation, translation) = [-[R b]x, I].
+    inv_z = 1.0 / p[..., 2]
+    proj = np.zeros(p.shape[:2] + (2, 3))
+    proj[..., 0, 0] = proj[..., 1, 1] = inv_z
+    proj[..., :, 2] = -p[..., :2] * inv_z[..., None] ** 2
+    D = np.empty(p.shape[:2] + (3, 6))
+    D[..., :3] = -_skew(Rp)
+    D[..., 3:] = np.eye(3)
+    J = (proj @ D).reshape(len(C), -1, 6)
+    return np.linalg.inv(np.swapaxes(J, 1, 2) @ J)
+
+
+def _unit_parts(e: np.ndarray, camera_shape: np.ndarray | None) -> np.ndarray:
+    """The unit covariance parts (3, N, 6, 6) of the pose residual, in camera axes.
+
+    0: camera noise, isotropic rotation (a pose tracker; ``camera_shape`` None) or the
+       planar-target PnP shape ``camera_shape``;
+    1: isotropic translation (camera and robot translation noise together; robot translation
+       noise stays isotropic in any frame);
+    2: robot rotation noise delta, which moves the predicted board as (rotation, translation)
+       = (delta, -[e]x delta), e being the flange-to-board lever arm in camera axes.
     """
     n = len(e)
+    parts = np.zeros((3, n, 6, 6))
+    if camera_shape is None:
+        parts[0, :, :3, :3] = np.eye(3)
+    else:
+        parts[0] = camera_shape
+    parts[1, :, 3:, 3:] = np.eye(3)
     Se = _skew(e)
-    cam = np.zeros((n, 6, 6))
-    cam[:, :3, :3] = var_cam_rot * np.eye(3)
-    trans = np.zeros((n, 6, 6))
-    trans[:, 3:, 3:] = var_trans * np.eye(3)
-    robot = np.zeros((n, 6, 6))
-    robot[:, :3, :3] = np.eye(3)
-    robot[:, :3, 3:] = Se
-    robot[:, 3:, :3] = np.swapaxes(Se, 1, 2)
-    robot[:, 3:, 3:] = Se @ np.swapaxes(Se, 1, 2)
-    return [cam, trans, var_robot_rot * robot]
+    parts[2, :, :3, :3] = np.eye(3)
+    parts[2, :, :3, 3:] = Se
+    parts[2, :, 3:, :3] = np.swapaxes(Se, 1, 2)
+    parts[2, :, 3:, 3:] = Se @ np.swapaxes(Se, 1, 2)
+    return parts
 
 
-def _update_variances(variances, parts, info, r, J, keep):
-    """One step of Foerstner's variance-component estimation (it converges to REML).
+def _information(variances: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """Per-pose information matrices inv(sum_k v_k S_k), (N, 6, 6)."""
+    return np.linalg.inv(np.tensordot(variances, parts, axes=1))
 
-    Each variance is scaled by (r' W S_k W r) / tr((W - W J H^-1 J' W) S_k) over the kept
-    poses, S_k being its covariance part and W the information matrix: the scatter of the
-    residuals seen over the scatter expected after the fit has used up its 12 parameters.
+
+def _shift_parts(parts: np.ndarray, shift, board_axes) -> np.ndarray:
+    """``parts`` with the camera part (0) moved to a board centred ``shift`` (m, along the
+    target's x and y axes) away: residual (rho, tau) -> (rho, tau + [R d]x rho), R d being the
+    shift in camera axes (``board_axes`` (N, 3, 2) = the target's x and y axes there)."""
+    if board_axes is None or not np.any(shift):
+        return parts
+    T = np.broadcast_to(np.eye(6), (parts.shape[1], 6, 6)).copy()
+    T[:, 3:, :3] = _skew(board_axes @ shift)
+    return np.concatenate([(T @ parts[0] @ np.swapaxes(T, 1, 2))[None], parts[1:]])
+
+
+def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=None,
+                max_iter: int = 12, tol: float = _NOISE_TOL):
+    """Noise model parameters by REML Fisher scoring at fixed residuals.
+
+    The residual covariance of pose i is Sigma_i = sum_k v_k S_k,i (``parts``; see
+    ``_unit_parts``). With ``board_axes`` given (planar-target model), the board's middle is a
+    parameter too: the camera part is moved by ``shift`` d (m, in the target plane), which
+    changes how the origin's translation error follows the tilt error (see
+    ``_shift_parts``); it starts from the virtual board's centre and is fitted here, since
+    where the camera looked is only a rough guess of it.
+
+    Each step solves F dtheta = s with s_k = r'P D_k P r - tr(P D_k) and
+    F_kl = tr(P D_k P D_l), D_k = d Sigma / d theta_k, P = W - W J H^-1 J' W (W = Sigma^-1,
+    H = J' W J: the fit's 12 parameters use up part of the scatter). For the variances this
+    is the iterated-MINQUE form of REML; a variance that would turn negative is held at a
+    floor far below the residuals and the rest re-solved; those in ``held`` keep their value.
+    A weak prior (standard deviation 0.5 m) keeps the shift defined when the data say nothing
+    about it. Only the kept poses count.
+
+    Returns (variances (K,), shift (2,), -2 log REML likelihood up to a constant, whether the
+    steps converged within ``max_iter``).
     """
-    Jk, Wk, rk = J[keep], info[keep], r[keep]
-    WJ = Wk @ Jk
-    Hinv = np.linalg.inv(Jk.reshape(-1, 12).T @ WJ.reshape(-1, 12))
-    Wr = (Wk @ rk[:, :, None])[:, :, 0]
-    redundancy = Wk - WJ @ Hinv @ np.swapaxes(WJ, 1, 2)
-    out = []
-    for var, S in zip(variances, parts):
-        if var <= 0.0:
-            out.append(0.0)
-            continue
-        Sk = S[keep]
-        num = float(np.einsum("ni,ni->", Wr, (Sk @ Wr[:, :, None])[:, :, 0]))
-        den = float(np.sum(redundancy * Sk))
-        out.append(var * num / den if den > 1e-9 * float(np.sum(Wk * Sk)) else var)
-    return out
+    base, rk, Jk = parts[:, keep], r[keep], J[keep]
+    K, m = len(base), len(rk)
+    axes = None if board_axes is None else board_axes[keep]
+    n_shift = 0 if axes is None else 2
+    # A component's "alone" scale: the variance that would explain the residuals by itself.
+    alone = float(np.sum(rk**2)) / np.maximum(np.einsum("kmii->k", base), 1e-300)
+    floor = 1e-8 * alone
+    held = np.zeros(K, bool) if held is None else np.asarray(held, bool)
+    v = np.where(held, variances, np.maximum(np.asarray(variances, float), floor))
+    d = np.zeros(2) if shift is None else np.asarray(shift, float).copy()
+    prior = 1.0 / 0.5**2
+    Jf = Jk.reshape(-1, 12)
+
+    frozen = np.concatenate([held, np.zeros(n_shift, bool)])
+    lower = np.concatenate([floor, np.full(n_shift, -np.inf)])
+    if n_shift:
+        E = np.zeros((2, m, 6, 6))
+        E[:, :, 3:, :3] = _skew(np.moveaxis(axes, 2, 0))
+
+    def derivatives(v, d):
+        if n_shift == 0:
+            return base, base
+        S = _shift_parts(base, d, axes)
+        ES = v[0] * (E @ S[0])
+        return S, np.concatenate([S, ES + np.swapaxes(ES, 2, 3)])
+
+    converged = False
+    last_step = np.zeros(2)
+    for _ in range(max_iter):
+        S, D = derivatives(v, d)
+        W = np.linalg.inv(np.tensordot(v, S, axes=1))
+        WJ = W @ Jk
+        WJ2 = WJ.reshape(-1, 12)
+        Hinv = np.linalg.inv(Jf.T @ WJ2)
+        Pr = (W @ rk[:, :, None])[:, :, 0] - WJ @ (Hinv @ (WJ2.T @ rk.reshape(-1)))
+        G = (WJ2 @ Hinv).reshape(m, 6, 12) @ np.swapaxes(WJ, 1, 2)
+        n_par = len(D)
+        # Traces of products of symmetric blocks as dot products of the flattened arrays:
+        # tr(A B) = sum(A * B') and D_k' = D_k.
+        WD = W @ D
+        DW = np.swapaxes(WD, 2, 3).reshape(n_par, -1)          # (W D_k)' = D_k W
+        HM = Hinv @ (WJ2.T @ (D @ WJ).reshape(n_par, -1, 12))  # H^-1 J'W D_k W J
+        F = ((WD - 2.0 * (G @ D)).reshape(n_par, -1) @ DW.T
+             + np.einsum("kab,lba->kl", HM, HM))
+        Df = D.reshape(n_par, -1)
+        score = Df @ (Pr[:, :, None] * Pr[:, None, :] - W + G).reshape(-1)
+        theta = np.concatenate([v, d[:n_shift]])
+        if n_shift:
+            F[K:, K:] += 2.0 * prior * np.eye(2)
+            score[K:] -= 2.0 * prior * d
+        new = _bounded_solve(F, F @ theta + score, lower, frozen, theta)
+        new_v, new_d = new[:K], (new[K:] if n_shift else d)
+        if n_shift:
+            # Fisher scoring can overshoot on the shift: cap its step, and halve the whole
+            # step when the shift turns back (the steps were zigzagging).
+            step = new_d - d
+            size = float(np.linalg.norm(step))
+            if step @ last_step < 0:
+                new_v, new_d = 0.5 * (v + new_v), d + 0.5 * step
+            else:
+                new_d = d + step * min(1.0, 0.05 / max(size, 1e-300))
+            last_step = new_d - d
+        # A variance below a hundredth of its "alone" scale hardly weighs; its wobble is ignored.
+        moved = np.max(np.abs(new_v - v) / np.maximum(np.maximum(new_v, v), 1e-2 * alone))
+        if n_shift:
+            moved = max(moved, tol * float(np.max(np.abs(new_d - d))) / _SHIFT_TOL_M)
+        v, d = new_v, new_d
+        if moved < tol:
+            converged = True
+            break
+    S = _shift_parts(base, d, axes)
+    cov = np.tensordot(v, S, axes=1)
+    W = np.linalg.inv(cov)
+    WJ2 = (W @ Jk).reshape(-1, 12)
+    H = Jf.T @ WJ2
+    g = WJ2.T @ rk.reshape(-1)
+    quad = float(np.einsum("mi,mij,mj->", rk, W, rk) - g @ np.linalg.solve(H, g))
+    m2ll = float(np.sum(np.linalg.slogdet(cov)[1]) + np.linalg.slogdet(H)[1] + quad)
+    if n_shift:
+        m2ll += prior * float(d @ d)
+    return v, d, m2ll, converged
+
+
+@lru_cache(maxsize=512)
+def _outlier_limit(n_directions: int, n_kept: int, n_noise_parameters: int) -> float:
+    """Threshold of the outlier test (``_outliers``) for a pose tested in ``n_directions`` directions.
+
+    With known noise the statistic of a good pose is chi-square(k) (k = 6: ``OUTLIER_CHI2``,
+    its 99.99 % point). When the noise is estimated from the same data it is k F(k, dof)
+    instead, dof = 6 n_kept - 12 - n_noise_parameters: heavier-tailed with few poses, so the
+    same 99.99 % point lies higher (about 37 for 10 poses, 31 for 20).
+    """
+    if n_directions == 0:
+        return np.inf
+    if n_noise_parameters == 0:
+        return float(chi2_dist.ppf(_OUTLIER_LEVEL, n_directions))
+    dof = 6 * n_kept - 12 - n_noise_parameters
+    if dof <= 0:
+        return np.inf
+    return float(n_directions * f_dist.ppf(_OUTLIER_LEVEL, n_directions, dof))
+
+
+def _outliers(r, cov, J, keep, n_noise_parameters: int) -> np.ndarray:
+    """Which poses fail the outlier test (statistic above its threshold), (N,) bool.
+
+    Each pose's residual is normalised by its covariance *allowing for the fit*. A pose inside
+    the fit pulled the fit towards itself (residual covariance Sigma_i - J_i H^-1 J_i'); one
+    left out did not, and the fit's own error adds to its residual (Sigma_i + J_i H^-1 J_i'),
+    H being the information of the kept poses. Either way the statistic of a good pose follows
+    the same law, so a pose set aside early is judged fairly when it is tested again.
+    Directions in which a kept pose retains less than 5 % of its own noise variance (it largely
+    decides the fit there) cannot show an error and are left out of its test.
+    """
+    info = np.linalg.inv(cov)
+    WJ = info[keep] @ J[keep]
+    Hinv = np.linalg.inv(J[keep].reshape(-1, 12).T @ WJ.reshape(-1, 12))
+    fit = J @ Hinv @ np.swapaxes(J, 1, 2)
+    Q = np.where(keep[:, None, None], cov - fit, cov + fit)
+    # Whitened by Sigma_i, Q's eigenvalues are the share of the noise left in each direction.
+    Linv = np.linalg.inv(np.linalg.cholesky(cov))
+    lam, U = np.linalg.eigh(Linv @ Q @ np.swapaxes(Linv, 1, 2))
+    proj = np.einsum("nji,nj->ni", U, (Linv @ r[:, :, None])[:, :, 0])
+    usable = lam > 0.05
+    stat = np.sum(np.where(usable, proj**2 / np.where(usable, lam, 1.0), 0.0), axis=1)
+    n_kept = int(keep.sum())
+    limit = np.array([_outlier_limit(int(k), n_kept, n_noise_parameters) for k in usable.sum(axis=1)])
+    return stat > limit
+
+
+def _bounded_solve(F, rhs, lower, held, held_value) -> np.ndarray:
+    """Solve F x = rhs for the entries not ``held`` (those keep ``held_value``), holding at
+    ``lower`` any that would fall below it and re-solving the rest."""
+    if not held.any():
+        x = np.linalg.solve(F, rhs)
+        if np.all(x >= lower):
+            return x
+    fixed = held.copy()
+    x = np.where(held, held_value, lower)
+    for _ in range(len(rhs)):
+        free = ~fixed
+        if not free.any():
+            break
+        x = np.where(held, held_value, np.where(fixed, lower, 0.0))
+        Ff = F[free]
+        try:
+            x[free] = np.linalg.solve(Ff[:, free], rhs[free] - Ff[:, fixed] @ x[fixed])
+        except np.linalg.LinAlgError:
+            x[free] = np.maximum(lower[free], 0.0)
+        low = free & (x < lower)
+        if not low.any():
+            break
+        fixed |= low
+    return np.where(held, held_value, np.maximum(x, lower))
 
 
 def _loss(z2: np.ndarray, loss: str | None) -> tuple[np.ndarray, np.ndarray]:
@@ -385,7 +630,7 @@ def _mad_sigma(values: np.ndarray) -> float:
 def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=None, Y0=None,
                     robust: bool = True, max_iter: int = 50, sigma=None,
                     robot_rotation_sigma_rad: float | None = None,
-                    loss: str = "cauchy") -> HandEyeRefinement:
+                    loss: str = "cauchy", noise_model: str = "auto") -> HandEyeRefinement:
     """Maximum-likelihood hand-eye calibration from robot poses and board poses.
 
     Parameters
@@ -397,17 +642,28 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
     mount : "eye_in_hand" (X = flange_T_cam, Y = base_T_target) or "eye_to_hand"
         (X = base_T_cam, Y = flange_T_target).
     X0, Y0 : optional starting poses; by default Li's AX = YB closed form.
-    robust : first fit with ``loss`` on each pose's normalised residual, then drop the poses
-        whose squared normalised residual exceeds ``OUTLIER_CHI2`` and fit the rest by plain
-        weighted least squares (as efficient as least squares when nothing is wrong).
+    robust : first fit with ``loss`` on each pose's normalised residual under isotropic noise
+        levels from the medians; the poses whose squared normalised residual exceeds
+        ``OUTLIER_CHI2`` there are suspects. Each suspect is tested again under the fitted
+        noise model, allowing for the fit (``_outliers``), and dropped only if it fails that
+        too; the rest are fitted by plain weighted least squares (as efficient as least
+        squares when nothing is wrong). Dropped poses are ``outlier_indices``.
     max_iter : Levenberg-Marquardt steps per solve.
     sigma : (rotation_rad, translation_m): camera-side noise standard deviations per axis
         (robot translation noise may be folded into the translation), or None to estimate
-        them from the residuals (variance-component estimation, re-solving until they settle).
+        the noise from the residuals (REML variance components; see ``noise_model``).
     robot_rotation_sigma_rad : robot rotation noise per axis (rad); its effect on the
         predicted board grows with the flange-to-board lever arm. None estimates it with the
         other noise levels when ``sigma`` is None (and takes 0 when ``sigma`` is given).
     loss : robust loss of the first stage: "cauchy" (default), "soft_l1" or "huber".
+    noise_model : shape of the camera-side noise when ``sigma`` is None. "isotropic": the
+        same rotation and translation noise about every camera axis (a pose tracker, or poses
+        perturbed as in OpenCV's test); "planar_target": poses from solvePnP on a flat board in
+        the target's z = 0 plane, whose depth and tilt are much worse than the rest (see
+        ``_planar_target_shape``; with 8 poses or more the board's middle is fitted too);
+        "auto" (default) fits both and keeps the one with the higher REML likelihood
+        (``HandEyeRefinement.noise_model`` says which). With fewer than 7 poses the robot's
+        rotation noise is not estimated (too few residuals to tell it apart).
 
     Returns a ``HandEyeRefinement``. Raises ``ValueError`` for malformed or degenerate input
     (fewer than 3 poses, mismatched lengths, rotations about one axis only).
@@ -417,6 +673,8 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
     if robust and loss not in ("huber", "soft_l1", "cauchy"):
         raise ValueError(f"loss must be 'huber', 'soft_l1' or 'cauchy', got {loss!r}")
+    if noise_model not in NOISE_MODELS:
+        raise ValueError(f"noise_model must be one of {NOISE_MODELS}, got {noise_model!r}")
     if robot_rotation_sigma_rad is not None and not (np.isfinite(robot_rotation_sigma_rad)
                                                      and robot_rotation_sigma_rad >= 0):
         raise ValueError("robot_rotation_sigma_rad must be a finite value >= 0 (radians) or None")
@@ -427,6 +685,14 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
             raise ValueError(
                 "sigma must be (rotation_rad, translation_m), both finite and > 0, e.g. "
                 "(np.radians(0.1), 0.0005); or None to estimate them from the data")
+    shape = None
+    if estimate and noise_model != "isotropic":
+        shape = _planar_target_shape(C)
+        if shape is None and noise_model == "planar_target":
+            raise ValueError(
+                "noise_model='planar_target' needs cam_T_target from solvePnP on a flat board in "
+                "the target's z = 0 plane, facing the cameras; these poses do not look like that "
+                "(use noise_model='isotropic')")
 
     X, Y = _initial_guess(A, C, mount, X0, Y0)
     problem = _PoseProblem(A, C, mount)
@@ -436,53 +702,101 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
     r, _, P = problem.residuals(Z, Y)
     e = problem.lever_arms(Z, P)
 
+    # Isotropic noise levels (rotation, translation, robot rotation) to begin with: from the
+    # medians of the residuals (which resist a bad view), or as given.
     if estimate:
-        # The start is only roughly right, so these overstate the noise, which keeps the first
-        # robust pass gentle. The median resists a bad view.
-        var_cr = max(_mad_sigma(r[:, :3]), _SIGMA_FLOOR_RAD) ** 2
-        var_t = max(_mad_sigma(r[:, 3:]), _SIGMA_FLOOR_M) ** 2
+        iso = np.array([max(_mad_sigma(r[:, :3]), _SIGMA_FLOOR_RAD) ** 2,
+                        max(_mad_sigma(r[:, 3:]), _SIGMA_FLOOR_M) ** 2, 0.0])
         # Start the robot share at a tenth of the rotation noise; the estimation moves it.
-        var_rr = 0.1 * var_cr if robot_rotation_sigma_rad is None else robot_rotation_sigma_rad**2
+        iso[2] = 0.1 * iso[0] if robot_rotation_sigma_rad is None else robot_rotation_sigma_rad**2
     else:
-        var_cr, var_t = sigma[0] ** 2, sigma[1] ** 2
-        var_rr = (robot_rotation_sigma_rad or 0.0) ** 2
-    estimate_rr = estimate and robot_rotation_sigma_rad is None
-
-    def information(e):
-        return np.linalg.inv(sum(_covariance_parts(var_cr, var_t, var_rr, e)))
+        iso = np.array([sigma[0] ** 2, sigma[1] ** 2, (robot_rotation_sigma_rad or 0.0) ** 2])
 
     total_it = 0
     converged = True
+    # Stage 1: a first fit under isotropic noise levels from the medians, with the robust loss
+    # if asked; then the levels again from the medians of the inliers. Any reasonable weighting
+    # finds a gross error here; the poses it sets aside are only suspects, tested again below
+    # under the fitted noise model.
+    info = _information(iso, _unit_parts(e, None))
+    Z, Y, _, z2, total_it, converged = _gauss_newton(problem, Z, Y, info, loss if robust else None,
+                                                     max_iter, keep, tol=1e-6)
+    r, Jinv, P = problem.residuals(Z, Y)
+    e = problem.lever_arms(Z, P)
+    if robust and estimate:
+        inl = z2 < OUTLIER_CHI2
+        if inl.sum() < 3:
+            inl[:] = True
+        dof = np.sqrt(6 * inl.sum() / max(6 * inl.sum() - 12, 1))
+        iso[:2] = [max(_mad_sigma(r[inl, :3]) * dof, _SIGMA_FLOOR_RAD) ** 2,
+                   max(_mad_sigma(r[inl, 3:]) * dof, _SIGMA_FLOOR_M) ** 2]
     if robust:
-        # Stage 1: robust loss, noise re-estimated by medians until it settles.
-        for _ in range(2):
-            Z, Y, _, z2, it, converged = _gauss_newton(problem, Z, Y, information(e), loss,
-                                                       max_iter, keep, tol=1e-6)
-            total_it += it
-            r, _, P = problem.residuals(Z, Y)
-            e = problem.lever_arms(Z, P)
-            if not estimate:
-                break
-            inl = z2 < OUTLIER_CHI2
-            if inl.sum() < 3:
-                inl[:] = True
-            dof = np.sqrt(6 * inl.sum() / max(6 * inl.sum() - 12, 1))
-            new_cr = max(_mad_sigma(r[inl, :3]) * dof, _SIGMA_FLOOR_RAD) ** 2
-            new_t = max(_mad_sigma(r[inl, 3:]) * dof, _SIGMA_FLOOR_M) ** 2
-            settled = abs(new_cr / var_cr - 1) < 0.05 and abs(new_t / var_t - 1) < 0.05
-            var_cr, var_t = new_cr, new_t
-            if settled:
-                break
+        keep = _chi2(r, _information(iso, _unit_parts(e, None))) < OUTLIER_CHI2
+        if keep.sum() < 3:
+            keep[:] = True
+    suspects = ~keep
 
-    # Stage 2: weighted least squares on the poses that are not outliers, with the noise
-    # levels re-estimated by variance components (REML) until they and the inlier set settle.
-    # The variance iteration runs at fixed residuals between solves: residuals barely move when
-    # the weights change a little, and a solve costs far more than a variance update.
+    # Stage 2: the noise model. Estimate no more noise parameters than the poses support
+    # (about 10 redundant residual components each): the robot's rotation noise from 7 poses
+    # on, the board's middle from 8. Each candidate model gets its variances by REML on the
+    # kept poses, and the one with the higher REML likelihood is kept. REML sees the residuals
+    # only through P r, which a further move of the fit along J does not change, so these
+    # estimates stand for the final fit unless the set of kept poses changes.
+    redundancy = 6 * n - 12
+    held = np.array([False, False, robot_rotation_sigma_rad is not None or redundancy < 30])
+    if held[2] and robot_rotation_sigma_rad is None:
+        iso[2] = 0.0
+    chosen, variances, shift, axes = "isotropic", iso, np.zeros(2), None
+    if estimate:
+        J = problem.jacobian(P, Jinv)
+        candidates = []
+        if noise_model != "planar_target":
+            candidates.append(("isotropic", None, iso))
+        if shape is not None:
+            # Start: the PnP shape alone explaining the camera side, a little of the rest.
+            fisher = np.linalg.inv(shape[keep])
+            scale = float(np.einsum("ni,nij,nj->", r[keep], fisher, r[keep])) / (6 * keep.sum())
+            candidates.append(("planar_target", shape, np.array([scale, 0.1 * iso[1], iso[2]])))
+        fitted = []
+        for name, cam_shape, start in candidates:
+            # A few steps tell the models apart; the chosen one is finished below.
+            v, _, m2ll, done = _reml_noise(_unit_parts(e, cam_shape), start, r, J, keep, held,
+                                           max_iter=4)
+            fitted.append((m2ll, name, cam_shape, v, done))
+        _, chosen, shape, variances, done = min(fitted, key=lambda f: f[0])
+        estimated_on = keep
+        if robust and suspects.any():
+            # A suspect that either model explains is cleared and comes back before the last
+            # estimate: on PnP poses with little noise the two can be close calls.
+            for _, _, cam_shape, v, _ in fitted:
+                cov = np.tensordot(v, _unit_parts(e, cam_shape), axes=1)
+                suspects &= _outliers(r, cov, J, keep, int(np.sum(~held)))
+            keep = ~suspects
+        if chosen == "planar_target" and redundancy >= 36:
+            # With enough poses, where the board's middle lies is fitted too: the virtual
+            # board's is only a guess.
+            axes, done = C[:, :3, :2], False
+        if not done or not np.array_equal(keep, estimated_on):
+            variances, shift, _, _ = _reml_noise(_unit_parts(e, shape), variances, r, J, keep,
+                                                 held, axes, max_iter=8)
+    else:
+        shape = None
+
+    def parts(e):
+        return _shift_parts(_unit_parts(e, shape), shift, axes)
+
+    n_noise_parameters = int(estimate) * (int(np.sum(~held)) + (0 if axes is None else 2))
+
+    # Stage 3: weighted least squares under that model on the poses that are not outliers;
+    # the suspects are tested again, and the noise re-estimated whenever the kept set changes.
     for _ in range(6):
-        info = information(e)
-        if robust:
-            r, _, _ = problem.residuals(Z, Y)
-            new_keep = _chi2(r, info) < OUTLIER_CHI2
+        cov = np.tensordot(variances, parts(e), axes=1)
+        info = np.linalg.inv(cov)
+        keep_changed = False
+        if robust and suspects.any():
+            r, Jinv, P = problem.residuals(Z, Y)
+            new_keep = ~(suspects & _outliers(r, cov, problem.jacobian(P, Jinv), keep,
+                                              n_noise_parameters))
             if new_keep.sum() < 3:
                 raise ValueError(
                     f"only {int(new_keep.sum())} of {n} poses agree with each other; check that "
@@ -490,50 +804,29 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
                     "this function expects (base_T_flange, not its inverse)")
             keep_changed = not np.array_equal(new_keep, keep)
             keep = new_keep
-        else:
-            keep_changed = False
-        Z, Y, _, z2, it, converged = _gauss_newton(problem, Z, Y, info, None, max_iter, keep)
+        Z, Y, _, z2, it, converged = _gauss_newton(problem, Z, Y, info, None, max_iter, keep,
+                                                   tol=1e-8)
         total_it += it
         r, Jinv, P = problem.residuals(Z, Y)
         e = problem.lever_arms(Z, P)
-        if not estimate:
-            if var_rr == 0.0 and not keep_changed:
-                break
-            continue
-        J = problem.jacobian(P, Jinv)
-        old = (var_cr, var_t, var_rr)
-        for _ in range(10):
-            rr_now = var_rr if estimate_rr else 0.0
-            parts = _covariance_parts(var_cr, var_t, rr_now, e)
-            info = np.linalg.inv(sum(parts))
-            new = _update_variances([var_cr, var_t, rr_now], parts, info, r, J, keep)
-            new_cr = max(new[0], _SIGMA_FLOOR_RAD**2)
-            new_t = max(new[1], _SIGMA_FLOOR_M**2)
-            new_rr = new[2] if estimate_rr else var_rr
-            # A robot share below 1 % of the rotation noise changes nothing; end it there
-            # rather than let the multiplicative update creep towards zero.
-            if estimate_rr and new_rr < 1e-4 * new_cr:
-                new_rr, estimate_rr = 0.0, False
-            step = max(abs(np.sqrt(new_cr / var_cr) - 1), abs(np.sqrt(new_t / var_t) - 1),
-                       abs(np.sqrt(new_rr) - np.sqrt(var_rr)) / np.sqrt(new_cr + new_rr))
-            var_cr, var_t, var_rr = new_cr, new_t, new_rr
-            if step < 1e-3:
-                break
-        moved = max(abs(np.sqrt(var_cr / old[0]) - 1), abs(np.sqrt(var_t / old[1]) - 1),
-                    abs(np.sqrt(var_rr) - np.sqrt(old[2])) / np.sqrt(var_cr + var_rr))
-        if moved < 0.01 and not keep_changed:
+        if not keep_changed and (estimate or variances[2] == 0.0):
             break
+        if estimate:
+            variances, shift, _, _ = _reml_noise(_unit_parts(e, shape), variances, r,
+                                                 problem.jacobian(P, Jinv), keep, held, axes,
+                                                 shift)
 
-    info = information(e)
-    r, _, _ = problem.residuals(Z, Y)
-    z2 = _chi2(r, info)
+    z2 = _chi2(r, _information(variances, parts(e)))
     outliers = tuple(int(i) for i in np.flatnonzero(~keep)) if robust else ()
+    planar = chosen == "planar_target"
     return HandEyeRefinement(
         X=_clean(geo.invert(Z)), Y=_clean(Y), mount=mount,
-        rotation_sigma_rad=float(np.sqrt(var_cr)), translation_sigma_m=float(np.sqrt(var_t)),
+        rotation_sigma_rad=0.0 if planar else float(np.sqrt(variances[0])),
+        translation_sigma_m=float(np.sqrt(variances[1])),
         weights=keep.astype(float), outlier_indices=outliers, cost=float(z2[keep].sum()),
         n_iterations=total_it, converged=bool(converged),
-        robot_rotation_sigma_rad=float(np.sqrt(var_rr)), per_pose_chi2=z2,
+        robot_rotation_sigma_rad=float(np.sqrt(variances[2])), per_pose_chi2=z2,
+        noise_model=chosen, image_sigma_rad=float(np.sqrt(variances[0])) if planar else None,
     )
 
 

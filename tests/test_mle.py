@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from autograder.synthetic import NoiseModel, make_hand_eye
+from autograder.synthetic import NoiseModel, make_hand_eye, make_opencv_scenario
 from robots import geometry as geo
 from solutions.mle import pose_residuals, refine_hand_eye, refine_reprojection
 
@@ -53,13 +53,22 @@ def test_residuals_vanish_at_the_truth_and_match_the_noise():
 @pytest.mark.parametrize("mount", MOUNTS)
 def test_bad_pose_is_named_and_ignored(mount):
     noise = NoiseModel(cam_rot_deg=0.1, cam_trans_mm=0.5, n_outliers=1)
-    for seed in range(3):
+    errors = []
+    for seed in range(5):
         p = make_hand_eye(seed, mount, n_poses=10, noise=noise)
         res = refine_hand_eye(p.base_T_flange, p.cam_T_target, mount)
         assert res.outlier_indices == p.outlier_indices
         assert res.weights[p.outlier_indices[0]] == 0.0
-        r, t = _errors(res.X, p.X_true)
-        assert r < 0.3 and t < 0.02
+        # Ignored means ignored: the answer is the fit of the good poses alone.
+        good = [i for i in range(10) if i not in p.outlier_indices]
+        clean = refine_hand_eye(p.base_T_flange[good], p.cam_T_target[good], mount, robust=False)
+        r, t = _errors(res.X, clean.X)
+        assert r < 0.01 and t < 1e-4
+        errors.append(_errors(res.X, p.X_true))
+    # The target for this scenario (a median: single draws of 0.1 deg noise on nine
+    # views can land above 0.3 deg even for the fit that knows the noise and the bad pose).
+    r_med, t_med = np.median(errors, axis=0)
+    assert r_med < 0.3 and t_med < 0.02
 
 
 def test_no_outliers_named_on_clean_data():
@@ -155,3 +164,103 @@ def test_refusals_name_the_problem():
     few[2:] = np.nan
     with pytest.raises(ValueError, match="only 2 views"):
         refine_reprojection(pts, few, K, None, p.base_T_flange, X0=p.X_true, Y0=p.Y_true)
+
+
+# --------------------------------------------------------------------------- noise models
+
+PIXEL_NOISE = NoiseModel(pixel_px=0.5, robot_rot_deg=0.02, robot_trans_mm=0.1)
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_solvepnp_poses_get_the_planar_target_model_and_no_false_outliers(mount):
+    # Poses from solvePnP on noisy corners: depth and tilt are several times worse than the
+    # rest, which an isotropic model reads as outliers. The planar-target model expects it.
+    chosen = []
+    for seed in range(10):
+        p = make_hand_eye(seed, mount, n_poses=10, noise=PIXEL_NOISE)
+        res = refine_hand_eye(p.base_T_flange, p.cam_T_target, mount)
+        assert res.outlier_indices == (), seed
+        chosen.append(res.noise_model)
+    assert chosen.count("planar_target") >= 8
+
+
+def test_tracker_poses_get_the_isotropic_model():
+    noise = NoiseModel(cam_rot_deg=0.2, cam_trans_mm=1.0)
+    chosen = []
+    for seed in range(6):
+        p = make_hand_eye(seed, "eye_in_hand", n_poses=12, noise=noise)
+        chosen.append(refine_hand_eye(p.base_T_flange, p.cam_T_target).noise_model)
+    assert chosen.count("isotropic") >= 5
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_beats_the_best_opencv_method_under_pixel_noise(mount):
+    from solutions.opencv_baseline import (
+        HAND_EYE_METHODS,
+        ROBOT_WORLD_METHODS,
+        opencv_hand_eye,
+        opencv_robot_world,
+    )
+
+    ours, theirs = [], {}
+    for seed in range(20):
+        p = make_hand_eye(seed, mount, n_poses=10, noise=PIXEL_NOISE)
+        ours.append(_errors(refine_hand_eye(p.base_T_flange, p.cam_T_target, mount).X, p.X_true))
+        for m in HAND_EYE_METHODS:
+            X = opencv_hand_eye(p.base_T_flange, p.cam_T_target, mount, m)
+            theirs.setdefault(m, []).append(_errors(X, p.X_true))
+        for m in ROBOT_WORLD_METHODS:
+            X = opencv_robot_world(p.base_T_flange, p.cam_T_target, mount, m)[0]
+            theirs.setdefault("RW " + m, []).append(_errors(X, p.X_true))
+    r_ours, t_ours = np.median(ours, axis=0)
+    r_best = min(np.median(v, axis=0)[0] for v in theirs.values())
+    t_best = min(np.median(v, axis=0)[1] for v in theirs.values())
+    # The target: at least 15 % better than OpenCV's best, in both.
+    assert r_ours <= 0.85 * r_best and t_ours <= 0.85 * t_best
+
+
+def test_planar_model_scale_follows_the_pixel_noise():
+    scales = []
+    for px in (0.25, 1.0):
+        p = make_hand_eye(3, "eye_to_hand", n_poses=20, noise=NoiseModel(pixel_px=px))
+        res = refine_hand_eye(p.base_T_flange, p.cam_T_target, "eye_to_hand")
+        assert res.noise_model == "planar_target" and res.rotation_sigma_rad == 0.0
+        # Weighted by the fitted model the normalised residuals scatter as they should
+        # (chi-square(6) less the fit's share: mean 6 * (1 - 12 / 120) = 5.4).
+        assert 3.0 < np.mean(res.per_pose_chi2) < 8.0
+        scales.append(res.image_sigma_rad)
+    # Four times the pixel noise, four times the fitted scale (within what 20 views tell).
+    assert 3.0 < scales[1] / scales[0] < 5.5
+
+
+def test_noise_model_choice_and_refusals():
+    p = make_hand_eye(11, "eye_in_hand", n_poses=10, noise=PIXEL_NOISE)
+    iso = refine_hand_eye(p.base_T_flange, p.cam_T_target, noise_model="isotropic")
+    planar = refine_hand_eye(p.base_T_flange, p.cam_T_target, noise_model="planar_target")
+    assert iso.noise_model == "isotropic" and iso.image_sigma_rad is None
+    assert planar.noise_model == "planar_target" and planar.image_sigma_rad > 0
+    with pytest.raises(ValueError, match="noise_model"):
+        refine_hand_eye(p.base_T_flange, p.cam_T_target, noise_model="pnp")
+    # A board plane behind every camera is no PnP view of a board.
+    behind = p.cam_T_target.copy()
+    behind[:, 2, 3] = -1.0
+    with pytest.raises(ValueError, match="planar_target"):
+        refine_hand_eye(p.base_T_flange, behind, noise_model="planar_target")
+    # OpenCV's test perturbs poses isotropically; "auto" sees that.
+    q = make_opencv_scenario(0, "eye_in_hand")
+    assert refine_hand_eye(q.base_T_flange, q.cam_T_target).noise_model == "isotropic"
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_few_poses_under_pixel_noise_do_not_fail_and_rarely_flag(mount):
+    # Five views leave 18 redundant residual components: the noise model is kept small and
+    # the outlier threshold allows for noise levels estimated from so little. A good pose may
+    # still be named now and then; the target is at most one run in twenty.
+    flagged = 0
+    for seed in range(20):
+        p = make_hand_eye(seed, mount, n_poses=5, noise=NoiseModel(pixel_px=1.0))
+        res = refine_hand_eye(p.base_T_flange, p.cam_T_target, mount)
+        flagged += bool(res.outlier_indices)
+        r, t = _errors(res.X, p.X_true)
+        assert r < 2.0 and t < 0.02
+    assert flagged <= 1

@@ -55,15 +55,24 @@ def test_agrees_with_opencv_on_noisy_data(ours, cv_method):
     noise = NoiseModel(cam_rot_deg=0.1, cam_trans_mm=0.5)
     for seed in range(3):
         p = make_hand_eye(seed, "eye_in_hand", n_poses=12, noise=noise)
-        A, B, _, _ = p.as_ax_yb()
+        A, B, X, Y = p.as_ax_yb()
         Xo, Yo = solve_ax_yb(A, B, ours)
         Xc, Yc = _opencv_in_our_form(A, B, cv_method)
-        # Same data, same method: the answers differ by far less than either differs from the
-        # truth could (0.1 deg / 0.5 mm per-view noise).
+        # Same data, same method: the rotations differ by far less than either differs from
+        # the truth could (0.1 deg / 0.5 mm per-view noise).
         assert geo.rotation_error_deg(Xo, Xc) < 0.3
-        assert geo.translation_error(Xo, Xc) < 0.01
         assert geo.rotation_error_deg(Yo, Yc) < 0.3
-        assert geo.translation_error(Yo, Yc) < 0.01
+        if ours == "shah":
+            assert geo.translation_error(Xo, Xc) < 0.01
+            assert geo.translation_error(Yo, Yc) < 0.01
+        else:
+            # OpenCV's LI keeps the translation of its unconstrained linear solve, 5-30 mm off
+            # the truth at this noise (measured on these seeds); ours re-solves it after the
+            # rotations are orthogonalised, so it must be at least as close to the truth.
+            for ours_T, cv_T, true_T in ((Xo, Xc, X), (Yo, Yc, Y)):
+                ours_err = geo.translation_error(ours_T, true_T)
+                assert ours_err < 0.005
+                assert ours_err <= geo.translation_error(cv_T, true_T) + 5e-4
 
 
 def test_shah_rotation_matches_opencv_exactly():
