@@ -172,10 +172,12 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, solutions, tmp_pa
     grades = kit.read_grades(course)
     assert float(grades["ref"]["score"]) == 15.0 and float(grades["ref"]["max_score"]) == 15.0
     assert float(grades["blank"]["score"]) == 0.0
-    # motions: A right, B wrong (1.5 of 3); axes_ls: an inverted X (at most a stray half band
-    # on rotation when R_X is near the identity); the rest right (4 + 2 + 2).
+    # motions: A right, B wrong (1.5 of 3); axes_ls: an inverted X, whose only credit is a
+    # stray half band on rotation when R_X is near the identity (rotation is half of its 4
+    # points, so at most 1.0 even if that happened on every hidden problem: the problems are
+    # fresh each run); the rest right (4 + 2 + 2).
     wrong = float(grades["wrong"]["score"])
-    assert 9.5 <= wrong <= 10.0, grades["wrong"]
+    assert 9.5 <= wrong <= 10.5, grades["wrong"]
     assert all(grades[s]["flags"] == "" for s in grades), grades
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "motions" in feedback and " deg" in feedback and " mm" in feedback
