@@ -188,15 +188,17 @@ def test_bad_options_raise_value_error(kwargs, match):
 # --------------------------------------------------------------------------- chess
 
 
-def test_chess_scene_truth_follows_a_suction_pick_and_place():
-    with create_workcell(scene="chess", tool="suction", seed=0, width=160, height=120) as cell:
+@pytest.mark.parametrize("tool", ["suction", "gripper"])
+def test_chess_scene_truth_follows_a_pick_and_place(tool):
+    with create_workcell(scene="chess", tool=tool, seed=0, width=160, height=120) as cell:
         pieces = cell.truth.pieces
         assert len(pieces) == 32 and pieces["e1"].kind == "king"
         assert pieces["a1"].colour == "white" and pieces["h8"].colour == "black"
         robot = cell.robot
         base_T_e2 = pieces["e2"].base_T_piece
         dest = compose(cell.truth.base_T_world, make_pose(t=[4.5 * 0.05, 3.5 * 0.05, 0]))  # e4
-        height = PIECE_HEIGHT["pawn"] + 0.002  # the cup tip just above the pawn's top
+        # The cup tip just above the pawn's top; the fingertips around its middle.
+        height = PIECE_HEIGHT["pawn"] + 0.002 if tool == "suction" else PIECE_HEIGHT["pawn"] / 2
         down = make_pose(np.diag([1.0, -1.0, -1.0]))  # tool pointing down
 
         def tcp_at(base_T_point, dz):
