@@ -121,3 +121,29 @@ def execute_source(assignment: str, timeout_s: int = 180) -> nbformat.NotebookNo
               if o.output_type == "error"]
     assert not errors, errors
     return nb
+
+
+RELEASE_MARKERS = ("BEGIN SOLUTION", "END SOLUTION", "BEGIN HIDDEN", "hidden_test",
+                   "from solutions", "import solutions")
+
+
+def assert_release_clean(course: Path, assignment: str, n_functions: int,
+                         solution_lines=()) -> None:
+    """The released notebook holds no solution region, hidden test, reference import, none of
+    ``solution_lines`` (lines only a solution would contain) and one stub per graded
+    function; no released file holds the secret or the private folder."""
+    text = (course / "release" / assignment / f"{assignment}.ipynb").read_text()
+    secret = grading.load_secret(course)
+    for needle in (*RELEASE_MARKERS, *solution_lines, secret):
+        assert needle not in text, needle
+    assert text.count("raise NotImplementedError()") == n_functions
+    released_files = [p for p in (course / "release").rglob("*") if p.is_file()]
+    for path in released_files:
+        assert secret not in path.read_text(errors="ignore"), path
+    assert not any(grading.PRIVATE_DIR in p.parts for p in released_files)
+
+
+def output_text(nb, sep: str = "") -> str:
+    """All text printed by the code cells of an executed notebook."""
+    return sep.join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
+                    for o in c.outputs)
