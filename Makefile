@@ -17,11 +17,12 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev,real]'
 	@touch $(STAMP)
 
-SYSTEM_PACKAGES := libusb-1.0-0
+# libusb for pyrealsense2; chromium for the real-browser run of a lab.
+SYSTEM_PACKAGES := libusb-1.0-0 chromium
 system-packages:
 	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $(SYSTEM_PACKAGES); \
-	  else echo "note: install $(SYSTEM_PACKAGES) (sudo apt-get install $(SYSTEM_PACKAGES)) for the RealSense tests"; fi; \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); \
+	  else echo "note: sudo apt-get install $(SYSTEM_PACKAGES) to run the RealSense and browser tests"; fi; \
 	fi
 
 demo: $(STAMP)
