@@ -5,8 +5,12 @@ import pytest
 
 from autograder.synthetic import make_hand_eye, make_opencv_scenario
 from robots import geometry as geo
-from solutions.opencv_baseline import (HAND_EYE_METHODS, ROBOT_WORLD_METHODS, opencv_hand_eye,
-                                       opencv_robot_world)
+from solutions.opencv_baseline import (
+    HAND_EYE_METHODS,
+    ROBOT_WORLD_METHODS,
+    opencv_hand_eye,
+    opencv_robot_world,
+)
 
 
 @pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
