@@ -1,5 +1,7 @@
 """The AUBO-i5 driver (robots/drivers/aubo.py) against a fake pyaubo_sdk with the same API."""
 
+from operator import attrgetter
+
 import numpy as np
 import pytest
 from fakes import aubo_fake
@@ -147,17 +149,10 @@ def test_default_tool_offset_is_the_controllers():
 # --------------------------------------------------------------------------- the real SDK
 
 
-def _resolve(root, dotted):
-    obj = root
-    for part in dotted.split("."):
-        obj = getattr(obj, part)
-    return obj
-
-
 def test_fake_has_every_name_the_driver_uses():
     sdk = aubo_fake.make_sdk()
     for name in aubo_fake.SDK_NAMES:
-        _resolve(sdk, name)
+        attrgetter(name)(sdk)
 
 
 def test_installed_pyaubo_sdk_exposes_the_names_the_driver_uses():
@@ -168,7 +163,7 @@ def test_installed_pyaubo_sdk_exposes_the_names_the_driver_uses():
     missing = []
     for name in aubo_fake.SDK_NAMES:
         try:
-            _resolve(sdk, name)
+            attrgetter(name)(sdk)
         except AttributeError:
             missing.append(name)
     assert not missing, f"pyaubo_sdk lacks {missing}; the fake and the driver must follow it"

@@ -1,5 +1,7 @@
 """The Franka Panda driver (robots/drivers/franka.py) against a fake panda_py with the same API."""
 
+from operator import attrgetter
+
 import numpy as np
 import pytest
 from fakes import franka_fake
@@ -207,17 +209,10 @@ def test_connect_by_name_through_the_registry(monkeypatch):
 # --------------------------------------------------------------------------- the real SDK
 
 
-def _resolve(root, dotted):
-    obj = root
-    for part in dotted.split("."):
-        obj = getattr(obj, part)
-    return obj
-
-
 def test_fake_has_every_name_the_driver_uses():
     sdk = franka_fake.make_sdk()
     for name in franka_fake.SDK_NAMES:
-        _resolve(sdk, name)
+        attrgetter(name)(sdk)
 
 
 def test_installed_panda_py_exposes_the_names_the_driver_uses():
@@ -228,7 +223,7 @@ def test_installed_panda_py_exposes_the_names_the_driver_uses():
     missing = []
     for name in franka_fake.SDK_NAMES:
         try:
-            _resolve(panda_py, name)
+            attrgetter(name)(panda_py)
         except AttributeError:
             missing.append(name)
     assert not missing, f"panda_py lacks {missing}; the fake and the driver must follow it"
