@@ -187,7 +187,7 @@ def extract_code(notebook_paths) -> tuple[list[str], list[str]]:
     return cells, notes
 
 
-# Patterns that have no business in a lab-0 answer; a match is flagged for the instructor
+# Patterns that have no business in a lab answer; a match is flagged for the instructor
 # to look at (it does not change the score, which is computed independently anyway).
 _TAMPER_PATTERNS = {
     "exception_handler": r"set_custom_exc|sys\.excepthook|showtraceback",

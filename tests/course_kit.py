@@ -147,3 +147,33 @@ def output_text(nb, sep: str = "") -> str:
     """All text printed by the code cells of an executed notebook."""
     return sep.join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
                     for o in c.outputs)
+
+
+# The adversarial corpus: one student submission per item of the threat model (README there).
+ADVERSARIAL = Path(__file__).parent / "adversarial"
+
+
+def parse_case(path: Path) -> dict:
+    """A corpus case: earned/min score, expected flags, replaced cells, extra cell, mangle."""
+    text = path.read_text()
+    header, _, body = text.partition('"""\n#')
+    case = {"earned": None, "min": 0.0, "flags": [], "replace": {}, "extra": None,
+            "mangle": False}
+    for line in header.splitlines():
+        key, _, value = line.partition(":")
+        if key in ("earned", "min"):
+            case[key] = float(value)
+        elif key == "flags":
+            case["flags"] = [v.strip() for v in value.split(",") if v.strip()]
+    chunks = ("#" + body).split("# %% ")[1:]
+    for chunk in chunks:
+        directive, _, code = chunk.partition("\n")
+        words = directive.split()
+        if words[0] == "extra":
+            case["extra"] = code
+        elif words[0] == "replace":
+            case["replace"][words[1]] = code
+        elif words[0] == "mangle":
+            case["mangle"] = True
+    assert case["earned"] is not None, f"{path.name} has no 'earned:' line"
+    return case

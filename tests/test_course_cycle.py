@@ -15,7 +15,6 @@ from autograder import grading
 from autograder.course import grade_course, run_nbgrader_autograde
 
 ASSIGNMENT = "lab0_frames"
-ADVERSARIAL = Path(__file__).parent / "adversarial"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 
 pytestmark = pytest.mark.slow
@@ -103,34 +102,9 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
 # --------------------------------------------------------------------------- adversarial
 
 
-def _parse_case(path: Path) -> dict:
-    text = path.read_text()
-    header, _, body = text.partition('"""\n#')
-    case = {"earned": None, "min": 0.0, "flags": [], "replace": {}, "extra": None,
-            "mangle": False}
-    for line in header.splitlines():
-        key, _, value = line.partition(":")
-        if key in ("earned", "min"):
-            case[key] = float(value)
-        elif key == "flags":
-            case["flags"] = [v.strip() for v in value.split(",") if v.strip()]
-    chunks = ("#" + body).split("# %% ")[1:]
-    for chunk in chunks:
-        directive, _, code = chunk.partition("\n")
-        words = directive.split()
-        if words[0] == "extra":
-            case["extra"] = code
-        elif words[0] == "replace":
-            case["replace"][words[1]] = code
-        elif words[0] == "mangle":
-            case["mangle"] = True
-    assert case["earned"] is not None, f"{path.name} has no 'earned:' line"
-    return case
-
-
 def test_adversarial_corpus_graded_in_one_batch(released, tmp_path):
     course = _fresh_course(released, tmp_path)
-    cases = {p.stem: _parse_case(p) for p in sorted(ADVERSARIAL.glob("*.py"))}
+    cases = {p.stem: kit.parse_case(p) for p in sorted(kit.ADVERSARIAL.glob("*.py"))}
     assert len(cases) >= 12
     for name, case in cases.items():
         _submit(course, name, replace=case["replace"], extra=case["extra"],
