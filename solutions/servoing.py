@@ -401,6 +401,18 @@ def run_servo(robot, camera, flange_T_cam, step, tolerance: float, gain: float =
         raise
 
 
+def _check_target_in_view(det, intrinsics, margin_px, required_points) -> None:
+    """Raise TargetOutOfViewError if the detected corners come within ``margin_px`` of the
+    image border, or if ``required_points`` (target frame, m) project outside the image."""
+    if margin_px is not None:
+        check_in_view(det.corners_px, intrinsics, margin_px)
+    if required_points is not None and det.cam_T_target is not None:
+        from robots.perception import project
+
+        check_in_view(project(transform_points(det.cam_T_target, required_points),
+                              intrinsics), intrinsics, 0.0)
+
+
 def ibvs_step(detect, camd_T_target, intrinsics, depth: str = "image", margin_px: float = 5.0,
               min_points: int = 4, required_points=None):
     """A ``step`` for :func:`run_servo`: IBVS on the detected points of a target.
@@ -426,13 +438,7 @@ def ibvs_step(detect, camd_T_target, intrinsics, depth: str = "image", margin_px
         det = detect(frame)
         if det is None or len(det.corners_px) < min_points:
             raise TargetLostError("the target is not detected in the image; servo stopped")
-        if margin_px is not None:
-            check_in_view(det.corners_px, intrinsics, margin_px)
-        if required_points is not None and det.cam_T_target is not None:
-            from robots.perception import project
-
-            check_in_view(project(transform_points(det.cam_T_target, required_points),
-                                  intrinsics), intrinsics, 0.0)
+        _check_target_in_view(det, intrinsics, margin_px, required_points)
         s = _undistorted(det.corners_px, intrinsics)
         goal = transform_points(camd_T_target, det.object_points)
         s_star, z_star = normalised_projection(goal), goal[:, 2]
@@ -458,13 +464,7 @@ def pbvs_step(detect, camd_T_target, intrinsics, margin_px: float = 5.0, require
         det = detect(frame)
         if det is None or det.cam_T_target is None:
             raise TargetLostError("the target is not detected in the image; servo stopped")
-        if margin_px is not None:
-            check_in_view(det.corners_px, intrinsics, margin_px)
-        if required_points is not None and det.cam_T_target is not None:
-            from robots.perception import project
-
-            check_in_view(project(transform_points(det.cam_T_target, required_points),
-                                  intrinsics), intrinsics, 0.0)
+        _check_target_in_view(det, intrinsics, margin_px, required_points)
         e = pbvs_error(det.cam_T_target, camd_T_target)
         return (float(np.linalg.norm(e[:3]) + np.linalg.norm(e[3:])),
                 pbvs_velocity(det.cam_T_target, camd_T_target, gain))
