@@ -52,6 +52,7 @@ __all__ = [
     "NOISE_MODELS",
     "OUTLIER_CHI2",
     "HandEyeRefinement",
+    "cramer_rao_covariance",
     "pose_residuals",
     "refine_hand_eye",
     "refine_reprojection",
@@ -828,6 +829,47 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
         robot_rotation_sigma_rad=float(np.sqrt(variances[2])), per_pose_chi2=z2,
         noise_model=chosen, image_sigma_rad=float(np.sqrt(variances[0])) if planar else None,
     )
+
+
+def cramer_rao_covariance(X, Y, base_T_flange, mount: str = "eye_in_hand", *,
+                          rotation_sigma_rad: float, translation_sigma_m: float,
+                          robot_rotation_sigma_rad: float = 0.0) -> np.ndarray:
+    """The smallest covariance any unbiased estimate of X can have from these robot poses.
+
+    The Cramer-Rao bound of the pose-based model of ``refine_hand_eye``: each measured
+    ``cam_T_target_i`` is the prediction ``inv(X) @ H_i @ Y`` perturbed by independent noise,
+    rotation ``R_meas = exp(w) @ R_pred`` with w ~ N(0, rotation_sigma_rad^2 I) in camera axes,
+    translation ``t_meas = t_pred + v`` with v ~ N(0, translation_sigma_m^2 I) (m), plus robot
+    rotation noise of ``robot_rotation_sigma_rad`` per axis carried by the flange-to-board lever
+    arm. X and Y (see the module docstring for their meaning per ``mount``) are both unknown,
+    so Y's uncertainty is paid for. Evaluate it at the true X and Y (synthetic data) or at an
+    estimate (a first-order uncertainty of a real calibration).
+
+    Returns the (6, 6) covariance of X's error delta = (rotation vector (rad), translation (m))
+    with ``X_est = X @ [exp(delta_rot), delta_trans]``, i.e. in X's child frame (the camera).
+    ``|delta_rot|`` is ``geometry.rotation_error_deg`` (in radians) and ``|delta_trans|`` is
+    ``geometry.translation_error``. Raises ValueError when the poses do not determine X (the
+    information matrix is singular: e.g. rotations about one axis only).
+    """
+    _check_mount(mount)
+    A = geo.as_poses(base_T_flange, "base_T_flange")
+    X, Y = geo.as_pose(X, "X"), geo.as_pose(Y, "Y")
+    sigmas = np.array([rotation_sigma_rad, translation_sigma_m, robot_rotation_sigma_rad], float)
+    if not np.all(np.isfinite(sigmas)) or np.any(sigmas[:2] <= 0) or sigmas[2] < 0:
+        raise ValueError("rotation_sigma_rad and translation_sigma_m must be finite and > 0 "
+                         "(radians, metres); robot_rotation_sigma_rad finite and >= 0")
+    problem = _PoseProblem(A, geo.invert(X) @ _chain(A, mount) @ Y, mount)
+    Z = geo.invert(X)
+    _, Jinv, P = problem.residuals(Z, Y)
+    J = problem.jacobian(P, Jinv)
+    info = _information(sigmas**2, _unit_parts(problem.lever_arms(Z, P), None))
+    fisher = np.einsum("nji,njk,nkl->il", J, info, J)
+    if np.linalg.cond(fisher) > 1e12:
+        raise ValueError("these robot poses do not determine X (the Fisher information is "
+                         "singular): rotate the flange about at least two different axes")
+    # Z = inv(X) is perturbed on the left by (phi, rho), so X_est = X @ [exp(-phi), -rho] to
+    # first order: the same covariance, in X's child frame.
+    return np.linalg.inv(fisher)[:6, :6]
 
 
 def _clean(T: np.ndarray) -> np.ndarray:

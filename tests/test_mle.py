@@ -264,3 +264,70 @@ def test_few_poses_under_pixel_noise_do_not_fail_and_rarely_flag(mount):
         r, t = _errors(res.X, p.X_true)
         assert r < 2.0 and t < 0.02
     assert flagged <= 1
+
+
+def _error_vectors(X_est, X_true):
+    """X's error in its child frame, (rotation vector rad, translation m), as the bound has it."""
+    rotvec, t = geo.rotvec_from_pose(geo.invert(X_true) @ X_est)
+    return np.concatenate([rotvec, t])
+
+
+def _noisy_draws(truth, deg, mm, draws, seed):
+    from autograder.synthetic import perturb_pose
+
+    rng = np.random.default_rng(seed)
+    for _ in range(draws):
+        yield np.stack([perturb_pose(T, np.radians(deg), mm / 1000, rng)
+                        for T in truth.true_cam_T_target])
+
+
+@pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
+def test_default_reaches_the_cramer_rao_bound_and_opencv_does_not_beat_it(mount):
+    """One fixed geometry, 300 noise draws: the spread of our estimate is the bound's (an
+    efficient estimator), and OpenCV's best closed form is no tighter than the bound."""
+    from solutions.mle import cramer_rao_covariance
+    from solutions.opencv_baseline import opencv_hand_eye
+
+    deg, mm, draws = 0.2, 1.0, 300
+    truth = make_hand_eye(7, mount, n_poses=10)
+    bound = cramer_rao_covariance(truth.X_true, truth.Y_true, truth.true_base_T_flange, mount,
+                                  rotation_sigma_rad=np.radians(deg), translation_sigma_m=mm / 1000)
+    ours, park = [], []
+    for cam in _noisy_draws(truth, deg, mm, draws, seed=1):
+        ours.append(_error_vectors(refine_hand_eye(truth.true_base_T_flange, cam, mount=mount).X,
+                                   truth.X_true))
+        park.append(_error_vectors(opencv_hand_eye(truth.true_base_T_flange, cam, mount, "PARK"),
+                                   truth.X_true))
+    ours, park = np.array(ours), np.array(park)
+    bound_rot, bound_trans = np.trace(bound[:3, :3]), np.trace(bound[3:, 3:])
+    # Mean squared error (bias included) over the bound's trace; 300 draws put about +-10 %
+    # of sampling error on each ratio.
+    ours_rot = np.mean(np.sum(ours[:, :3] ** 2, axis=1)) / bound_rot
+    ours_trans = np.mean(np.sum(ours[:, 3:] ** 2, axis=1)) / bound_trans
+    park_rot = np.mean(np.sum(park[:, :3] ** 2, axis=1)) / bound_rot
+    assert 0.8 < ours_rot < 1.25, ours_rot
+    assert 0.8 < ours_trans < 1.25, ours_trans
+    assert park_rot > 0.9, park_rot
+
+
+def test_cramer_rao_bound_scales_with_the_noise_and_refuses_one_axis():
+    from solutions.mle import cramer_rao_covariance
+
+    truth = make_hand_eye(3, "eye_in_hand", n_poses=8)
+    args = (truth.X_true, truth.Y_true, truth.true_base_T_flange)
+    small = cramer_rao_covariance(*args, rotation_sigma_rad=1e-3, translation_sigma_m=1e-3)
+    big = cramer_rao_covariance(*args, rotation_sigma_rad=2e-3, translation_sigma_m=2e-3)
+    np.testing.assert_allclose(big, 4 * small, rtol=1e-9, atol=1e-20)
+    assert np.all(np.linalg.eigvalsh(small) > 0)
+    # Robot rotation noise can only add uncertainty.
+    more = cramer_rao_covariance(*args, rotation_sigma_rad=1e-3, translation_sigma_m=1e-3,
+                                 robot_rotation_sigma_rad=1e-3)
+    assert np.all(np.linalg.eigvalsh(more - small) > -1e-15)
+
+    about_z = np.stack([geo.pose_from_rotvec([0, 0, a], [0.4, 0.1 * a, 0.3])
+                        for a in np.radians([0, 20, 45, 70, 95])])
+    with pytest.raises(ValueError, match="two different axes"):
+        cramer_rao_covariance(truth.X_true, truth.Y_true, about_z,
+                              rotation_sigma_rad=1e-3, translation_sigma_m=1e-3)
+    with pytest.raises(ValueError, match="finite and > 0"):
+        cramer_rao_covariance(*args, rotation_sigma_rad=0.0, translation_sigma_m=1e-3)
