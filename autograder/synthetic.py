@@ -120,7 +120,7 @@ class CameraModel:
     height: int
 
     @staticmethod
-    def default() -> "CameraModel":
+    def default() -> CameraModel:
         """640 x 480 with a 600 px focal length (about a RealSense D435 colour stream)."""
         K = np.array([[600.0, 0.0, 319.5], [0.0, 600.0, 239.5], [0.0, 0.0, 1.0]])
         return CameraModel(K=K, dist=np.zeros(5), width=640, height=480)

@@ -105,7 +105,10 @@ def convergence(trials: int) -> list[str]:
                     n -= 1  # the arm cannot reach this start: not a servo failure
                     continue
                 intr_c = cell.camera.intrinsics
-                detect = lambda f, i=intr_c, b=board: P.detect_charuco(f, i, b.board)
+
+                def detect(frame, intrinsics=intr_c, board=board):
+                    return P.detect_charuco(frame, intrinsics, board.board)
+
                 make = S.ibvs_step if method == "ibvs" else S.pbvs_step
                 try:
                     r = S.run_servo(cell.robot, cell.camera, truth.nominal_flange_T_cam,

@@ -257,8 +257,8 @@ def _datasets() -> dict:
         if not readme.is_file():
             continue
         lines = readme.read_text().splitlines()
-        title = next((l[2:].strip() for l in lines if l.startswith("# ")), folder.name)
-        body = lines[lines.index(next(l for l in lines if l.startswith("# "))) + 1:]
+        title = next((text[2:].strip() for text in lines if text.startswith("# ")), folder.name)
+        body = lines[lines.index(next(text for text in lines if text.startswith("# "))) + 1:]
         paragraph = []
         for line in body:
             if line.strip():
@@ -269,7 +269,7 @@ def _datasets() -> dict:
         licence = ""
         if "## Licence" in lines:
             after = lines[lines.index("## Licence") + 1:]
-            licence = next((l.strip() for l in after if l.strip()), "")
+            licence = next((text.strip() for text in after if text.strip()), "")
         found[folder.name] = (folder, title, source, licence)
     return found
 

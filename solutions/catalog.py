@@ -53,8 +53,12 @@ def hand_eye_methods(problem, include_opencv: bool = True) -> list[tuple[str, Ca
         rows.append(("refine_reprojection", reprojection))
 
     if include_opencv:
-        from solutions.opencv_baseline import (HAND_EYE_METHODS, ROBOT_WORLD_METHODS,
-                                               opencv_hand_eye, opencv_robot_world)
+        from solutions.opencv_baseline import (
+            HAND_EYE_METHODS,
+            ROBOT_WORLD_METHODS,
+            opencv_hand_eye,
+            opencv_robot_world,
+        )
 
         rows += [(f"opencv {m}", lambda m=m: opencv_hand_eye(robot, cam, mount, m))
                  for m in HAND_EYE_METHODS]

@@ -135,7 +135,10 @@ def _charuco_cell(seed):
     camd_T_board = compose(make_pose(t=[0, 0, 0.45]), make_pose(t=-centre))
     base_T_camd = compose(truth.base_T_board, invert(camd_T_board))
     centre_base = transform_points(truth.base_T_board, [centre])[0]
-    detect = lambda f: P.detect_charuco(f, cell.camera.intrinsics, board.board)
+
+    def detect(frame):
+        return P.detect_charuco(frame, cell.camera.intrinsics, board.board)
+
     return cell, camd_T_board, base_T_camd, centre_base, detect
 
 

@@ -33,8 +33,8 @@ from autograder.checks import (
     as_output_pose,
     measure_pose,
     pose_checks,
-    random_pose,
     pose_errors,
+    random_pose,
 )
 from robots import geometry as geo
 

@@ -139,12 +139,12 @@ def _link(name: str, segments, radius: float, mass: float, colour: str) -> str:
             f'    <collision><origin xyz="{_fmt(c)}" rpy="{_fmt(_rpy(R))}"/>'
             f'<geometry><cylinder radius="{radius:g}" length="{L:.6g}"/></geometry></collision>\n'
         )
-    I = inertia
     return (
         f'  <link name="{name}">\n'
         f'    <inertial><origin xyz="{_fmt(com)}" rpy="0 0 0"/><mass value="{mass:g}"/>'
-        f'<inertia ixx="{I[0,0]:.6g}" ixy="{I[0,1]:.6g}" ixz="{I[0,2]:.6g}" '
-        f'iyy="{I[1,1]:.6g}" iyz="{I[1,2]:.6g}" izz="{I[2,2]:.6g}"/></inertial>\n'
+        f'<inertia ixx="{inertia[0, 0]:.6g}" ixy="{inertia[0, 1]:.6g}" '
+        f'ixz="{inertia[0, 2]:.6g}" iyy="{inertia[1, 1]:.6g}" iyz="{inertia[1, 2]:.6g}" '
+        f'izz="{inertia[2, 2]:.6g}"/></inertial>\n'
         + "".join(parts)
         + "  </link>\n"
     )
