@@ -236,6 +236,9 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
             "  <- large" if t > worst else "")
         print(f"  view {int(views[k]):3d}: {t * 1000:8.3f} mm {r:8.4f} deg{mark}")
     print(f"flagged views: {flagged or 'none'}")
+    mount_note = _mount_check(F, C, method, mount, float(np.median(trans)))
+    if mount_note:
+        print(mount_note)
     out = Path(out) if out else Path(capture_dir) / f"{parent}_T_cam.yaml"
     save_calibration(out, X, parent, "cam", method, len(F),
                      {"rotation_residual": result.rotation_residual,
@@ -243,6 +246,42 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
                       "per_pose_rotation_deg": rot, "per_pose_translation_m": trans},
                      robot_id=capture.robot_name, camera_id=capture.camera_name)
     print(f"saved {out}")
+
+
+def _mount_check(F, C, method: str, mount: str, median_m: float) -> str:
+    """A warning when the views fit the other mount as well as or better than ``mount``.
+
+    Views that only tilt the camera about axes in the board's plane (a cone of views aimed at
+    one point, no roll about the viewing axis) fit both mounts exactly: for any rotation R
+    about an axis in that plane, R @ Rz(180 deg) @ R = Rz(180 deg), so a board-flipped
+    solution of the other mount explains them too. Returns "" when ``mount`` is clearly the
+    better fit.
+    """
+    import numpy as np
+
+    from cobotlab.demo import per_pose_residuals
+    from solutions import handeye
+
+    other = "eye_to_hand" if mount == "eye_in_hand" else "eye_in_hand"
+    solve = (handeye.calibrate_eye_in_hand if other == "eye_in_hand"
+             else handeye.calibrate_eye_to_hand)
+    try:
+        _, trans = per_pose_residuals(F, C, solve(F, C, method=method), other)
+    except ValueError:
+        return ""  # the other mount cannot even be solved: no doubt about this one
+    other_m = float(np.median(trans))
+    # Residuals below a tenth of a millimetre are detection noise whichever mount fits.
+    floor = 1e-4
+    if other_m * 5 < max(median_m, floor):
+        return (f"WARNING: these views fit --mount {other} far better (median residual "
+                f"{other_m * 1000:.2f} mm against {median_m * 1000:.2f} mm): check where the "
+                "camera is mounted, and that base_T_flange is not inverted")
+    if other_m < 2 * max(median_m, floor):
+        return (f"WARNING: these views fit --mount {other} as well (median residual "
+                f"{other_m * 1000:.2f} mm against {median_m * 1000:.2f} mm), so they cannot tell "
+                "the two mounts apart and the result rests on --mount being right. Add views "
+                "that roll the camera about its viewing axis (15-45 deg) to make it unambiguous")
+    return ""
 
 
 def _datasets() -> dict:

@@ -164,6 +164,46 @@ def test_calibrate_default_output_and_other_method(capsys, sim_capture):
     assert result.method == "tsai" and translation_error(result.pose, true_X) < 2e-3
 
 
+def test_calibrate_warns_when_the_views_cannot_tell_the_mounts_apart(capsys, sim_capture):
+    # The fixture's views only tilt the camera about axes in the board plane, aimed at one
+    # point: both mounts fit them exactly, so the student must be told the result rests on
+    # --mount alone.
+    folder, _, _ = sim_capture
+    assert cli.main(["calibrate", str(folder), "--mount", "eye_to_hand",
+                     "--out", str(folder / "wrong.yaml")]) == 0
+    assert "cannot tell the two mounts apart" in capsys.readouterr().out
+
+
+def _synthetic_capture(folder, mount):
+    """A capture folder holding a synthetic problem's poses (views that also roll the camera);
+    the images are blank, since ``calibrate`` reads only the poses."""
+    from autograder.synthetic import NoiseModel, make_hand_eye
+    from robots.capture import Capture, save_capture
+    from robots.interfaces import Intrinsics
+
+    p = make_hand_eye(2, mount, n_poses=10, noise=NoiseModel(cam_rot_deg=0.05, cam_trans_mm=0.2))
+    n = len(p.base_T_flange)
+    save_capture(Capture(
+        base_T_flange=p.base_T_flange, cam_T_target=p.cam_T_target,
+        corners_px=[np.zeros((48, 2))] * n, object_points=[np.zeros((48, 3))] * n,
+        intrinsics=Intrinsics(600.0, 600.0, 319.5, 239.5, 640, 480),
+        commanded_base_T_flange=p.base_T_flange, pose_indices=np.arange(n),
+        timestamps=np.arange(n, dtype=float), images=[np.zeros((4, 4, 3), np.uint8)] * n),
+        folder)
+    return p
+
+
+@pytest.mark.parametrize("true_mount, wrong_mount",
+                         [("eye_in_hand", "eye_to_hand"), ("eye_to_hand", "eye_in_hand")])
+def test_calibrate_names_the_right_mount_when_the_wrong_one_is_given(capsys, tmp_path,
+                                                                     true_mount, wrong_mount):
+    _synthetic_capture(tmp_path / "cap", true_mount)
+    assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", true_mount]) == 0
+    assert "WARNING" not in capsys.readouterr().out
+    assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", wrong_mount]) == 0
+    assert f"these views fit --mount {true_mount} far better" in capsys.readouterr().out
+
+
 # --------------------------------------------------------------------------- data
 
 
