@@ -31,8 +31,7 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     demo.add_argument("--robot", default="panda",
-                      help="arm to simulate: panda (default) or aubo_i5; ur10e and cobotta are "
-                           "refused with the reason (the chess part does not work on them yet)")
+                      help="arm to simulate: panda (default), ur10e, aubo_i5 or cobotta")
     demo.add_argument("--seed", type=int, default=0, help="scene and noise seed (default 0)")
     demo.add_argument("--noise", default="low", help="none, low (default) or high: image noise "
                       "and robot encoder offsets")

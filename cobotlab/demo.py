@@ -27,21 +27,13 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
 
 ARMS = ("panda", "ur10e", "aubo_i5", "cobotta")
 
-# Height (m) of the camera over the table when it looks for the chess board: the
-# pick-and-place search is tuned per arm, and runs end to end on these arms only.
-OVERVIEW_HEIGHT_M = {"panda": 0.63, "aubo_i5": 0.63}
-# Why the others are refused (before anything runs, rather than failing half-way).
-UNSUPPORTED = {
-    "cobotta": "its wrist camera cannot see the whole (small) chess board from any pose the "
-               "arm reaches",
-    "ur10e": "from its overview pose the chess-board detector labels the squares one off after "
-             "the first move, so the later picks fail",
-}
+# The chess part's search poses per arm are solutions.servoing.ARM_OPTIONS.
 
 # pixel_noise (RGB standard deviation, 0..255) and encoder_noise_deg (a constant offset per
 # joint, standard deviation in degrees) of the simulated cell.
@@ -52,7 +44,15 @@ NOISE_LEVELS = {"none": (0.0, 0.0), "low": (2.0, 0.01), "high": (8.0, 0.05)}
 MOUNT_ERROR = (3.0, 1.5)
 
 MOVES = (("e2", "e4"), ("d2", "d4"), ("b1", "c3"))
+# The 342 mm-reach Cobotta cannot point its suction cup straight down over b1-f1, the rank next
+# to its base (measured with its IK), so its third move stays on rank 2.
+MOVES_BY_ARM = {"cobotta": (("e2", "e4"), ("d2", "d4"), ("c2", "c4"))}
 SQUARE_M = 0.05  # the simulator's chess squares on every arm but the Cobotta
+
+
+def chess_square_m(robot: str) -> float:
+    """Side (m) of the simulator's chess squares for an arm: 30 mm on the small Cobotta."""
+    return 0.03 if robot == "cobotta" else SQUARE_M
 
 
 @dataclass
@@ -77,9 +77,6 @@ class DemoSettings:
         """Validated settings; raises ValueError naming the bad option and the choices."""
         if robot not in ARMS:
             raise ValueError(f"unknown robot {robot!r}; choose one of {', '.join(ARMS)}")
-        if robot in UNSUPPORTED:
-            raise ValueError(f"the demo does not run on the {robot}: {UNSUPPORTED[robot]}; use "
-                             f"--robot {' or '.join(OVERVIEW_HEIGHT_M)}")
         if noise not in NOISE_LEVELS:
             raise ValueError(f"unknown noise level {noise!r}; choose one of "
                              f"{', '.join(NOISE_LEVELS)}")
@@ -438,25 +435,38 @@ class _WatchedCamera:
 
 def _move_joints_to(robot, base_T_flange, steps: int = 4, speed: float = 0.5) -> None:
     """Joint-space move in ``steps`` waypoints (each inside the safety's joint step): from the
-    home pose a straight-line move can cross a singularity on some arms."""
-    q0, q1 = robot.joint_positions(), robot.solve_ik(base_T_flange)
+    home pose a straight-line move can cross a singularity on some arms. The IK starts from
+    the present joints with the base joint turned towards the target, so an arm that starts
+    facing away (the UR10e, folded behind its base) keeps its elbow and wrist configuration
+    instead of reaching over backwards."""
+    q0 = robot.joint_positions()
+    here, there = robot.flange_pose()[:3, 3], base_T_flange[:3, 3]
+    seed = np.array(q0, dtype=float)
+    turn = (np.arctan2(there[1], there[0]) - np.arctan2(here[1], here[0]) + np.pi) % (2 * np.pi) \
+        - np.pi
+    if abs(turn) > 1e-3:  # already facing the target (the Panda): the plain IK as before
+        seed[0] += turn
+    q1 = robot.solve_ik(base_T_flange, seed)
     for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
         robot.move_joints(q0 + s * (q1 - q0), speed=speed)
 
 
 def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam) -> PickOutcome:
-    """Part 3: move the pieces of ``MOVES`` with the IBVS staged controller, using the saved
+    """Part 3: move the pieces of ``MOVES`` (``MOVES_BY_ARM`` for some arms) with the IBVS staged controller, using the saved
     calibration; score each move with ``cell.truth.pieces``."""
     from robots.calibration_io import load_calibration
     from robots.perception import ServoError, square_centre
     from sim_backends.world import ARM_REACH, create_workcell
-    from solutions.servoing import StagedPickAndPlace
+    from solutions.servoing import ARM_OPTIONS, StagedPickAndPlace
 
     flange_T_cam = load_calibration(calibration_path).pose
-    reach = ARM_REACH[settings.robot]
-    board_x = 0.5 * reach + 0.05  # where the simulator lays the chess board out
-    options = {"overview_height_m": OVERVIEW_HEIGHT_M[settings.robot],
-               "search_xy": ((board_x, 0.0), (board_x - 0.08, 0.0), (board_x + 0.08, 0.0))}
+    # Where the arm looks for the board: the controller's settings for the arm, else over
+    # where the simulator lays the board out (the Panda).
+    board_x = 0.5 * ARM_REACH[settings.robot] + 0.05
+    options = dict(ARM_OPTIONS.get(settings.robot, {
+        "overview_height_m": 0.63,
+        "search_xy": ((board_x, 0.0), (board_x - 0.08, 0.0), (board_x + 0.08, 0.0))}))
+    square_m = chess_square_m(settings.robot)
     w, h = settings.pick_size
     with create_workcell(mount="eye_in_hand", scene="chess", width=w, height=h,
                          **settings.cell_options()) as cell:
@@ -465,12 +475,15 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
         if geo.translation_error(truth.flange_T_cam, expected_flange_T_cam) > 1e-9:
             raise RuntimeError("the chess cell's camera mount differs from the calibrated one")
         watched = _WatchedCamera(cell.camera, cell)
-        overview = geo.make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]),
-                                 [board_x, 0.0, options["overview_height_m"]])
+        yaw = geo.make_pose(Rotation.from_euler("z", options.get("view_yaw_rad", 0.0)).as_matrix())
+        down = geo.make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]))
+        x, y = options["search_xy"][0]
+        overview = geo.compose(geo.make_pose(t=[x, y, options["overview_height_m"]]), yaw, down)
         _move_joints_to(cell.robot, geo.compose(overview, geo.invert(flange_T_cam)))
         picks = []
         before = None
-        for from_sq, to_sq in _progress(settings, MOVES, desc="pick", unit="piece"):
+        moves = MOVES_BY_ARM.get(settings.robot, MOVES)
+        for from_sq, to_sq in _progress(settings, moves, desc="pick", unit="piece"):
             record = PickRecord(from_sq, to_sq)
             start_piece = truth.pieces.get(from_sq)
             record.kind = start_piece.kind if start_piece else "?"
@@ -482,7 +495,7 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
                 if stage == "lift" and watched.piece_xy is not None:
                     record.grasp_error_mm = watched._tcp_error_mm()
 
-            controller = StagedPickAndPlace(cell, flange_T_cam, SQUARE_M, "ibvs",
+            controller = StagedPickAndPlace(cell, flange_T_cam, square_m, "ibvs",
                                             on_stage=on_stage, **options)
             controller.camera = watched
             try:
@@ -500,13 +513,13 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
                              and landed.kind == record.kind)
             if landed is not None:
                 square = geo.transform_points(truth.base_T_world,
-                                              square_centre(to_sq, SQUARE_M))
+                                              square_centre(to_sq, square_m))
                 record.place_error_mm = float(
                     np.linalg.norm(landed.base_T_piece[:2, 3] - square[:2]) * 1e3)
             picks.append(record)
         # One last look from the overview pose, for the "after" picture.
         watched.stage, watched.overview = "search", None
-        controller = StagedPickAndPlace(cell, flange_T_cam, SQUARE_M, "ibvs", **options)
+        controller = StagedPickAndPlace(cell, flange_T_cam, square_m, "ibvs", **options)
         controller.camera = watched
         try:
             controller.search()

@@ -49,6 +49,7 @@ __all__ = [
     "detect_chess_board",
     "detect_chessboard",
     "detect_circle_grid",
+    "fit_plane_ransac",
     "point_cloud",
     "project",
     "square_at",
@@ -453,24 +454,57 @@ def _inner_corner_candidates(gray):
         yield cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
 
 
-def _consistent_poses(corners, objp, gray, square_m, intrinsics):
-    """The orderings of ``corners`` that give a pose that fits them (rms < 1 px), with the
-    board's z axis towards the camera and a consistent checker pattern with a1 dark.
+# At most this many of the 49 inner corners may be dropped as outliers: a piece standing next
+# to a corner can hide it or pull the detector's estimate of it off by several pixels (on a
+# seeded random position a black rook beside a corner was measured 14 px and 22 px off, and
+# one such corner alone lifted the whole fit's rms above 2 px). Kept below 7 so a grid shifted
+# by one row (the board's dark frame read as squares: a whole row of 7 corners wrong) can
+# never be made to fit by dropping that row.
+_MAX_CORNER_OUTLIERS = 4
 
-    Returns a list of (cam_T_chess, corners in object order, rms px); empty if none fit.
+
+def _robust_board_pose(objp, img, intrinsics, max_rms_px: float = 1.0,
+                       max_outliers: int = _MAX_CORNER_OUTLIERS):
+    """PnP on the board's inner corners that drops bad corners one at a time (the worst
+    residual first, then a refit) until the rest fit within ``max_rms_px`` rms.
+
+    Returns ``(cam_T_chess, inlier mask (N,), rms px of the inliers)`` or None when more than
+    ``max_outliers`` corners would have to go (the candidate is wrong, not occluded).
+    """
+    inliers = np.ones(len(objp), bool)
+    for _ in range(max_outliers + 1):
+        pose = _solve_pnp(objp[inliers], img[inliers], intrinsics)
+        # In front of the camera, and the chess z axis (up) pointing towards the camera.
+        if pose is None or pose[2, 3] <= 0 or pose[:3, 2] @ pose[:3, 3] >= 0:
+            return None
+        err = np.linalg.norm(project(transform_points(pose, objp), intrinsics) - img, axis=1)
+        rms = float(np.sqrt(np.mean(err[inliers] ** 2)))
+        if rms <= max_rms_px:
+            return pose, inliers, rms
+        worst = np.flatnonzero(inliers)[np.argmax(err[inliers])]
+        inliers[worst] = False
+    return None
+
+
+def _consistent_poses(corners, objp, gray, square_m, intrinsics, max_outliers: int = 0):
+    """The orderings of ``corners`` that give a pose that fits them (rms < 1 px over all but at
+    most ``max_outliers`` corners), with the board's z axis towards the camera and a
+    consistent checker pattern with a1 dark.
+
+    Returns a list of (cam_T_chess, corners in object order, rms px); empty if none fit. An
+    outlier corner is replaced by the fitted pose's projection of it.
     """
     parity = (np.add.outer(np.arange(8), np.arange(8)) % 2) == 0
     kept = []
     for order in _grid_orders():
         img = corners[np.argsort(order)]  # img[k] is the pixel of object point k
-        pose = _solve_pnp(objp, img, intrinsics)
-        # In front of the camera, and the chess z axis (up) pointing towards the camera.
-        if pose is None or pose[2, 3] <= 0 or pose[:3, 2] @ pose[:3, 3] >= 0:
+        fit = _robust_board_pose(objp, img, intrinsics, max_outliers=max_outliers)
+        if fit is None:
             continue
-        err = np.linalg.norm(project(transform_points(pose, objp), intrinsics) - img, axis=1)
-        rms = float(np.sqrt(np.mean(err ** 2)))
-        if rms > 1.0:
-            continue
+        pose, inliers, rms = fit
+        if not inliers.all():
+            img = img.copy()
+            img[~inliers] = project(transform_points(pose, objp[~inliers]), intrinsics)
         b = _square_brightness(gray, pose, square_m, intrinsics)
         valid = np.isfinite(b)
         if valid.sum() < 32:
@@ -482,6 +516,78 @@ def _consistent_poses(corners, objp, gray, square_m, intrinsics):
         if dark < light and agree >= 0.9:
             kept.append((pose, img, rms))
     return kept
+
+
+def _board_candidates(gray, objp, square_m, intrinsics):
+    """The consistent poses (see :func:`_consistent_poses`) of the first corner candidate that
+    fits whole, else of the first that fits once a few outlier corners are dropped."""
+    tried = []
+    for corners in _inner_corner_candidates(gray):
+        tried.append(corners)
+        kept = _consistent_poses(corners, objp, gray, square_m, intrinsics)
+        if kept:
+            return kept
+    for corners in tried:
+        kept = _consistent_poses(corners, objp, gray, square_m, intrinsics, _MAX_CORNER_OUTLIERS)
+        if kept:
+            return kept
+    return []
+
+
+def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
+                     iterations: int = 200):
+    """A plane through most of ``points`` (N, 3), metres, in their own frame.
+
+    RANSAC over random triples (``rng``: pass a seeded generator for repeatable results), then
+    a least-squares refit on the inliers of the best triple. Returns ``(centre (3,), unit
+    normal (3,), inlier mask (N,))``, the mask against the refitted plane with the same
+    ``threshold_m``; the normal's sign is arbitrary. Raises ValueError for fewer than 3 points
+    or when every triple tried was collinear.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(pts) < 3:
+        raise ValueError(f"a plane needs at least 3 points, got {len(pts)}")
+    best = None
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        normal = np.cross(b - a, c - a)
+        if np.linalg.norm(normal) < 1e-12:
+            continue
+        normal /= np.linalg.norm(normal)
+        inliers = np.abs((pts - a) @ normal) < threshold_m
+        if best is None or inliers.sum() > best.sum():
+            best = inliers
+    if best is None:
+        raise ValueError("every sampled triple of points was collinear: no plane to fit")
+    centre = pts[best].mean(axis=0)
+    normal = np.linalg.svd(pts[best] - centre, full_matrices=False)[2][2]
+    return centre, normal, np.abs((pts - centre) @ normal) < threshold_m
+
+
+def _pieces_painted_out(gray, depth, intrinsics, min_height_m: float = 0.004,
+                        threshold_m: float = 0.002):
+    """``gray`` with everything standing more than ``min_height_m`` above the dominant plane
+    of the depth image (the board) inpainted from its surroundings, or None when the depth
+    shows no plane (see ``fit_plane_ransac``; seeded, so deterministic)."""
+    cloud = point_cloud(depth, intrinsics)
+    valid = np.all(np.isfinite(cloud), axis=2)
+    pts = cloud[valid]
+    if len(pts) < 500:
+        return None
+    rng = np.random.default_rng(0)
+    sample = pts[rng.choice(len(pts), min(3000, len(pts)), replace=False)]
+    try:
+        centre, normal, inliers = fit_plane_ransac(sample, threshold_m, rng, iterations=100)
+    except ValueError:
+        return None
+    if inliers.sum() < 0.3 * len(sample):
+        return None
+    if normal @ centre > 0:
+        normal = -normal  # towards the camera, so heights above the board are positive
+    height = np.full(gray.shape, -1.0)
+    height[valid] = (pts - centre) @ normal
+    mask = cv2.dilate((height > min_height_m).astype(np.uint8), np.ones((3, 3), np.uint8))
+    return cv2.inpaint(gray, mask, 3, cv2.INPAINT_TELEA)
 
 
 def detect_chess_board(frame: Frame, intrinsics: Intrinsics, square_m: float,
@@ -496,6 +602,10 @@ def detect_chess_board(frame: Frame, intrinsics: Intrinsics, square_m: float,
     (for a robot playing White, the robot base: ``invert(base_T_cam)[:3, 3]``). Without it,
     rank 1 is taken to be the rank nearest the bottom of the image (the view of a player
     sitting at White's side).
+
+    Robust to pieces: a few inner corners that pieces hide or pull off are dropped from the
+    fit, and with a depth image (``frame.depth``) everything standing on the board is painted
+    out when the plain image shows no board.
     """
     if not square_m > 0:
         raise ValueError(f"square_m must be the square size in metres (> 0), got {square_m}")
@@ -503,11 +613,15 @@ def detect_chess_board(frame: Frame, intrinsics: Intrinsics, square_m: float,
     # Object points of the inner corners in the chess frame, row-major along the files.
     fi, ri = np.meshgrid(np.arange(1, 8), np.arange(1, 8))
     objp = np.column_stack([fi.ravel() * square_m, ri.ravel() * square_m, np.zeros(49)])
-    kept = []
-    for corners in _inner_corner_candidates(gray):
-        kept = _consistent_poses(corners, objp, gray, square_m, intrinsics)
-        if kept:
-            break
+    # Every candidate must first fit whole; only when none does may a few corners that pieces
+    # hide or pull off be dropped (a strict fit is never replaced by a looser one).
+    kept = _board_candidates(gray, objp, square_m, intrinsics)
+    if not kept and frame.depth is not None:
+        # Pieces can break the pattern so that no detector finds all 49 corners (black pieces
+        # on dark squares by a corner); with a depth image they can be painted out first.
+        clean = _pieces_painted_out(gray, frame.depth, intrinsics)
+        if clean is not None:
+            kept = _board_candidates(clean, objp, square_m, intrinsics)
     if not kept:
         return None
 

@@ -33,6 +33,7 @@ from sim_backends.textures import Target, write_textured_slab
 __all__ = [
     "PIECE_HEIGHT",
     "PIECE_KINDS",
+    "PIECE_SQUARE_M",
     "START_POSITION",
     "ChessSet",
     "PieceTruth",
@@ -40,6 +41,7 @@ __all__ = [
     "add_target",
     "board_pose_on_table",
     "chess_texture",
+    "piece_height",
     "pose_of_body",
     "random_position",
     "set_pose_of_body",
@@ -221,10 +223,22 @@ PIECE_HEIGHT = {kind: max(_part_top(*part) for part in parts)
                 for kind, parts in _PIECE_PARTS.items()}
 
 
-def _piece_body(client: int, kind: str, colour: str, world_T_piece, mass=0.03) -> int:
+# The square size (m) the pieces of ``_PIECE_PARTS`` are made for. A set for another board is
+# the same set scaled by square / PIECE_SQUARE_M (see ``ChessSet``).
+PIECE_SQUARE_M = 0.05
+
+
+def piece_height(kind: str, square: float = PIECE_SQUARE_M) -> float:
+    """Height (m) of a piece of ``kind`` in the set that goes with squares of ``square`` m."""
+    return PIECE_HEIGHT[kind] * square / PIECE_SQUARE_M
+
+
+def _piece_body(client: int, kind: str, colour: str, world_T_piece, mass=0.03,
+                scale: float = 1.0) -> int:
     shapes = {"cylinder": p.GEOM_CYLINDER, "box": p.GEOM_BOX, "sphere": p.GEOM_SPHERE,
               "capsule": p.GEOM_CAPSULE}
-    parts = _PIECE_PARTS[kind]
+    parts = [(g, tuple(scale * v for v in size), scale * z) for g, size, z in _PIECE_PARTS[kind]]
+    mass = mass * scale ** 3
     types = [shapes[g] for g, _, _ in parts]
     radii = [s[0] if g in ("cylinder", "sphere", "capsule") else 0.0 for g, s, _ in parts]
     lengths = [s[1] if g in ("cylinder", "capsule") else 0.0 for g, s, _ in parts]
@@ -264,6 +278,11 @@ class ChessSet:
 
     ``world_T_chess`` places the chess frame (outer corner of a1, see the module docstring).
     ``position`` maps square names to (kind, colour); defaults to the starting position.
+
+    The pieces are proportioned to the board, as a real set is: the set of ``PIECE_HEIGHT`` is
+    made for 50 mm squares, and on smaller squares every dimension shrinks by
+    ``square / 0.05`` (a travel set: on the Cobotta's 30 mm board a king is 43 mm tall, not
+    72 mm, so the pieces no longer hide the board's inner corners from the wrist camera).
     """
 
     def __init__(self, client: int, world_T_chess, position=None, square=0.05,
@@ -282,8 +301,9 @@ class ChessSet:
             if kind not in PIECE_KINDS or colour not in COLOURS:
                 raise ValueError(f"bad piece {kind!r}/{colour!r} on {sq}; kinds are "
                                  f"{PIECE_KINDS}, colours {tuple(COLOURS)}")
-            body = _piece_body(client, kind, colour, compose(self.world_T_chess,
-                                                             self.chess_T_square(sq)))
+            body = _piece_body(client, kind, colour,
+                               compose(self.world_T_chess, self.chess_T_square(sq)),
+                               scale=self.square / PIECE_SQUARE_M)
             self.bodies[body] = (kind, colour)
 
     def chess_T_square(self, name: str) -> np.ndarray:

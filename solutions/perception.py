@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from robots.geometry import invert, make_pose, project_to_so3, transform_points
-from robots.perception import point_cloud, project, square_at
+from robots.perception import fit_plane_ransac, point_cloud, project, square_at
 
 __all__ = [
     "PIECE_HEIGHTS",
@@ -60,7 +60,10 @@ def rectangle_pose(corners_px, width_m: float, height_m: float, intrinsics) -> n
     if not (width_m > 0 and height_m > 0):
         raise ValueError("width_m and height_m must be positive metres")
     h = np.column_stack([x, np.ones(4)])
-    line = lambda a, b: np.cross(h[a], h[b])
+
+    def line(a, b):  # the image line through corners a and b, homogeneous
+        return np.cross(h[a], h[b])
+
     dx = np.cross(line(0, 1), line(3, 2))  # top and bottom edges meet here
     dy = np.cross(line(0, 3), line(1, 2))  # left and right edges
     if np.linalg.norm(dx) < 1e-12 or np.linalg.norm(dy) < 1e-12:
@@ -135,24 +138,6 @@ class FlangeFit:
     n_inliers: int
 
 
-def _ransac_plane(pts, rng, threshold, iterations=200):
-    best = None
-    for _ in range(iterations):
-        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-12:
-            continue
-        n /= np.linalg.norm(n)
-        inl = np.abs((pts - a) @ n) < threshold
-        if best is None or inl.sum() > best.sum():
-            best = inl
-    # Least-squares refit on the inliers.
-    q = pts[best]
-    c = q.mean(axis=0)
-    n = np.linalg.svd(q - c, full_matrices=False)[2][2]
-    return c, n, np.abs((pts - c) @ n) < threshold
-
-
 def _fit_circle_2d(xy):
     """Algebraic (Kasa) circle fit: centre (2,), radius."""
     A = np.column_stack([2 * xy, np.ones(len(xy))])
@@ -190,7 +175,7 @@ def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
         if remaining.sum() < 50:
             break
         rows, cols = np.nonzero(remaining)
-        c, n, inl = _ransac_plane(cloud[remaining], rng, plane_threshold_m)
+        c, n, inl = fit_plane_ransac(cloud[remaining], plane_threshold_m, rng)
         plane_mask = np.zeros(mask.shape, np.uint8)
         plane_mask[rows[inl], cols[inl]] = 255
         remaining[rows[inl], cols[inl]] = False
@@ -244,9 +229,12 @@ def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
 
 # --------------------------------------------------------------------------- chess pieces
 
-# Heights (m) of the simulated Staunton-like pieces, to guess a piece's kind from its top.
+# Heights (m) of the simulated Staunton-like pieces on 50 mm squares, to guess a piece's kind
+# from its top. A set is proportioned to its board, so on other squares the heights scale with
+# square_m / PIECE_HEIGHTS_SQUARE_M.
 PIECE_HEIGHTS = {"pawn": 0.034, "rook": 0.044, "knight": 0.048, "bishop": 0.057,
                  "queen": 0.066, "king": 0.072}
+PIECE_HEIGHTS_SQUARE_M = 0.05
 
 
 @dataclass
@@ -277,10 +265,14 @@ def detect_pieces(frame, intrinsics, cam_T_chess, square_m: float, min_height_m:
     split with a watershed on the height image seeded by one peak per square. Each piece's
     top (its points within 6 mm of its highest point) gives the centroid, depth and 3-D
     position; its square is the one under the top. Colour: the median brightness of its top
-    against the light squares' (robust to the lighting preset).
+    against the light squares' (robust to the lighting preset). Kind: the nearest of
+    ``PIECE_HEIGHTS`` scaled to the board (``square_m / 0.05``).
     """
     if frame.depth is None:
         raise ValueError("detect_pieces needs a depth image (an RGB-D camera)")
+    if not square_m > 0:
+        raise ValueError(f"square_m must be the square size in metres (> 0), got {square_m}")
+    scale = square_m / PIECE_HEIGHTS_SQUARE_M  # the set is proportioned to its board
     cloud = point_cloud(frame.depth, intrinsics)
     valid = np.all(np.isfinite(cloud), axis=2)
     chess = np.full(cloud.shape, np.nan)
@@ -329,10 +321,15 @@ def detect_pieces(frame, intrinsics, cam_T_chess, square_m: float, min_height_m:
         top = region & (height > top_h - 0.006)
         top_cam = cloud[top].mean(axis=0)
         top_chess = chess[top].mean(axis=0)
+        if top_chess[2] < 0.5 * PIECE_HEIGHTS["pawn"] * scale:
+            # Lower than half the smallest piece: depth pixels mixed between a piece's
+            # silhouette and the board behind it (measured: an 8 px sliver 3 mm "high" beside
+            # a rook, named as a piece on the next square), not a piece.
+            continue
         name = square_at(top_chess[None, :], square_m)[0]
         uv = project(top_cam, intrinsics)[0]
         colour = "black" if np.median(gray[top]) < 0.5 * light_level else "white"
-        kind = min(PIECE_HEIGHTS, key=lambda k: abs(PIECE_HEIGHTS[k] - top_h))
+        kind = min(PIECE_HEIGHTS, key=lambda k: abs(PIECE_HEIGHTS[k] * scale - top_h))
         pieces.append(PieceDetection(name, colour, kind, uv, float(top_cam[2]), top_cam,
                                      top_chess, int(region.sum())))
     return _merge_same_square(pieces)

@@ -496,6 +496,58 @@ def move_in_steps(robot, base_T_flange, speed: float = 0.2, max_step_m: float = 
 STAGES = ("search", "approach", "coarse", "precise", "grasp", "lift", "place", "done")
 DOWN = np.diag([1.0, -1.0, -1.0])  # a tool frame whose z axis points straight down
 
+# Per-arm options of the staged controller in the simulator's chess cell: where each arm's
+# wrist camera looks for the board (base frame, m), straight down from ``overview_height_m``
+# over each ``search_xy`` in turn. The simulator lays the board's centre 0.5 x reach + 5 cm in
+# front of the base (sim_backends.world), so the first point is over it and the others 8 cm
+# (2 cm on the Cobotta) nearer and further. The height fits the whole board into the camera's
+# field of view with a margin (0.44 m of board and frame in the 54-degree vertical field from
+# 0.62 m; the Cobotta's 0.28 m board from 0.38 m, about as high as that 342 mm-reach arm holds
+# the camera over it). A real cell passes its own.
+ARM_OPTIONS = {
+    # The Panda's are the controller's defaults.
+    "aubo_i5": {"overview_height_m": 0.63, "search_xy": ((0.49, 0.0), (0.41, 0.0), (0.57, 0.0))},
+    "ur10e": {"overview_height_m": 0.63, "search_xy": ((0.70, 0.0), (0.62, 0.0), (0.78, 0.0))},
+    # With its camera turned a quarter turn (flange x along -y) the Cobotta holds the camera
+    # 2-4 cm lower than with the default heading, but keeps that heading over the whole
+    # board: with the default one (flange x along +x) its IK reaches the tool-down pose over
+    # only 5 of the 8 files on most ranks (measured), and turning the flange between the
+    # search and the pick turns the calibration's rotation error with it (measured: the
+    # piece then expected half a 30 mm square off, and its neighbour picked).
+    "cobotta": {"overview_height_m": 0.39, "view_yaw_rad": -np.pi / 2,
+                "search_xy": ((0.20, 0.0), (0.18, 0.0), (0.22, 0.0))},
+}
+
+
+def move_to_view(robot, base_T_flange, speed: float = 0.25) -> None:
+    """Move the flange to ``base_T_flange``: in straight segments (:func:`move_in_steps`) when
+    the arm can, else joint-interpolated (a "move J") to an IK solution, for a robot that
+    offers ``solve_ik`` (the simulator).
+
+    A straight line is not always possible for a long transfer: the UR10e starts folded
+    behind its base, and the line to the board passes its shoulder singularity. The IK is
+    seeded with the base joint turned towards the target (joint 0 is the vertical base axis
+    on every supported arm), so the solution keeps the arm's elbow and wrist configuration.
+    The joint path is cut into moves within ``robot.safety.max_joint_step``.
+    """
+    try:
+        move_in_steps(robot, base_T_flange, speed)
+        return
+    except (RuntimeError, ValueError):
+        if not hasattr(robot, "solve_ik"):
+            raise
+    target = as_pose(base_T_flange, "base_T_flange")
+    q0 = np.asarray(robot.joint_positions(), dtype=float)
+    here = robot.flange_pose()[:3, 3]
+    turn = np.arctan2(target[1, 3], target[0, 3]) - np.arctan2(here[1], here[0])
+    seed = q0.copy()
+    seed[0] += (turn + np.pi) % (2 * np.pi) - np.pi
+    q1 = robot.solve_ik(target, seed)
+    n = max(1, int(np.ceil(np.abs(q1 - q0).max() / (0.9 * robot.safety.max_joint_step))))
+    joint_speed = min(0.5, robot.safety.max_joint_speed)
+    for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+        robot.move_joints(q0 + s * (q1 - q0), speed=joint_speed)
+
 
 @dataclass
 class StageEvent:
@@ -524,14 +576,14 @@ class PickPlaceResult:
 
 def _plane_heights(cloud):
     """Height (H, W) of each point above the dominant plane (the board) in a camera cloud."""
-    from solutions.perception import _ransac_plane
+    from robots.perception import fit_plane_ransac
 
     valid = np.all(np.isfinite(cloud), axis=2)
     pts = cloud[valid]
     if len(pts) < 100:
         raise TargetLostError("the depth image is empty; nothing to servo on")
     sub = pts[np.random.default_rng(0).choice(len(pts), min(3000, len(pts)), replace=False)]
-    c, n, _ = _ransac_plane(sub, np.random.default_rng(1), 0.002, iterations=100)
+    c, n, _ = fit_plane_ransac(sub, 0.002, np.random.default_rng(1), iterations=100)
     if n @ c > 0:
         n = -n  # towards the camera
     h = np.full(cloud.shape[:2], np.nan)
@@ -579,13 +631,18 @@ class StagedPickAndPlace:
     piece's 3-D top point, measured in each close-up frame) or "ibvs" (decoupled image-based
     law on the top's (x, y, area) in each frame). ``flange_T_cam`` is the calibration the
     controller believes (it may be wrong: that is the point of the benchmark).
+    ``view_yaw_rad``: the overview camera's turn (rad) about the vertical from its default
+    heading (image top away from the robot); the later stages keep the flange heading the
+    search ends with. (A round suction cup does not care about the heading, but a small arm
+    reaches the board with some headings only.)
     Every stage has an iteration budget; ``log`` records each transition.
     """
 
     def __init__(self, cell, flange_T_cam, square_m: float, method: str = "ibvs",
                  overview_height_m: float = 0.63, search_xy=((0.48, 0.0), (0.4, 0.0), (0.56, 0.0)),
                  hover_m: float = 0.2, gain: float = 2.5, dt: float = 0.2,
-                 tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None):
+                 tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None,
+                 view_yaw_rad: float = 0.0):
         if method not in ("open_loop", "pbvs", "ibvs"):
             raise ValueError(f"method must be 'open_loop', 'pbvs' or 'ibvs', got {method!r}")
         self.cell, self.robot, self.camera = cell, cell.robot, cell.camera
@@ -600,6 +657,7 @@ class StagedPickAndPlace:
         self.iterations, self.servo_time = 0, 0.0
         self._stage_iterations = 0
         self.on_stage = on_stage  # called as on_stage(stage_name, controller) on each transition
+        self.view_yaw_rad = float(view_yaw_rad)
 
     # ----- bookkeeping
 
@@ -632,10 +690,11 @@ class StagedPickAndPlace:
 
         intr = self.camera.intrinsics
         for x, y in self.search_xy:
-            base_T_cam = make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]),
+            down = np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]])
+            base_T_cam = make_pose(Rotation.from_euler("z", self.view_yaw_rad).as_matrix() @ down,
                                    [x, y, self.overview_height_m])
             try:
-                move_in_steps(self.robot, compose(base_T_cam, invert(self.flange_T_cam)), 0.25)
+                move_to_view(self.robot, compose(base_T_cam, invert(self.flange_T_cam)), 0.25)
             except (RuntimeError, ValueError):
                 continue  # unreachable overview: try the next one
             frame = self.camera.capture()
@@ -653,7 +712,7 @@ class StagedPickAndPlace:
     def _servo_over(self, point_base, above_m: float, measure) -> None:
         """Coarse move over a point, then (pbvs/ibvs) servo until the measured point sits where
         the calibration says it must be seen when the TCP is ``above_m`` over it."""
-        move_in_steps(self.robot, self._tcp_down_at(point_base, above_m), 0.25)
+        move_to_view(self.robot, self._tcp_down_at(point_base, above_m), 0.25)
         if self.method == "open_loop":
             return  # look-then-move: no image is used after the search
         self._enter("precise", "over the target (position from the overview image)")
@@ -740,7 +799,7 @@ class StagedPickAndPlace:
         place[:3, 3] += shift + [0, 0, 0.001]
         flange_T_tcp = self.robot.tool.flange_T_tcp
         above = compose(make_pose(t=[0, 0, self.hover_m]), place)
-        move_in_steps(self.robot, compose(above, invert(flange_T_tcp)), 0.25)
+        move_to_view(self.robot, compose(above, invert(flange_T_tcp)), 0.25)
         self.robot.move_to(compose(place, invert(flange_T_tcp)), speed=0.05)
         self.robot.tool.release()
         self.robot.move_to(compose(make_pose(t=[0, 0, 0.06]), self.robot.flange_pose()), speed=0.1)
@@ -756,7 +815,8 @@ def pick_and_place(cell, from_square: str, to_square: str, method: str = "ibvs",
     the hand-eye calibration (a (4, 4) array, a CalibrationResult or a YAML path); in the
     simulator it defaults to the camera's nominal (design) mount, on a real robot it is
     required. ``square_m`` defaults to the simulator's board (0.05 m; 0.03 on the Cobotta).
-    Options go to :class:`StagedPickAndPlace`. Raises ServoError (the robot stopped) if a
+    Options go to :class:`StagedPickAndPlace`; ``overview_height_m`` and ``search_xy`` default
+    to the arm's entry in :data:`ARM_OPTIONS` (the simulator's layout). Raises ServoError (the robot stopped) if a
     stage fails.
     """
     from robots.calibration_io import CalibrationResult, load_calibration
@@ -772,6 +832,7 @@ def pick_and_place(cell, from_square: str, to_square: str, method: str = "ibvs",
         flange_T_cam = flange_T_cam.pose
     if square_m is None:
         square_m = 0.03 if cell.robot.name == "cobotta" else 0.05
+    options = {**ARM_OPTIONS.get(cell.robot.name, {}), **options}
     controller = StagedPickAndPlace(cell, flange_T_cam, square_m, method, **options)
     try:
         return controller.run(from_square, to_square)
