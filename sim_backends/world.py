@@ -32,7 +32,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
-from robots.geometry import compose, invert, make_pose, pose_from_rotvec, pose_from_rpy
+from robots.geometry import (
+    compose,
+    invert,
+    make_pose,
+    pose_from_rotvec,
+    pose_from_rpy,
+    transform_points,
+)
 from robots.interfaces import Intrinsics, UnreachableError, Workcell
 from sim_backends import scene as scn
 from sim_backends import textures
@@ -110,6 +117,7 @@ class SimTruth:
     flange_T_marker: np.ndarray | None
     base_T_pybullet: np.ndarray
     cam_T_right: np.ndarray | None = None
+    base_T_overview_cam: np.ndarray | None = None
     encoder_offsets: np.ndarray | None = None
     board: textures.Target | None = None
     flange_target: textures.Target | None = None
@@ -280,6 +288,7 @@ def create_workcell(
     target: str = "chessboard",
     chess_position: str | dict = "start",
     safety=None,
+    overview_camera: bool = False,
 ) -> SimWorkcell:
     """Build the simulated workcell. Every random choice comes from ``seed``.
 
@@ -302,6 +311,10 @@ def create_workcell(
         "charuco", "circles" or "aruco".
     chess_position : "start", "random" (seeded, 12 pieces) or a dict square -> (kind, colour).
     safety : a ``robots.safety.Safety`` to use instead of the arm's default limits.
+    overview_camera : chess scene, eye-in-hand only: also a fixed RGB-D camera
+        (``cell.cameras["overview"]``, same intrinsics and noise) on the far side of the board,
+        looking down at it, for the coarse stage of the staged approach-to-grasp. It sits
+        exactly where ``truth.base_T_overview_cam`` says (its calibration is not the point).
     """
     from sim_backends import arms as arms_mod
     from sim_backends import tools as tools_mod
@@ -334,13 +347,17 @@ def create_workcell(
         i = intrinsics
         intrinsics = Intrinsics(i.fx, i.fy, i.cx, i.cy, i.width, i.height, distortion)
     light = lighting_from(lighting)
+    if overview_camera and not (scene == "chess" and mount == "eye_in_hand"):
+        raise ValueError("overview_camera=True needs scene='chess' and mount='eye_in_hand' (a "
+                         "fixed camera over the board next to the wrist camera)")
     if not (chess_position in ("start", "random") or isinstance(chess_position, dict)):
         raise ValueError("chess_position must be 'start', 'random' or a dict "
                          f"square -> (kind, colour), got {chess_position!r}")
 
     # Independent streams, so turning one knob never reshuffles another's draws.
-    rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess = (
-        np.random.default_rng(seed).spawn(6))
+    # (spawn(7)[:6] equals spawn(6): adding a stream left the others' draws as they were.)
+    rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess, rng_overview = (
+        np.random.default_rng(seed).spawn(7))
     reach = ARM_REACH[arm]
     client = p.connect(p.DIRECT)
     try:
@@ -412,6 +429,11 @@ def create_workcell(
         cameras = {"cam": make_camera("cam", left, rng_cam)}
         if cam_T_right is not None:  # the right camera of the pair, +baseline along left x
             cameras["right"] = make_camera("right", compose(left, cam_T_right), rng_right)
+        world_T_overview = None
+        if overview_camera:
+            world_T_overview = _overview_camera_pose(chess)
+            cameras["overview"] = SimCamera(client, intrinsics, world_T_cam=world_T_overview,
+                                            name="overview", rng=rng_overview, **cam_kw)
 
         _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
                     flange_T_cam, flange_T_marker, flange_target, world_T_cam, reach, intrinsics)
@@ -432,6 +454,8 @@ def create_workcell(
             flange_T_marker=flange_T_marker,
             base_T_pybullet=base_T_pybullet,
             cam_T_right=cam_T_right,
+            base_T_overview_cam=(None if world_T_overview is None
+                                 else compose(base_T_pybullet, world_T_overview)),
             encoder_offsets=None if offsets is None else offsets.copy(),
             board=board,
             flange_target=flange_target,
@@ -455,6 +479,17 @@ def _add_table_target(client, kind, reach, rng):
         world_T_board = compose(world_T_centre, make_pose(t=-_target_centre(board)))
     scn.add_target(client, board, world_T_board)
     return board, world_T_board
+
+
+def _overview_camera_pose(chess: scn.ChessSet) -> np.ndarray:
+    """A fixed camera beyond the board's far edge (rank 8), high enough that the whole board
+    fills about half the image's height, looking down at the board's centre at about 60 deg
+    from the horizontal, image top away from the robot: it sees the board past the arm."""
+    side = 8 * chess.square
+    centre = transform_points(chess.world_T_chess, [[4 * chess.square, 4 * chess.square, 0]])[0]
+    away = centre[:2] / np.linalg.norm(centre[:2])  # from the robot base, on the table
+    eye = centre + np.r_[0.9 * side * away, 1.6 * side]
+    return _look_at(eye, centre, up=np.r_[away, 0.0])
 
 
 def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:

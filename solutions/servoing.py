@@ -635,6 +635,11 @@ class StagedPickAndPlace:
     heading (image top away from the robot); the later stages keep the flange heading the
     search ends with. (A round suction cup does not care about the heading, but a small arm
     reaches the board with some headings only.)
+    ``overview_camera`` and ``base_T_overview_cam``: a fixed RGB-D camera that sees the board
+    and its calibration (eye-to-hand). With them, the search and the coarse alignment are
+    position-based on the fixed camera (the board and the piece found in its image, mapped to
+    the base, the wrist moved over the piece) and only the precise alignment uses the wrist
+    camera; without them, the wrist camera also searches from ``search_xy``.
     Every stage has an iteration budget; ``log`` records each transition.
     """
 
@@ -642,7 +647,7 @@ class StagedPickAndPlace:
                  overview_height_m: float = 0.63, search_xy=((0.48, 0.0), (0.4, 0.0), (0.56, 0.0)),
                  hover_m: float = 0.2, gain: float = 2.5, dt: float = 0.2,
                  tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None,
-                 view_yaw_rad: float = 0.0):
+                 view_yaw_rad: float = 0.0, overview_camera=None, base_T_overview_cam=None):
         if method not in ("open_loop", "pbvs", "ibvs"):
             raise ValueError(f"method must be 'open_loop', 'pbvs' or 'ibvs', got {method!r}")
         self.cell, self.robot, self.camera = cell, cell.robot, cell.camera
@@ -658,6 +663,12 @@ class StagedPickAndPlace:
         self._stage_iterations = 0
         self.on_stage = on_stage  # called as on_stage(stage_name, controller) on each transition
         self.view_yaw_rad = float(view_yaw_rad)
+        if (overview_camera is None) != (base_T_overview_cam is None):
+            raise ValueError("give overview_camera and base_T_overview_cam together (the fixed "
+                             "camera and its eye-to-hand calibration), or neither")
+        self.overview_camera = overview_camera
+        self.base_T_overview_cam = (None if base_T_overview_cam is None
+                                    else as_pose(base_T_overview_cam, "base_T_overview_cam"))
 
     # ----- bookkeeping
 
@@ -682,12 +693,30 @@ class StagedPickAndPlace:
 
     # ----- stages
 
-    def search(self):
-        """Look down at the board from overview poses until it is found; returns
-        (base_T_chess, pieces) with the pieces' tops in the base frame."""
+    def _board_and_pieces(self, frame, intrinsics, base_T_cam):
+        """(base_T_chess, {square: (piece, top in base)}) seen in ``frame``, or None."""
         from robots.perception import detect_chess_board
         from solutions.perception import detect_pieces
 
+        board = detect_chess_board(frame, intrinsics, self.square_m,
+                                   white_side_cam=invert(base_T_cam)[:3, 3])
+        if board is None:
+            return None
+        pieces = detect_pieces(frame, intrinsics, board.cam_T_chess, self.square_m)
+        return compose(base_T_cam, board.cam_T_chess), {
+            p.square: (p, transform_points(base_T_cam, p.top_cam[None])[0]) for p in pieces}
+
+    def search(self):
+        """Find the board: in the fixed overview camera's image when there is one, else by
+        looking down from the wrist camera's overview poses until it is found. Returns
+        (base_T_chess, pieces) with the pieces' tops in the base frame."""
+        if self.overview_camera is not None:
+            cam = self.overview_camera
+            found = self._board_and_pieces(cam.capture(), cam.intrinsics, self.base_T_overview_cam)
+            if found is None:
+                raise TargetLostError("the fixed overview camera sees no chess board; check "
+                                      "that nothing hides it and that it is the calibrated one")
+            return found
         intr = self.camera.intrinsics
         for x, y in self.search_xy:
             down = np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]])
@@ -697,15 +726,9 @@ class StagedPickAndPlace:
                 move_to_view(self.robot, compose(base_T_cam, invert(self.flange_T_cam)), 0.25)
             except (RuntimeError, ValueError):
                 continue  # unreachable overview: try the next one
-            frame = self.camera.capture()
-            base_T_cam = self._base_T_cam()
-            board = detect_chess_board(frame, intr, self.square_m,
-                                       white_side_cam=invert(base_T_cam)[:3, 3])
-            if board is None:
-                continue
-            pieces = detect_pieces(frame, intr, board.cam_T_chess, self.square_m)
-            return compose(base_T_cam, board.cam_T_chess), {
-                p.square: (p, transform_points(base_T_cam, p.top_cam[None])[0]) for p in pieces}
+            found = self._board_and_pieces(self.camera.capture(), intr, self._base_T_cam())
+            if found is not None:
+                return found
         raise TargetLostError("search found no chess board from any overview pose; "
                               "check search_xy / overview_height_m for this arm")
 
@@ -775,7 +798,8 @@ class StagedPickAndPlace:
         dest = transform_points(base_T_chess, square_centre(to_square, self.square_m)[None])[0]
 
         self._enter("approach", f"board found, {piece.colour} {piece.kind} on {from_square}")
-        self._enter("coarse", "moving over the piece")
+        source = "fixed camera" if self.overview_camera is not None else "wrist overview"
+        self._enter("coarse", f"moving over the piece (position from the {source})")
         intr = self.camera.intrinsics
         self._servo_over(top_base, self.hover_m,
                          lambda frame, uv: measure_piece_top(frame, intr, uv))
@@ -816,8 +840,10 @@ def pick_and_place(cell, from_square: str, to_square: str, method: str = "ibvs",
     simulator it defaults to the camera's nominal (design) mount, on a real robot it is
     required. ``square_m`` defaults to the simulator's board (0.05 m; 0.03 on the Cobotta).
     Options go to :class:`StagedPickAndPlace`; ``overview_height_m`` and ``search_xy`` default
-    to the arm's entry in :data:`ARM_OPTIONS` (the simulator's layout). Raises ServoError (the robot stopped) if a
-    stage fails.
+    to the arm's entry in :data:`ARM_OPTIONS` (the simulator's layout). A simulated cell with
+    an overview camera (``create_workcell(..., overview_camera=True)``) searches and aligns
+    coarsely with it, calibrated as ``truth.base_T_overview_cam`` unless
+    ``base_T_overview_cam`` is given. Raises ServoError (the robot stopped) if a stage fails.
     """
     from robots.calibration_io import CalibrationResult, load_calibration
 
@@ -833,6 +859,11 @@ def pick_and_place(cell, from_square: str, to_square: str, method: str = "ibvs",
     if square_m is None:
         square_m = 0.03 if cell.robot.name == "cobotta" else 0.05
     options = {**ARM_OPTIONS.get(cell.robot.name, {}), **options}
+    overview = getattr(cell, "cameras", {}).get("overview")
+    if overview is not None and options.get("overview_camera") is None:
+        options["overview_camera"] = overview
+        if options.get("base_T_overview_cam") is None:
+            options["base_T_overview_cam"] = cell.truth.base_T_overview_cam
     controller = StagedPickAndPlace(cell, flange_T_cam, square_m, method, **options)
     try:
         return controller.run(from_square, to_square)

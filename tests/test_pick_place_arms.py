@@ -65,3 +65,30 @@ def test_every_piece_on_its_true_square_on_random_positions(arm):
             found = {p.square: p.colour for p in pieces}
             expected = {sq: t.colour for sq, t in truth.pieces.items()}
             assert found == expected, f"{arm} seed {seed}"
+
+
+@pytest.mark.parametrize("method, seed", [("ibvs", 0), ("pbvs", 1)])
+def test_fixed_overview_camera_does_the_search_and_the_coarse_stage(method, seed):
+    """Search and coarse alignment on a fixed camera, precise alignment on the wrist camera:
+    both calibrations 5 mm / 2 deg off, the pawn still lands on e4."""
+    with create_workcell(arm="panda", scene="chess", seed=seed, width=320, height=240,
+                         overview_camera=True) as cell:
+        truth = cell.truth
+        before = truth.pieces
+        result = S.pick_and_place(
+            cell, "e2", "e4", method=method,
+            flange_T_cam=truth.flange_T_cam @ _calibration_error(seed),
+            base_T_overview_cam=truth.base_T_overview_cam @ _calibration_error(seed + 500))
+        coarse = next(e for e in result.log if e.stage == "coarse")
+        assert "fixed camera" in coarse.reason
+        after = truth.pieces
+        assert "e2" not in after and after["e4"].body_id == before["e2"].body_id
+
+
+def test_overview_camera_needs_the_chess_scene_and_a_wrist_camera():
+    with pytest.raises(ValueError, match="overview_camera=True needs scene='chess'"):
+        create_workcell(arm="panda", scene="calibration", overview_camera=True)
+    with create_workcell(arm="panda", scene="chess", seed=0, width=160, height=120) as cell:
+        with pytest.raises(ValueError, match="give overview_camera and base_T_overview_cam"):
+            S.StagedPickAndPlace(cell, cell.truth.flange_T_cam, 0.05,
+                                 overview_camera=cell.camera)
