@@ -452,20 +452,18 @@ def _move_joints_to(robot, base_T_flange, steps: int = 4, speed: float = 0.5) ->
 
 
 def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam) -> PickOutcome:
-    """Part 3: move the pieces of ``MOVES`` (``MOVES_BY_ARM`` for some arms) with the IBVS staged controller, using the saved
-    calibration; score each move with ``cell.truth.pieces``."""
+    """Part 3: move the pieces of ``MOVES`` (``MOVES_BY_ARM`` for some arms) with the IBVS
+    staged controller, using the saved calibration; score each move with
+    ``cell.truth.pieces``."""
     from robots.calibration_io import load_calibration
     from robots.perception import ServoError, square_centre
-    from sim_backends.world import ARM_REACH, create_workcell
+    from sim_backends.world import create_workcell
     from solutions.servoing import ARM_OPTIONS, StagedPickAndPlace
 
     flange_T_cam = load_calibration(calibration_path).pose
-    # Where the arm looks for the board: the controller's settings for the arm, else over
-    # where the simulator lays the board out (the Panda).
-    board_x = 0.5 * ARM_REACH[settings.robot] + 0.05
-    options = dict(ARM_OPTIONS.get(settings.robot, {
-        "overview_height_m": 0.63,
-        "search_xy": ((board_x, 0.0), (board_x - 0.08, 0.0), (board_x + 0.08, 0.0))}))
+    # Where the arm looks for the board, and how high it hovers: the controller's settings
+    # for the arm in the simulator's layout.
+    options = dict(ARM_OPTIONS[settings.robot])
     square_m = chess_square_m(settings.robot)
     w, h = settings.pick_size
     with create_workcell(mount="eye_in_hand", scene="chess", width=w, height=h,
