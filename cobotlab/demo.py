@@ -27,7 +27,6 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
 
@@ -458,7 +457,7 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
     from robots.calibration_io import load_calibration
     from robots.perception import ServoError, square_centre
     from sim_backends.world import create_workcell
-    from solutions.servoing import ARM_OPTIONS, StagedPickAndPlace
+    from solutions.servoing import ARM_OPTIONS, StagedPickAndPlace, overview_base_T_cam
 
     flange_T_cam = load_calibration(calibration_path).pose
     # Where the arm looks for the board, and how high it hovers: the controller's settings
@@ -473,10 +472,9 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
         if geo.translation_error(truth.flange_T_cam, expected_flange_T_cam) > 1e-9:
             raise RuntimeError("the chess cell's camera mount differs from the calibrated one")
         watched = _WatchedCamera(cell.camera, cell)
-        yaw = geo.make_pose(Rotation.from_euler("z", options.get("view_yaw_rad", 0.0)).as_matrix())
-        down = geo.make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]))
         x, y = options["search_xy"][0]
-        overview = geo.compose(geo.make_pose(t=[x, y, options["overview_height_m"]]), yaw, down)
+        overview = overview_base_T_cam(x, y, options["overview_height_m"],
+                                       options.get("view_yaw_rad", 0.0))
         _move_joints_to(cell.robot, geo.compose(overview, geo.invert(flange_T_cam)))
         picks = []
         before = None

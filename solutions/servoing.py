@@ -525,6 +525,15 @@ ARM_OPTIONS = {
 }
 
 
+def overview_base_T_cam(x_m: float, y_m: float, height_m: float, yaw_rad: float = 0.0):
+    """Camera pose (4, 4) in the base frame looking straight down from ``height_m`` over the
+    base point (``x_m``, ``y_m``), metres. With ``yaw_rad`` = 0 the image top points away from
+    the robot (base +x) and the image x axis along base -y; ``yaw_rad`` turns the camera about
+    the vertical."""
+    down = np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]])
+    return make_pose(Rotation.from_euler("z", yaw_rad).as_matrix() @ down, [x_m, y_m, height_m])
+
+
 def move_to_view(robot, base_T_flange, speed: float = 0.25) -> None:
     """Move the flange to ``base_T_flange``: in straight segments (:func:`move_in_steps`) when
     the arm can, else joint-interpolated (a "move J") to an IK solution, for a robot that
@@ -725,9 +734,7 @@ class StagedPickAndPlace:
             return found
         intr = self.camera.intrinsics
         for x, y in self.search_xy:
-            down = np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]])
-            base_T_cam = make_pose(Rotation.from_euler("z", self.view_yaw_rad).as_matrix() @ down,
-                                   [x, y, self.overview_height_m])
+            base_T_cam = overview_base_T_cam(x, y, self.overview_height_m, self.view_yaw_rad)
             try:
                 move_to_view(self.robot, compose(base_T_cam, invert(self.flange_T_cam)), 0.25)
             except (RuntimeError, ValueError):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from robots import perception as P
-from robots.geometry import compose, invert, make_pose, pose_from_rotvec
+from robots.geometry import invert, pose_from_rotvec
 from sim_backends.world import create_workcell
 from solutions import perception as SP
 from solutions import servoing as S
@@ -48,10 +48,9 @@ def test_every_piece_on_its_true_square_on_random_positions(arm):
     # The first overview pose of the arm's search (the Panda's: the controller's defaults).
     options = {"overview_height_m": 0.63, "view_yaw_rad": 0.0, "search_xy": ((0.48, 0.0),),
                **S.ARM_OPTIONS.get(arm, {})}
-    yaw = make_pose(pose_from_rotvec([0, 0, options["view_yaw_rad"]], [0, 0, 0])[:3, :3])
-    down = make_pose(np.array([[0, -1.0, 0], [-1.0, 0, 0], [0, 0, -1.0]]))
     x, y = options["search_xy"][0]
-    base_T_cam = compose(make_pose(t=[x, y, options["overview_height_m"]]), yaw, down)
+    base_T_cam = S.overview_base_T_cam(x, y, options["overview_height_m"],
+                                       options["view_yaw_rad"])
     for seed in range(5):
         with create_workcell(arm=arm, scene="chess", chess_position="random", seed=seed,
                              width=320, height=240) as cell:
