@@ -75,12 +75,16 @@ class _Holder:
                 p.setCollisionFilterPair(own, body, link, -1, int(enable), physicsClientId=self._c)
 
     def first_object_hit(self, starts, ends):
-        """(body, hit point) of the nearest object (not the robot) along any of the rays."""
+        """(body, hit point) of the nearest object the tool can lift along any of the rays:
+        not the robot, and not a body fixed to the world (mass 0: the table, the chess board),
+        which a cup may seal on but never lifts."""
         best = None
         for hit, start in zip(p.rayTestBatch([list(s) for s in starts], [list(e) for e in ends],
                                              physicsClientId=self._c), starts):
             body, fraction, point = hit[0], hit[2], np.asarray(hit[3])
             if body < 0 or body in self._own:
+                continue
+            if p.getDynamicsInfo(body, -1, physicsClientId=self._c)[0] == 0.0:
                 continue
             if best is None or fraction < best[2]:
                 best = (body, point, fraction)
@@ -197,7 +201,8 @@ class SimSuctionCup(SuctionCup):
 
     ``grasp`` switches the vacuum on: it holds the object whose surface lies within
     ``SUCTION_REACH_M`` (5 mm) of the cup tip along the tool axis (five rays over the cup
-    face) and returns True, or returns False when nothing touches the cup.
+    face) and returns True, or returns False when nothing it can lift touches the cup (a cup
+    pressed on the board or the table holds nothing).
     """
 
     TIP_M = 0.080

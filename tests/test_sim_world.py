@@ -218,6 +218,24 @@ def test_chess_scene_truth_follows_a_pick_and_place(tool):
         assert translation_error(after["e4"].base_T_piece, dest) < 5e-3
 
 
+def test_a_suction_cup_on_the_bare_board_holds_nothing():
+    """The board is fixed to the table: a cup pressed on an empty square must not lift it
+    (it once did, and every piece went up with it)."""
+    with create_workcell(scene="chess", tool="suction", seed=0, width=160, height=120) as cell:
+        before = cell.truth.pieces
+        e4 = compose(cell.truth.base_T_world, make_pose(t=[4.5 * 0.05, 3.5 * 0.05, 0]))
+        down = make_pose(np.diag([1.0, -1.0, -1.0]))
+        touching = compose(make_pose(t=e4[:3, 3] + [0, 0, 0.001]), down)
+        cell.robot.move_tcp_to(compose(make_pose(t=[0, 0, 0.05]), touching), speed=0.2)
+        cell.robot.move_tcp_to(touching, speed=0.05)
+        assert not cell.robot.tool.grasp() and not cell.robot.tool.is_holding
+        cell.robot.move_tcp_to(compose(make_pose(t=[0, 0, 0.08]), touching), speed=0.1)
+        after = cell.truth.pieces
+        assert set(after) == set(before)
+        assert max(translation_error(after[sq].base_T_piece, before[sq].base_T_piece)
+                   for sq in before) < 1e-3
+
+
 def test_chess_random_position_is_seeded():
     def position(seed):
         with create_workcell(scene="chess", chess_position="random", seed=seed,
