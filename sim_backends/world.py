@@ -497,7 +497,18 @@ def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:
     square = 0.03 if reach < 0.5 else 0.05
     thickness = 0.01
     yaw = rng.uniform(-np.deg2rad(3), np.deg2rad(3))
-    centre = np.array([0.5 * reach + 0.05, 0.0]) + rng.uniform(-0.01, 0.01, 2)
+    if reach < 0.5:
+        # The Cobotta's suction cup points straight down only between about 0.135 and 0.34 m
+        # from its base axis (measured with its IK at piece height near the centre files), less
+        # than the 0.24 m board. Centred at 0.24 m (+-1 cm), rank 2 keeps 2-4 cm from the inner
+        # edge and rank 7 about 2 cm from the outer one, room for a grasp that a wrong
+        # calibration shifts by up to 15 mm (at 0.221 m the pawns on rank 2 stood 0-2 cm inside
+        # the edge, and 11 % of picks with a 5 mm / 2 deg calibration error failed there).
+        # Ranks 1 and 8 lie at the edges.
+        centre = np.array([0.24, 0.0])
+    else:
+        centre = np.array([0.5 * reach + 0.05, 0.0])
+    centre += rng.uniform(-0.01, 0.01, 2)
     # Chess frame: ranks (y) along world +x, files (x) along world -y, z up.
     R = pose_from_rpy(0, 0, yaw)[:3, :3] @ np.array([[0.0, 1.0, 0.0],
                                                       [-1.0, 0.0, 0.0],

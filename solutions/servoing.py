@@ -500,10 +500,11 @@ DOWN = np.diag([1.0, -1.0, -1.0])  # a tool frame whose z axis points straight d
 # wrist camera looks for the board (base frame, m), straight down from ``overview_height_m``
 # over each ``search_xy`` in turn. The simulator lays the board's centre 0.5 x reach + 5 cm in
 # front of the base (sim_backends.world), so the first point is over it and the others 8 cm
-# (2 cm on the Cobotta) nearer and further. The height fits the whole board into the camera's
-# field of view with a margin (0.44 m of board and frame in the 54-degree vertical field from
-# 0.62 m; the Cobotta's 0.28 m board from 0.38 m, about as high as that 342 mm-reach arm holds
-# the camera over it). A real cell passes its own.
+# nearer and further. The Cobotta's board lies at 0.24 m, beyond the 0.21 m at which that
+# 342 mm-reach arm can still hold its camera 0.39 m up, so its search looks from 0.20 m (its
+# third point, 0.22 m, is out of reach and skipped). The height fits the whole board into the
+# camera's field of view with a margin (0.44 m of board and frame in the 54-degree vertical
+# field from 0.62 m; the Cobotta's 0.28 m board from 0.38 m). A real cell passes its own.
 ARM_OPTIONS = {
     # The Panda's search poses are the controller's defaults. Its wrist camera sits further
     # off the tool axis than the others': 0.2 m over a piece, the point under the cup is seen
@@ -557,11 +558,32 @@ def move_to_view(robot, base_T_flange, speed: float = 0.25) -> None:
     turn = np.arctan2(target[1, 3], target[0, 3]) - np.arctan2(here[1], here[0])
     seed = q0.copy()
     seed[0] += (turn + np.pi) % (2 * np.pi) - np.pi
-    q1 = robot.solve_ik(target, seed)
+    move_joints_in_steps(robot, robot.solve_ik(target, seed))
+
+
+def move_joints_in_steps(robot, q) -> None:
+    """Joint-interpolated move to the joint angles ``q`` (rad), cut into moves within
+    ``robot.safety.max_joint_step`` and at most 0.5 rad/s (or the safety limit if lower)."""
+    q0 = np.asarray(robot.joint_positions(), dtype=float)
+    q1 = np.asarray(q, dtype=float)
     n = max(1, int(np.ceil(np.abs(q1 - q0).max() / (0.9 * robot.safety.max_joint_step))))
     joint_speed = min(0.5, robot.safety.max_joint_speed)
     for s in np.linspace(0.0, 1.0, n + 1)[1:]:
         robot.move_joints(q0 + s * (q1 - q0), speed=joint_speed)
+
+
+def aside_joints(robot) -> np.ndarray:
+    """The robot's current joint angles (rad) with joint 0, the vertical base axis on every
+    supported arm, turned a quarter turn (+90 deg, or -90 deg when that leaves the joint's
+    limits): the arm swung to the side of the work area, out of a fixed camera's view of it.
+    Checked in the simulator's chess cell on the Panda, UR10e, Aubo-i5 and Cobotta."""
+    q = np.asarray(robot.joint_positions(), dtype=float).copy()
+    low, high = np.asarray(robot.joint_limits(), dtype=float)[0]
+    q[0] += np.pi / 2 if q[0] + np.pi / 2 <= high else -np.pi / 2
+    if not low <= q[0] <= high:
+        raise ValueError(f"joint 0 cannot turn a quarter turn either way from {q[0]:.2f} rad "
+                         "within its limits; give park_joints explicitly")
+    return q
 
 
 @dataclass
@@ -615,26 +637,48 @@ def measure_piece_top(frame, intrinsics, predicted_uv, min_height_m: float = 0.0
     the top's area in normalised units (pixels^2 / (fx fy)); raises TargetLostError when no
     piece is within ``search_px`` of the prediction.
     """
+    from robots.perception import project
+
+    tops = _piece_tops(frame, intrinsics, min_height_m)
+    if not tops:
+        raise TargetLostError("no piece stands on the board in view")
+    d = [np.linalg.norm(centroid - np.asarray(predicted_uv, float)) for _, _, centroid in tops]
+    k = int(np.argmin(d))
+    if d[k] > search_px:
+        raise TargetLostError(f"no piece within {search_px:.0f} px of where it was expected")
+    top_cam, pixels, _ = tops[k]
+    return top_cam, project(top_cam, intrinsics)[0], pixels / (intrinsics.fx * intrinsics.fy)
+
+
+def _piece_tops(frame, intrinsics, min_height_m: float = 0.008):
+    """Every piece standing on the board in a close-up RGB-D frame: a list of (top point in
+    the camera frame (3,) m, pixel count of the top, centroid (2,) px of the whole blob).
+    The top is the blob's highest 6 mm."""
     import cv2
 
-    from robots.perception import point_cloud, project
+    from robots.perception import point_cloud
 
     cloud = point_cloud(frame.depth, intrinsics)
     h = _plane_heights(cloud)
     mask = (np.nan_to_num(h, nan=-1) > min_height_m).astype(np.uint8)
     count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if count < 2:
-        raise TargetLostError("no piece stands on the board in view")
-    d = np.linalg.norm(centroids[1:] - np.asarray(predicted_uv, float), axis=1)
-    d[stats[1:, cv2.CC_STAT_AREA] < 10] = np.inf
-    k = int(np.argmin(d))
-    if not np.isfinite(d[k]) or d[k] > search_px:
-        raise TargetLostError(f"no piece within {search_px:.0f} px of where it was expected")
-    blob = labels == k + 1
-    top = blob & (h > np.nanmax(h[blob]) - 0.006)
-    top_cam = cloud[top].mean(axis=0)
-    area = float(top.sum()) / (intrinsics.fx * intrinsics.fy)
-    return top_cam, project(top_cam, intrinsics)[0], area
+    tops = []
+    for k in range(1, count):
+        if stats[k, cv2.CC_STAT_AREA] < 10:
+            continue
+        blob = labels == k
+        top = blob & (h > np.nanmax(h[blob]) - 0.006)
+        tops.append((cloud[top].mean(axis=0), int(top.sum()), centroids[k]))
+    return tops
+
+
+def nearest_pieces_m(frame, intrinsics, point_cam, min_height_m: float = 0.008):
+    """Distances (m, sorted, across the camera's optical axis) from ``point_cam`` (3,), a
+    piece top expected in the camera frame, to the tops of the pieces seen in a close-up
+    RGB-D frame: how clearly the expectation singles one piece out."""
+    tops = _piece_tops(frame, intrinsics, min_height_m)
+    point = np.asarray(point_cam, float)
+    return np.sort([float(np.linalg.norm(top[:2] - point[:2])) for top, _, _ in tops])
 
 
 class StagedPickAndPlace:
@@ -655,6 +699,10 @@ class StagedPickAndPlace:
     position-based on the fixed camera (the board and the piece found in its image, mapped to
     the base, the wrist moved over the piece) and only the precise alignment uses the wrist
     camera; without them, the wrist camera also searches from ``search_xy``.
+    ``park_joints``: where the arm waits (joint angles, rad) while the fixed camera looks, so
+    that it hides neither board nor pieces; by default :func:`aside_joints`, the arm swung a
+    quarter turn about its base axis. (At its home pose the Aubo-i5 holds its wrist over ranks
+    1-3, in the fixed camera's line of sight.)
     Every stage has an iteration budget; ``log`` records each transition.
     """
 
@@ -662,7 +710,8 @@ class StagedPickAndPlace:
                  overview_height_m: float = 0.63, search_xy=((0.48, 0.0), (0.4, 0.0), (0.56, 0.0)),
                  hover_m: float = 0.2, gain: float = 2.5, dt: float = 0.2,
                  tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None,
-                 view_yaw_rad: float = 0.0, overview_camera=None, base_T_overview_cam=None):
+                 view_yaw_rad: float = 0.0, overview_camera=None, base_T_overview_cam=None,
+                 park_joints=None):
         if method not in ("open_loop", "pbvs", "ibvs"):
             raise ValueError(f"method must be 'open_loop', 'pbvs' or 'ibvs', got {method!r}")
         self.cell, self.robot, self.camera = cell, cell.robot, cell.camera
@@ -684,6 +733,7 @@ class StagedPickAndPlace:
         self.overview_camera = overview_camera
         self.base_T_overview_cam = (None if base_T_overview_cam is None
                                     else as_pose(base_T_overview_cam, "base_T_overview_cam"))
+        self.park_joints = park_joints
 
     # ----- bookkeeping
 
@@ -722,16 +772,22 @@ class StagedPickAndPlace:
             p.square: (p, transform_points(base_T_cam, p.top_cam[None])[0]) for p in pieces}
 
     def search(self):
-        """Find the board: in the fixed overview camera's image when there is one, else by
-        looking down from the wrist camera's overview poses until it is found. Returns
-        (base_T_chess, pieces) with the pieces' tops in the base frame."""
+        """Find the board: in the fixed overview camera's image when there is one (the arm
+        parked out of its view first), else by looking down from the wrist camera's overview
+        poses until it is found. Returns (base_T_chess, pieces) with the pieces' tops in the
+        base frame."""
         if self.overview_camera is not None:
+            park = aside_joints(self.robot) if self.park_joints is None else self.park_joints
+            move_joints_in_steps(self.robot, park)
             cam = self.overview_camera
             found = self._board_and_pieces(cam.capture(), cam.intrinsics, self.base_T_overview_cam)
             if found is None:
                 raise TargetLostError("the fixed overview camera sees no chess board; check "
                                       "that nothing hides it and that it is the calibrated one")
             return found
+        return self._wrist_search()
+
+    def _wrist_search(self):
         intr = self.camera.intrinsics
         for x, y in self.search_xy:
             base_T_cam = overview_base_T_cam(x, y, self.overview_height_m, self.view_yaw_rad)
@@ -784,6 +840,18 @@ class StagedPickAndPlace:
         self._stage_iterations = result.iterations
         self.servo_time += result.time_s
 
+    def _singles_out(self, top_base) -> bool:
+        """Seen from the hover pose over ``top_base`` (a piece top in the base frame, from the
+        fixed camera), is one piece clearly the one meant? Pieces stand a square apart, so
+        when the next piece is at least half a square further from the expected top than the
+        nearest, the nearest is the piece unless the expectation is off by 3/4 of a square;
+        when it is not, the expectation may be off by half a square (a 2 deg calibration
+        error of a camera 0.7 m away) and the neighbour may be the piece meant."""
+        move_to_view(self.robot, self._tcp_down_at(top_base, self.hover_m), 0.25)
+        expected = transform_points(invert(self._base_T_cam()), [top_base])[0]
+        d = nearest_pieces_m(self.camera.capture(), self.camera.intrinsics, expected)
+        return len(d) > 0 and (len(d) == 1 or d[1] - d[0] >= self.square_m / 2)
+
     def _descend_and_grasp(self, top_above_m: float) -> bool:
         """Straight down to 12 mm over the expected contact, then a guarded descent: 2 mm
         steps down the tool axis, trying the vacuum at each, at most 24 mm further."""
@@ -813,6 +881,15 @@ class StagedPickAndPlace:
         self._enter("approach", f"board found, {piece.colour} {piece.kind} on {from_square}")
         source = "fixed camera" if self.overview_camera is not None else "wrist overview"
         self._enter("coarse", f"moving over the piece (position from the {source})")
+        if self.overview_camera is not None and not self._singles_out(top_base):
+            self._enter("search", f"the fixed camera's {from_square} is as near another piece: "
+                                  "looking again with the wrist camera")
+            base_T_chess, pieces = self._wrist_search()
+            if from_square not in pieces:
+                raise ValueError(f"no piece found on {from_square} by the wrist camera; "
+                                 f"pieces seen: {sorted(pieces)}")
+            piece, top_base = pieces[from_square]
+            self._enter("coarse", "moving over the piece (position from the wrist overview)")
         intr = self.camera.intrinsics
         self._servo_over(top_base, self.hover_m,
                          lambda frame, uv: measure_piece_top(frame, intr, uv))

@@ -84,6 +84,67 @@ def test_fixed_overview_camera_does_the_search_and_the_coarse_stage(method, seed
         assert "e2" not in after and after["e4"].body_id == before["e2"].body_id
 
 
+@pytest.mark.parametrize("fixed_camera_error_deg, looks_again", [(0.0, False), (2.5, True)])
+def test_a_fixed_camera_estimate_half_a_square_off_is_checked_by_the_wrist_camera(
+        fixed_camera_error_deg, looks_again):
+    """Turning the fixed camera's calibration 2.5 deg about its image y axis moves its
+    estimate of e2 35 mm towards d2, more than half a 50 mm square: the nearest pawn seen
+    from the hover pose is d2's, and without a second look d2 is moved (checked by hand from
+    2.3 deg). The controller notices that two pawns are about as near, looks again with the
+    wrist camera, and moves the right pawn. With the exact calibration it trusts the fixed
+    camera and does not look again."""
+    with create_workcell(arm="panda", scene="chess", seed=0, width=320, height=240,
+                         overview_camera=True) as cell:
+        truth = cell.truth
+        before = truth.pieces
+        error = pose_from_rotvec([0.0, -np.radians(fixed_camera_error_deg), 0.0], [0, 0, 0])
+        result = S.pick_and_place(cell, "e2", "e4", method="pbvs",
+                                  flange_T_cam=truth.flange_T_cam,
+                                  base_T_overview_cam=truth.base_T_overview_cam @ error)
+        searches = [e for e in result.log if e.stage == "search"]
+        assert len(searches) == (2 if looks_again else 1)
+        if looks_again:
+            assert "looking again with the wrist camera" in searches[1].reason
+        after = truth.pieces
+        assert "e2" not in after and after["e4"].body_id == before["e2"].body_id
+        assert set(after) == set(before) - {"e2"} | {"e4"}
+
+
+@pytest.mark.parametrize("arm", ["aubo_i5", "cobotta"])
+def test_the_arm_parks_out_of_the_fixed_cameras_view_before_it_looks(arm):
+    """At its home pose the Aubo-i5 holds its wrist over ranks 1-3, between the fixed camera
+    and the board; the controller swings it aside (joint 0 a quarter turn) first."""
+    with create_workcell(arm=arm, scene="chess", seed=2, width=320, height=240,
+                         overview_camera=True) as cell:
+        home = cell.robot.joint_positions()
+        parked = S.aside_joints(cell.robot)
+        assert abs(abs(parked[0] - home[0]) - np.pi / 2) < 1e-9
+        np.testing.assert_array_equal(parked[1:], home[1:])
+        before = cell.truth.pieces
+        result = S.pick_and_place(cell, "e2", "e4", method="ibvs",
+                                  flange_T_cam=cell.truth.flange_T_cam)
+        assert "fixed camera" in next(e for e in result.log if e.stage == "coarse").reason
+        after = cell.truth.pieces
+        assert "e2" not in after and after["e4"].body_id == before["e2"].body_id
+
+
+def test_aside_joints_turns_the_other_way_at_the_limit_and_refuses_when_it_cannot():
+    class Arm:  # only what aside_joints reads
+        def __init__(self, q0, limit):
+            self.q0, self.limit = q0, limit
+
+        def joint_positions(self):
+            return np.array([self.q0, 0.3, -0.2])
+
+        def joint_limits(self):
+            return np.array([[-self.limit, self.limit]] * 3)
+
+    np.testing.assert_allclose(S.aside_joints(Arm(2.0, 2.9)), [2.0 - np.pi / 2, 0.3, -0.2])
+    np.testing.assert_allclose(S.aside_joints(Arm(-2.0, 2.9)), [-2.0 + np.pi / 2, 0.3, -0.2])
+    with pytest.raises(ValueError, match="give park_joints"):
+        S.aside_joints(Arm(0.0, 1.0))
+
+
 def test_overview_camera_needs_the_chess_scene_and_a_wrist_camera():
     with pytest.raises(ValueError, match="overview_camera=True needs scene='chess'"):
         create_workcell(arm="panda", scene="calibration", overview_camera=True)
