@@ -703,6 +703,9 @@ class StagedPickAndPlace:
     that it hides neither board nor pieces; by default :func:`aside_joints`, the arm swung a
     quarter turn about its base axis. (At its home pose the Aubo-i5 holds its wrist over ranks
     1-3, in the fixed camera's line of sight.)
+    ``check_tool_axis`` (pbvs, ibvs): before the descent, raise the flange along its axis and
+    back, and correct the descent by the tool-axis tilt the camera sees
+    (:meth:`_tool_axis_offset`); False descends along the calibration's axis.
     Every stage has an iteration budget; ``log`` records each transition.
     """
 
@@ -711,7 +714,7 @@ class StagedPickAndPlace:
                  hover_m: float = 0.2, gain: float = 2.5, dt: float = 0.2,
                  tolerance_m: float = 5e-4, max_iterations: int = 40, on_stage=None,
                  view_yaw_rad: float = 0.0, overview_camera=None, base_T_overview_cam=None,
-                 park_joints=None):
+                 park_joints=None, check_tool_axis: bool = True):
         if method not in ("open_loop", "pbvs", "ibvs"):
             raise ValueError(f"method must be 'open_loop', 'pbvs' or 'ibvs', got {method!r}")
         self.cell, self.robot, self.camera = cell, cell.robot, cell.camera
@@ -734,6 +737,7 @@ class StagedPickAndPlace:
         self.base_T_overview_cam = (None if base_T_overview_cam is None
                                     else as_pose(base_T_overview_cam, "base_T_overview_cam"))
         self.park_joints = park_joints
+        self.check_tool_axis = bool(check_tool_axis)
 
     # ----- bookkeeping
 
@@ -852,12 +856,56 @@ class StagedPickAndPlace:
         d = nearest_pieces_m(self.camera.capture(), self.camera.intrinsics, expected)
         return len(d) > 0 and (len(d) == 1 or d[1] - d[0] >= self.square_m / 2)
 
-    def _descend_and_grasp(self, top_above_m: float) -> bool:
-        """Straight down to 12 mm over the expected contact, then a guarded descent: 2 mm
-        steps down the tool axis, trying the vacuum at each, at most 24 mm further."""
+    def _tool_axis_offset(self, rise_m: float = 0.08):
+        """The piece top's offset (3,) m, in the flange frame, from the tool axis as the wrist
+        camera sees it, measured by raising the flange ``rise_m`` along its axis and back.
+
+        After the precise stage the piece sits where the calibration says the tool axis
+        passes, but a calibration rotated by theta tilts that axis by theta: at 0.3 m from the
+        camera 2 deg is 10 mm. The rise shows the true axis: a fixed point moves in the camera
+        frame by ``rise_m`` along the flange's +z expressed in the camera frame, u. The axis
+        then runs along u through the flange origin (still taken from the calibration: its
+        translation error, and its rotation error times the camera's offset from the flange,
+        stay). Returns (offset, tilt between u and the calibration's axis in degrees), or
+        (None, reason) when the rise is impossible or the measurement is not a unit vector.
+        """
+        from robots.perception import project
+
+        intr = self.camera.intrinsics
+        flange_T_cam = self.flange_T_cam
+        cam_T_flange = invert(flange_T_cam)
+        flange_T_tcp = self.robot.tool.flange_T_tcp
+        on_axis = transform_points(cam_T_flange, [[*flange_T_tcp[:2, 3], 0.0]])[0]
+        # Where the precise stage left the piece: the TCP hover_m over it, per the calibration.
+        expected = transform_points(cam_T_flange @ flange_T_tcp, [[0, 0, self.hover_m]])[0]
+        low, _, _ = measure_piece_top(self.camera.capture(), intr, project(expected, intr)[0])
+        here = self.robot.flange_pose()
+        try:
+            self.robot.move_to(compose(here, make_pose(t=[0, 0, -rise_m])), speed=0.1)
+        except (RuntimeError, ValueError) as err:
+            return None, f"no room to rise {rise_m * 100:.0f} cm ({err})"
+        # Predicted with the calibration's axis: the image of a piece off the camera's axis
+        # moves a neighbour's distance over such a rise, so "near the last pixel" would do.
+        high, _, _ = measure_piece_top(self.camera.capture(), intr,
+                                       project(low + rise_m * cam_T_flange[:3, 2], intr)[0])
+        self.robot.move_to(here, speed=0.1)
+        u = (high - low) / rise_m
+        if abs(np.linalg.norm(u) - 1.0) > 0.05:
+            return None, f"the rise measured {np.linalg.norm(u):.2f} of its length"
+        u /= np.linalg.norm(u)
+        v = low - on_axis
+        offset_cam = v - (v @ u) * u
+        tilt = np.degrees(np.arccos(np.clip(u @ cam_T_flange[:3, 2], -1.0, 1.0)))
+        return flange_T_cam[:3, :3] @ offset_cam, tilt
+
+    def _descend_and_grasp(self, top_above_m: float, offset=None) -> bool:
+        """Straight down to 12 mm over the expected contact (shifted by ``offset`` (3,) m in
+        the flange frame, its z ignored), then a guarded descent: 2 mm steps down the tool
+        axis, trying the vacuum at each, at most 24 mm further."""
         tool = self.robot.tool
         fast = top_above_m - 0.012
-        self.robot.move_to(compose(self.robot.flange_pose(), make_pose(t=[0, 0, fast])),
+        dx, dy = (0.0, 0.0) if offset is None else offset[:2]
+        self.robot.move_to(compose(self.robot.flange_pose(), make_pose(t=[dx, dy, fast])),
                            speed=0.1)  # flange z is the tool axis
         for _ in range(12):
             if tool.grasp():
@@ -893,8 +941,16 @@ class StagedPickAndPlace:
         intr = self.camera.intrinsics
         self._servo_over(top_base, self.hover_m,
                          lambda frame, uv: measure_piece_top(frame, intr, uv))
-        self._enter("grasp", "aligned over the piece")
-        grasped = self._descend_and_grasp(self.hover_m)
+        offset, reason = None, "aligned over the piece"
+        if self.method != "open_loop" and self.check_tool_axis:
+            offset, tilt = self._tool_axis_offset()
+            if offset is None:
+                reason += f"; tool axis not checked: {tilt}"
+            else:
+                reason += (f"; the tool axis seen {tilt:.1f} deg off the calibration's, "
+                           f"{np.linalg.norm(offset[:2]) * 1e3:.1f} mm shift")
+        self._enter("grasp", reason)
+        grasped = self._descend_and_grasp(self.hover_m, offset)
         if not grasped:
             self.robot.stop()
             raise ServoError(f"the suction cup found nothing to hold over {from_square}")
