@@ -499,6 +499,9 @@ STAGES = ("search", "approach", "coarse", "precise", "grasp", "lift", "place", "
 # two heights, is not quite the same point), and acting on that alone moved the grasp about
 # 1 mm off a piece it would have hit within 0.8 mm.
 TOOL_AXIS_RESOLUTION_DEG = 0.5
+# A larger tilt is taken for a measurement of the wrong point (a neighbour's top), not used:
+# a calibration this far off needs redoing, not a correction at the last moment.
+TOOL_AXIS_MAX_TILT_DEG = 5.0
 DOWN = np.diag([1.0, -1.0, -1.0])  # a tool frame whose z axis points straight down
 
 # Per-arm options of the staged controller in the simulator's chess cell: where each arm's
@@ -872,7 +875,8 @@ class StagedPickAndPlace:
         then runs along u through the flange origin (still taken from the calibration: its
         translation error, and its rotation error times the camera's offset from the flange,
         stay). Returns (offset, tilt between u and the calibration's axis in degrees), or
-        (None, reason) when the rise is impossible or the measurement is not a unit vector.
+        (None, reason) when the rise is impossible, the piece is not found again, or the
+        measurement is not a unit vector or tilts more than ``TOOL_AXIS_MAX_TILT_DEG``.
         """
         from robots.perception import project
 
@@ -892,16 +896,26 @@ class StagedPickAndPlace:
         # Predicted along the calibration's axis: over such a rise the image of a piece off
         # the camera's axis moves about a square, so the pixel where it was last seen may lie
         # nearer a neighbour.
-        high, _, _ = measure_piece_top(self.camera.capture(), intr,
-                                       project(low + rise_m * cam_T_flange[:3, 2], intr)[0])
+        try:
+            high, _, _ = measure_piece_top(self.camera.capture(), intr,
+                                           project(low + rise_m * cam_T_flange[:3, 2], intr)[0])
+        except TargetLostError:
+            # From higher up a tall piece's silhouette can merge with its neighbours' (the
+            # back rank) into one blob whose centre lies elsewhere.
+            high = None
         self.robot.move_to(here, speed=0.1)
+        if high is None:
+            return None, f"the piece was not found again {rise_m * 100:.0f} cm higher"
         u = (high - low) / rise_m
         if abs(np.linalg.norm(u) - 1.0) > 0.05:
             return None, f"the rise measured {np.linalg.norm(u):.2f} of its length"
         u /= np.linalg.norm(u)
+        tilt = np.degrees(np.arccos(np.clip(u @ cam_T_flange[:3, 2], -1.0, 1.0)))
+        if tilt > TOOL_AXIS_MAX_TILT_DEG:
+            return None, (f"a {tilt:.1f} deg tilt is more than a calibration error; another "
+                          "piece's top was measured")
         v = low - on_axis
         offset_cam = v - (v @ u) * u
-        tilt = np.degrees(np.arccos(np.clip(u @ cam_T_flange[:3, 2], -1.0, 1.0)))
         return flange_T_cam[:3, :3] @ offset_cam, tilt
 
     def _descend_and_grasp(self, top_above_m: float, offset=None) -> bool:
