@@ -50,6 +50,7 @@ __all__ = [
     "detect_chessboard",
     "detect_circle_grid",
     "fit_plane_ransac",
+    "heights_above_plane",
     "point_cloud",
     "project",
     "square_at",
@@ -564,29 +565,48 @@ def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
     return centre, normal, np.abs((pts - centre) @ normal) < threshold_m
 
 
+def heights_above_plane(cloud, sample_rng: np.random.Generator, fit_rng: np.random.Generator,
+                        threshold_m: float = 0.002, sample_size: int = 3000,
+                        iterations: int = 100):
+    """Height (H, W), metres, of each point of an organised camera cloud (H, W, 3) above the
+    cloud's dominant plane (a board or table seen from above), positive towards the camera,
+    NaN where there is no depth; and the fraction of the sampled points on that plane.
+
+    The plane is fitted with :func:`fit_plane_ransac` (``threshold_m``, ``iterations``) on
+    ``sample_size`` valid points drawn with ``sample_rng``; pass seeded generators (the same
+    one twice is fine) for repeatable results. Raises ValueError when fewer than 3 points have
+    depth or no plane can be fitted.
+    """
+    valid = np.all(np.isfinite(cloud), axis=2)
+    pts = cloud[valid]
+    if len(pts) < 3:
+        raise ValueError(f"a plane needs at least 3 points with depth, got {len(pts)}")
+    sample = pts[sample_rng.choice(len(pts), min(sample_size, len(pts)), replace=False)]
+    centre, normal, inliers = fit_plane_ransac(sample, threshold_m, fit_rng, iterations)
+    if normal @ centre > 0:
+        normal = -normal  # towards the camera, so heights above the plane are positive
+    height = np.full(cloud.shape[:2], np.nan)
+    height[valid] = (pts - centre) @ normal
+    return height, float(inliers.sum()) / len(sample)
+
+
 def _pieces_painted_out(gray, depth, intrinsics, min_height_m: float = 0.004,
                         threshold_m: float = 0.002):
     """``gray`` with everything standing more than ``min_height_m`` above the dominant plane
     of the depth image (the board) inpainted from its surroundings, or None when the depth
-    shows no plane (see ``fit_plane_ransac``; seeded, so deterministic)."""
+    shows no plane (see ``heights_above_plane``; seeded, so deterministic)."""
     cloud = point_cloud(depth, intrinsics)
-    valid = np.all(np.isfinite(cloud), axis=2)
-    pts = cloud[valid]
-    if len(pts) < 500:
+    if np.all(np.isfinite(cloud), axis=2).sum() < 500:
         return None
     rng = np.random.default_rng(0)
-    sample = pts[rng.choice(len(pts), min(3000, len(pts)), replace=False)]
     try:
-        centre, normal, inliers = fit_plane_ransac(sample, threshold_m, rng, iterations=100)
+        height, on_plane = heights_above_plane(cloud, rng, rng, threshold_m)
     except ValueError:
         return None
-    if inliers.sum() < 0.3 * len(sample):
+    if on_plane < 0.3:
         return None
-    if normal @ centre > 0:
-        normal = -normal  # towards the camera, so heights above the board are positive
-    height = np.full(gray.shape, -1.0)
-    height[valid] = (pts - centre) @ normal
-    mask = cv2.dilate((height > min_height_m).astype(np.uint8), np.ones((3, 3), np.uint8))
+    above = np.nan_to_num(height, nan=-1.0) > min_height_m
+    mask = cv2.dilate(above.astype(np.uint8), np.ones((3, 3), np.uint8))
     return cv2.inpaint(gray, mask, 3, cv2.INPAINT_TELEA)
 
 

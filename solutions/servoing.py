@@ -621,19 +621,11 @@ class PickPlaceResult:
 
 def _plane_heights(cloud):
     """Height (H, W) of each point above the dominant plane (the board) in a camera cloud."""
-    from robots.perception import fit_plane_ransac
+    from robots.perception import heights_above_plane
 
-    valid = np.all(np.isfinite(cloud), axis=2)
-    pts = cloud[valid]
-    if len(pts) < 100:
+    if np.all(np.isfinite(cloud), axis=2).sum() < 100:
         raise TargetLostError("the depth image is empty; nothing to servo on")
-    sub = pts[np.random.default_rng(0).choice(len(pts), min(3000, len(pts)), replace=False)]
-    c, n, _ = fit_plane_ransac(sub, 0.002, np.random.default_rng(1), iterations=100)
-    if n @ c > 0:
-        n = -n  # towards the camera
-    h = np.full(cloud.shape[:2], np.nan)
-    h[valid] = (pts - c) @ n
-    return h
+    return heights_above_plane(cloud, np.random.default_rng(0), np.random.default_rng(1))[0]
 
 
 def measure_piece_top(frame, intrinsics, predicted_uv, min_height_m: float = 0.008,
