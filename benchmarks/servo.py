@@ -41,19 +41,13 @@ from robots.geometry import (
     compose,
     invert,
     make_pose,
-    pose_from_rotvec,
     transform_points,
     translation_error,
 )
 from solutions import servoing as S
+from solutions.endpoint import perturbed_calibration
 
 CAL_ERRORS = [(0.0, 0.0), (2.0, 1.0), (5.0, 2.0)]
-
-
-def _pose_error(rng, mm, deg):
-    axis, direction = rng.normal(size=3), rng.normal(size=3)
-    return pose_from_rotvec(axis / np.linalg.norm(axis) * np.radians(deg),
-                            direction / np.linalg.norm(direction) * mm * 1e-3)
 
 
 def _row(name, ok, err_mm, its, time_s, n):
@@ -100,8 +94,7 @@ def convergence(trials: int) -> list[str]:
             with create_workcell(arm="panda", target="charuco", seed=seed,
                                  width=CONVERGENCE_SIZE[0], height=CONVERGENCE_SIZE[1]) as cell:
                 truth, board = cell.truth, cell.truth.board
-                w, h = board.size
-                centre = (invert(board.print_T_target) @ [w / 2, h / 2, 0, 1])[:3]
+                centre = board.centre
                 camd_T_board = compose(make_pose(t=[0, 0, 0.45]), make_pose(t=-centre))
                 base_T_camd = compose(truth.base_T_board, invert(camd_T_board))
                 start = S.offset_start(base_T_camd, transform_points(truth.base_T_board,
@@ -151,12 +144,12 @@ def pick_trials(arm: str, trials: int, overview: bool = False) -> list[str]:
                 with create_workcell(arm=arm, scene="chess", seed=seed, width=320,
                                      height=240, overview_camera=overview) as cell:
                     truth = cell.truth
-                    cal = truth.flange_T_cam @ _pose_error(np.random.default_rng(1000 + seed),
-                                                           mm, deg)
+                    cal = perturbed_calibration(truth.flange_T_cam, mm, deg,
+                                                np.random.default_rng(1000 + seed))
                     extra = {}
                     if overview:  # the fixed camera's calibration is off by as much
-                        extra["base_T_overview_cam"] = truth.base_T_overview_cam @ _pose_error(
-                            np.random.default_rng(5000 + seed), mm, deg)
+                        extra["base_T_overview_cam"] = perturbed_calibration(
+                            truth.base_T_overview_cam, mm, deg, np.random.default_rng(5000 + seed))
                     grasp_err = []
 
                     def on_stage(stage, ctl, truth=truth, grasp_err=grasp_err):

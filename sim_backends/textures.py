@@ -48,7 +48,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from robots.geometry import make_pose, transform_points
+from robots.geometry import invert, make_pose, transform_points
 
 __all__ = [
     "ARUCO_DICT",
@@ -101,6 +101,13 @@ class Target:
         h.update(np.asarray(self.size, float).tobytes())
         h.update(self.print_T_target.tobytes())
         return f"{self.kind}_{h.hexdigest()[:12]}"
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Centre (3,) of the printed image in the target frame, metres: where to aim a camera
+        or put a goal over the target."""
+        w, h = self.size
+        return (invert(self.print_T_target) @ np.array([w / 2, h / 2, 0.0, 1.0]))[:3]
 
 
 def cache_dir() -> Path:

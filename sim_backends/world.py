@@ -198,12 +198,6 @@ def _calibration_target(kind: str, reach: float) -> textures.Target:
     raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
 
 
-def _target_centre(target: textures.Target) -> np.ndarray:
-    """The printed image's centre in the target frame (where to aim a camera)."""
-    w, h = target.size
-    return (invert(target.print_T_target) @ np.array([w / 2, h / 2, 0.0, 1.0]))[:3]
-
-
 def _flange_face_height(arm, half_size) -> float:
     """How far (m) the arm's own geometry reaches beyond tool0 along flange +z over a
     rectangle of ``half_size = (hx, hy)`` metres around the flange axis (0 when tool0 is on
@@ -242,7 +236,7 @@ def _target_on_flange(mount: str, arm, reach: float) -> tuple[textures.Target, n
         return target, make_pose(t=[0.0, 0.0, gap])
     # Chessboard frame: z into the print, i.e. towards the flange.
     flange_T_centre = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, gap])
-    return target, compose(flange_T_centre, make_pose(t=-_target_centre(target)))
+    return target, compose(flange_T_centre, make_pose(t=-target.centre))
 
 
 def _look_at(eye, point, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -476,7 +470,7 @@ def _add_table_target(client, kind, reach, rng):
     if board.kind == "aruco":  # OpenCV's marker frame: centred, z out of the print
         world_T_board = compose(world_T_centre, make_pose(np.diag([1.0, -1.0, -1.0])))
     else:
-        world_T_board = compose(world_T_centre, make_pose(t=-_target_centre(board)))
+        world_T_board = compose(world_T_centre, make_pose(t=-board.centre))
     scn.add_target(client, board, world_T_board)
     return board, world_T_board
 
@@ -531,7 +525,7 @@ def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, fl
         # board's (z into the board), so the board reads upright in the image; high enough
         # for the whole printed board to fit the image width. Turned half round as a last
         # resort (some wrists cannot reach the upright view).
-        world_T_view = compose(world_T_board, make_pose(t=_target_centre(board)))
+        world_T_view = compose(world_T_board, make_pose(t=board.centre))
         if board.kind == "aruco":
             world_T_view = compose(world_T_view, make_pose(np.diag([1.0, -1.0, -1.0])))
         intr = intrinsics
@@ -549,7 +543,7 @@ def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, fl
         # the arm allows, for a large image of a small target), facing the camera with its
         # axes along the camera's (its z, into the print, along the optical axis).
         look = np.array([0.5 * reach, 0.0, 0.25 * reach])
-        centre = _target_centre(flange_target)
+        centre = flange_target.centre
         for f in (0.4, 0.3, 0.2, 0.1, 0.0):
             pos = look + f * (world_T_cam[:3, 3] - look)
             world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)

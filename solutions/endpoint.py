@@ -238,12 +238,6 @@ def reach_ecl(cell, base_T_cam, task: EndpointTask, gain: float = 2.5, dt: float
 # --------------------------------------------------------------------------- the simulator's task
 
 
-def _print_centre(target) -> np.ndarray:
-    """Centre (3,) of a printed target's image, in its target frame."""
-    w, h = target.size
-    return (invert(target.print_T_target) @ np.array([w / 2, h / 2, 0.0, 1.0]))[:3]
-
-
 def _printed_side(target) -> np.ndarray:
     """Unit normal (3,), target frame, pointing out of the printed face (towards a viewer).
 
@@ -330,11 +324,11 @@ def sim_task(cell, height_m: float = 0.2) -> EndpointTask:
         # Two patterns of one kind in view: the detector could lock on the wrong one.
         raise ValueError(f"the table target and the flange target are both {board.kind}s; "
                          "use target='charuco' or 'aruco' for the table")
-    marker_p_tool = _print_centre(marker)
+    marker_p_tool = marker.centre
     detect_target = detector_for(board, intr)
     return EndpointTask(
         detect_target=detect_target,
-        goal_in_target=_print_centre(board) + height_m * _printed_side(board),
+        goal_in_target=board.centre + height_m * _printed_side(board),
         flange_p_tool=transform_points(truth.flange_T_marker, [marker_p_tool])[0],
         detect_tool=_without_target(detector_for(marker, intr), detect_target, board, intr),
         marker_p_tool=marker_p_tool,

@@ -130,8 +130,7 @@ def test_bad_inputs_raise():
 def _charuco_cell(seed):
     cell = create_workcell(arm="panda", target="charuco", seed=seed, width=320, height=240)
     truth, board = cell.truth, cell.truth.board
-    w, h = board.size
-    centre = (invert(board.print_T_target) @ [w / 2, h / 2, 0, 1])[:3]
+    centre = board.centre
     camd_T_board = compose(make_pose(t=[0, 0, 0.45]), make_pose(t=-centre))
     base_T_camd = compose(truth.base_T_board, invert(camd_T_board))
     centre_base = transform_points(truth.base_T_board, [centre])[0]
