@@ -438,14 +438,11 @@ def _move_joints_to(robot, base_T_flange, steps: int = 4, speed: float = 0.5) ->
     the present joints with the base joint turned towards the target, so an arm that starts
     facing away (the UR10e, folded behind its base) keeps its elbow and wrist configuration
     instead of reaching over backwards."""
+    from solutions.servoing import ik_seed_facing
+
     q0 = robot.joint_positions()
-    here, there = robot.flange_pose()[:3, 3], base_T_flange[:3, 3]
-    seed = np.array(q0, dtype=float)
-    turn = (np.arctan2(there[1], there[0]) - np.arctan2(here[1], here[0]) + np.pi) % (2 * np.pi) \
-        - np.pi
-    if abs(turn) > 1e-3:  # already facing the target (the Panda): the plain IK as before
-        seed[0] += turn
-    q1 = robot.solve_ik(base_T_flange, seed)
+    # Already facing the target within 1 mrad (the Panda): the plain IK, seeded as it stands.
+    q1 = robot.solve_ik(base_T_flange, ik_seed_facing(robot, base_T_flange, min_turn_rad=1e-3))
     for s in np.linspace(0.0, 1.0, steps + 1)[1:]:
         robot.move_joints(q0 + s * (q1 - q0), speed=speed)
 

@@ -561,12 +561,21 @@ def move_to_view(robot, base_T_flange, speed: float = 0.25) -> None:
         if not hasattr(robot, "solve_ik"):
             raise
     target = as_pose(base_T_flange, "base_T_flange")
-    q0 = np.asarray(robot.joint_positions(), dtype=float)
-    here = robot.flange_pose()[:3, 3]
-    turn = np.arctan2(target[1, 3], target[0, 3]) - np.arctan2(here[1], here[0])
-    seed = q0.copy()
-    seed[0] += (turn + np.pi) % (2 * np.pi) - np.pi
-    move_joints_in_steps(robot, robot.solve_ik(target, seed))
+    move_joints_in_steps(robot, robot.solve_ik(target, ik_seed_facing(robot, target)))
+
+
+def ik_seed_facing(robot, base_T_flange, min_turn_rad: float = 0.0) -> np.ndarray:
+    """The robot's current joint angles (rad) with joint 0, the vertical base axis on every
+    supported arm, turned so the arm faces ``base_T_flange``'s position (about the base z
+    axis), when that turn exceeds ``min_turn_rad``: an IK seed that keeps the elbow and wrist
+    configuration instead of reaching over backwards."""
+    seed = np.asarray(robot.joint_positions(), dtype=float).copy()
+    here, there = robot.flange_pose()[:3, 3], np.asarray(base_T_flange, dtype=float)[:3, 3]
+    turn = (np.arctan2(there[1], there[0]) - np.arctan2(here[1], here[0]) + np.pi) \
+        % (2 * np.pi) - np.pi
+    if abs(turn) > min_turn_rad:
+        seed[0] += turn
+    return seed
 
 
 def move_joints_in_steps(robot, q) -> None:
