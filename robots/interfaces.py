@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robots.geometry import as_pose, invert
+from robots.safety import Safety, SafetyError
 
 __all__ = [
     "Intrinsics",
@@ -43,10 +44,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- errors
-
-
-class SafetyError(RuntimeError):
-    """A move was refused by the safety checks (or by the operator); nothing moved."""
 
 
 class UnreachableError(RuntimeError):
@@ -328,8 +325,6 @@ class Robot(ABC):
     settle_time_s: float = 0.5
 
     def __init__(self, name: str, safety=None, tool: Tool | None = None):
-        from robots.safety import Safety  # robots.safety imports this module
-
         self.name = str(name)
         self.safety = Safety() if safety is None else safety
         self.tool = tool

@@ -2,7 +2,7 @@
 
 ``Robot.move_to`` and ``Robot.move_joints`` call :meth:`Safety.check_cartesian_move` /
 :meth:`Safety.check_joint_move` before anything moves; a violation raises
-:class:`~robots.interfaces.SafetyError` naming the limit, the requested value and the fix.
+:class:`SafetyError` naming the limit, the requested value and the fix.
 Students meet the same errors in sim as on the real arm, so a lab that runs clean in sim does
 not surprise anyone in the lab room.
 
@@ -19,11 +19,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robots.geometry import as_pose, rotation_angle_deg
-from robots.interfaces import SafetyError
 
 __all__ = ["Safety", "SafetyError", "ask_on_terminal"]
 
 MODES = ("auto", "confirm")
+
+
+class SafetyError(RuntimeError):
+    """A move was refused by the safety checks (or by the operator); nothing moved.
+
+    Defined here, next to the checks that raise it, so that this module needs nothing from
+    ``robots.interfaces`` (which re-exports it): the dependency runs one way only.
+    """
 
 
 def ask_on_terminal(message: str) -> bool:

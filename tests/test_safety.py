@@ -177,3 +177,30 @@ def test_targets_inside_pass_and_outside_fail(x, y, z, dx, dz):
     outside = at(x, y, s.workspace_min[2] - 0.001 - abs(dz))
     with pytest.raises(SafetyError, match="floor"):
         s.check_cartesian_move(at(x, y, 0.1), outside, 0.2)
+
+
+
+def test_safety_and_interfaces_do_not_import_each_other():
+    # robots.interfaces uses Safety; if robots.safety imported robots.interfaces back (it once
+    # did, for SafetyError), the two modules would form an import circle that breaks as soon
+    # as either moves an import to the top of the file.
+    import robots.interfaces
+    import robots.safety
+
+    assert "robots.interfaces" not in _module_imports(robots.safety)
+    assert "robots.safety" in _module_imports(robots.interfaces)
+    assert robots.interfaces.SafetyError is robots.safety.SafetyError is SafetyError
+
+
+def _module_imports(module) -> set[str]:
+    """Every module name an ``import`` statement anywhere in ``module``'s source names."""
+    import ast
+    import inspect
+
+    names = set()
+    for node in ast.walk(ast.parse(inspect.getsource(module))):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+    return names
