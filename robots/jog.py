@@ -29,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import html
 import math
+import re
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -64,6 +65,7 @@ __all__ = [
     "jog_panel",
     "jog_step",
     "jog_target",
+    "in_panel_units",
     "run_jog_console",
 ]
 
@@ -209,6 +211,33 @@ def format_pose(robot) -> str:
 def _describe(axis: str, step: float, frame: str) -> str:
     amount = f"{math.degrees(step):+g} deg" if axis.startswith("r") else f"{step * 1000:+g} mm"
     return f"jog {axis} {amount} in the {frame} frame"
+
+
+# A length in metres, a speed in m/s or an angle in radians inside an error message ("z=0.4010 m",
+# "0.300 m/s", "+3.1000 rad"), unless the text already gives the angle in degrees beside it.
+_SI_QUANTITY = re.compile(
+    r"(?<![\w.])([+-]?\d+(?:\.\d+)?(?:e[+-]?\d+)?) (m/s|m|rad/s|rad)\b(?!\s*\(\s*[+-]?[\d.]+ deg)")
+
+
+def in_panel_units(message: str) -> str:
+    """``message`` with its metres and radians rewritten as mm and degrees, as the panel speaks.
+
+    Safety, IK and driver errors speak SI units (DESIGN.md), but a student who set the step to
+    5 mm should read "z=401.0 mm is beyond the workspace limit 400.0 mm", not "0.4010 m". Only
+    the numbers with a unit change; a radian value that already has its degrees beside it in
+    brackets, as Safety's joint messages do, stays as it is. Setting names such as
+    ``Safety.max_step`` keep their meaning (they are set in metres, which the text then says).
+    """
+    def convert(match: re.Match) -> str:
+        value, unit = float(match.group(1)), match.group(2)
+        if unit in ("m", "m/s"):
+            return f"{value * 1000:.1f} mm" + ("/s" if unit == "m/s" else "")
+        return f"{math.degrees(value):.2f} deg" + ("/s" if unit == "rad/s" else "")
+
+    converted = _SI_QUANTITY.sub(convert, message)
+    if converted != message and "Safety." in converted:
+        converted += " (Safety's limits themselves are set in metres and radians)"
+    return converted
 
 
 def _step_value(axis: str, sign: int, step_mm: float, step_deg: float) -> float:
@@ -360,10 +389,11 @@ def _console_move(robot, axis, step, frame, speed, read, write) -> int:
         with _confirm_each_move(robot.safety, ask):
             jog(robot, axis, step, frame, speed)
     except SafetyError as error:
-        write("not moved: you answered no." if declined else f"not moved (refused): {error}")
+        write("not moved: you answered no." if declined
+              else f"not moved (refused): {in_panel_units(str(error))}")
         return 0
     except UnreachableError as error:
-        write(f"not moved (unreachable): {error}")
+        write(f"not moved (unreachable): {in_panel_units(str(error))}")
         return 0
     write("moved.")
     write(format_pose(robot))
@@ -371,6 +401,30 @@ def _console_move(robot, axis, step, frame, speed, read, write) -> int:
 
 
 # --------------------------------------------------------------------------- notebook panel
+
+
+def start_refresh_timer(period_s: float, refresh: Callable[[], bool]) -> asyncio.Task | None:
+    """Call ``refresh()`` every ``period_s`` seconds on the running event loop until it
+    returns False; the task, or None when no loop is running (a plain script).
+
+    In Jupyter the kernel's loop runs between cells, so the callback never interrupts a move.
+    """
+    period_s = float(period_s)
+    if not (math.isfinite(period_s) and period_s > 0):
+        raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:
+        return None
+
+    async def every_period() -> None:
+        while True:
+            await asyncio.sleep(period_s)
+            if not refresh():
+                return
+
+    return loop.create_task(every_period())
+
 
 
 def _ipywidgets():
@@ -402,12 +456,19 @@ class JogPanel:
 
     The buttons call the methods :meth:`jog`, :meth:`stop`, :meth:`confirm` and
     :meth:`cancel`, which can also be called directly. Each jog goes through
-    ``robot.move_to`` and the Safety checks. With ``confirm_moves`` (default: when
-    ``robot.safety.mode`` is "confirm") a jog button only plans the move and shows it; the
-    Confirm button then moves, provided the robot has not moved since. Planning in the panel
-    replaces Safety's terminal prompt, which a widget callback cannot show (with
-    ``confirm_moves=False`` and a Safety in "confirm" mode, Safety's own ``confirm`` callable
-    asks, so give it one that works without a terminal).
+    ``robot.move_to`` and the Safety checks. In confirm mode a jog button only plans the move
+    and shows it; the Confirm button then moves, provided the robot has not moved since.
+    ``confirm_moves=None`` (the default) follows ``robot.safety.mode`` at every click, so
+    switching Safety to "confirm" after the panel is built takes effect at the next click;
+    True or False fixes it. Planning in the panel replaces Safety's terminal prompt, which a
+    widget callback cannot show: the kernel has no terminal to read (``input()`` there raises
+    EOFError or StdinNotImplementedError). With ``confirm_moves=False`` and a Safety in
+    "confirm" mode, Safety's own ``confirm`` callable asks, so give it one that works
+    without a terminal. Messages give lengths in mm and angles in degrees, as the sliders do
+    (see :func:`in_panel_units`).
+
+    ``on_move`` callables are called with no argument after every move the panel makes (a
+    3-D view redraws there, see ``robots.viewer``); one that fails is reported, not raised.
 
     STOP calls ``robot.stop()`` and drops a planned move. Moves block the notebook kernel, so
     a STOP click during a jog is handled when that (short) jog ends; the jog buttons are
@@ -429,9 +490,8 @@ class JogPanel:
         step_mm = _parse_size(str(step_mm), _MAX_STEP_MM, "mm", "step_mm")
         step_deg = _parse_size(str(step_deg), _MAX_STEP_DEG, "deg", "step_deg")
         self.speed = _check_speed(speed)
-        self.confirm_moves = (
-            self.robot.safety.mode == "confirm" if confirm_moves is None else bool(confirm_moves)
-        )
+        self._confirm_moves = None if confirm_moves is None else bool(confirm_moves)
+        self.on_move: list[Callable[[], None]] = []
         self.messages: list[str] = []
         self.pose_text = ""
         self._planned: _PlannedJog | None = None
@@ -473,19 +533,35 @@ class JogPanel:
             [self.axis_buttons[(a, s)] for row in (("x", "rx"), ("y", "ry"), ("z", "rz"))
              for a in row for s in (-1, 1)],
             layout=widgets.Layout(grid_template_columns="repeat(4, 75px)"))
-        controls = [self.stop_button]
-        if self.confirm_moves:
-            controls += [self.confirm_button, self.cancel_button]
         self.widget = widgets.VBox([
             widgets.HBox([self.step_mm, self.step_deg]),
             self.frame,
-            widgets.HBox([grid, widgets.VBox(controls)]),
+            widgets.HBox([grid, widgets.VBox(
+                [self.stop_button, self.confirm_button, self.cancel_button])]),
             self.readout,
             self.output,
         ])
+        self._show_confirm_controls()
         self.refresh()
         if refresh_s is not None:
             self.start_auto_refresh(refresh_s)
+
+    @property
+    def confirm_moves(self) -> bool:
+        """Whether a jog button plans a move for Confirm (True) or moves at once (False)."""
+        if self._confirm_moves is not None:
+            return self._confirm_moves
+        return self.robot.safety.mode == "confirm"
+
+    @confirm_moves.setter
+    def confirm_moves(self, value: bool | None) -> None:
+        self._confirm_moves = None if value is None else bool(value)
+        self._show_confirm_controls()
+
+    def _show_confirm_controls(self) -> None:
+        display = None if self.confirm_moves else "none"
+        for button in (self.confirm_button, self.cancel_button):
+            button.layout.display = display
 
     # ----- display
 
@@ -502,17 +578,18 @@ class JogPanel:
 
     def _report(self, error: Exception) -> None:
         """Show an error from a move in plain words; stop the robot if it was unexpected."""
+        text = in_panel_units(str(error))
         if isinstance(error, SafetyError):
-            self._say(f"Refused, nothing moved: {error}", "error")
+            self._say(f"Refused, nothing moved: {text}", "error")
         elif isinstance(error, UnreachableError):
-            self._say(f"Cannot reach that pose, nothing moved: {error}", "error")
+            self._say(f"Cannot reach that pose, nothing moved: {text}", "error")
         elif isinstance(error, RobotDisconnectedError):
-            self._say(f"Robot disconnected: {error}", "error")
+            self._say(f"Robot disconnected: {text}", "error")
         elif isinstance(error, ValueError):
-            self._say(f"Bad jog request: {error}", "error")
+            self._say(f"Bad jog request: {text}", "error")
         else:
             self._stop_quietly()
-            self._say(f"{type(error).__name__}: {error} (robot.stop() was called)", "error")
+            self._say(f"{type(error).__name__}: {text} (robot.stop() was called)", "error")
 
     def _stop_quietly(self) -> str | None:
         try:
@@ -561,7 +638,9 @@ class JogPanel:
             description = _describe(axis, step, frame)
             start = self.robot.flange_pose()
             target = jog_target(start, axis, step, frame, _tcp_offset(self.robot))
-            if self.confirm_moves:
+            confirming = self.confirm_moves  # read now: Safety's mode may have changed
+            self._show_confirm_controls()
+            if confirming:
                 # Check the limits now, so the operator is never asked about a refused move.
                 auto = replace(self.robot.safety, mode="auto", confirm=None)
                 auto.check_cartesian_move(start, target, self.speed, _tcp_offset(self.robot))
@@ -619,6 +698,11 @@ class JogPanel:
             self._set_busy(False)
             self.refresh()
         self._say(f"Moved: {description}.", "ok")
+        for callback in list(self.on_move):
+            try:
+                callback()
+            except Exception as error:  # the move itself succeeded; say what failed after it
+                self._say(f"Moved, but an on_move callback failed: {error}", "error")
 
     # ----- timer
 
@@ -633,27 +717,14 @@ class JogPanel:
         in Jupyter the kernel's loop is running. The timer stops by itself once the robot is
         disconnected.
         """
-        period_s = float(period_s)
-        if not (math.isfinite(period_s) and period_s > 0):
-            raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
         self.stop_auto_refresh()
-        try:
-            loop = asyncio.get_running_loop()
-        except RuntimeError:
-            return False
-        self._refresh_task = loop.create_task(self._refresh_forever(period_s))
-        return True
+        self._refresh_task = start_refresh_timer(period_s, self.refresh)
+        return self._refresh_task is not None
 
     def stop_auto_refresh(self) -> None:
         if self._refresh_task is not None:
             self._refresh_task.cancel()
             self._refresh_task = None
-
-    async def _refresh_forever(self, period_s: float) -> None:
-        while True:
-            await asyncio.sleep(period_s)
-            if not self.refresh():
-                return
 
     def close(self) -> None:
         """Stop the timer and close the widgets (the robot stays connected)."""

@@ -3,6 +3,7 @@
 import asyncio
 import importlib.util
 import math
+import re
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from robots.jog import (
     MAX_JOG_STEP_M,
     MAX_JOG_STEP_RAD,
     JogPanel,
+    in_panel_units,
     jog,
     jog_panel,
     jog_step,
@@ -427,3 +429,66 @@ def test_panel_timer_refreshes_the_readout_on_the_event_loop(cell):
         assert not panel.auto_refresh_running
 
     asyncio.run(scenario())
+
+
+@needs_ipywidgets
+def test_panel_follows_safety_switched_to_confirm_after_it_was_built(cell, monkeypatch):
+    """Issue 15: a widget callback has no terminal, so Safety's y/N prompt raised EOFError."""
+    import io
+    import sys
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # a kernel's stdin: input() hits EOF
+    robot = cell.robot
+    panel = JogPanel(cell, refresh_s=None)
+    assert not panel.confirm_moves and panel.confirm_button.layout.display == "none"
+    robot.safety.mode = "confirm"  # Safety's own confirm is the terminal prompt (None)
+    before = robot.flange_pose()
+
+    panel.axis_buttons[("x", -1)].click()
+    assert "EOFError" not in panel.output.value
+    np.testing.assert_array_equal(robot.flange_pose(), before)
+    assert "Planned: jog x -5 mm" in panel.output.value
+    assert panel.confirm_button.layout.display != "none" and not panel.confirm_button.disabled
+    panel.confirm_button.click()
+    moved = robot.flange_pose()
+    assert np.linalg.norm(moved[:3, 3] - (before[:3, 3] - [STEP_M, 0, 0])) < POS_TOL_M
+    assert robot.safety.mode == "confirm" and robot.safety.confirm is None
+
+    panel.jog("x", -1)
+    panel.cancel_button.click()
+    np.testing.assert_array_equal(robot.flange_pose(), moved)
+    assert "cancelled; nothing moved" in panel.output.value
+
+    robot.safety.mode = "auto"  # and back: the next click moves at once again
+    panel.jog("x", 1)
+    assert "Moved: jog x +5 mm" in panel.output.value
+    assert panel.confirm_button.layout.display == "none"
+
+
+@needs_ipywidgets
+def test_panel_refusals_speak_mm_and_degrees(cell):
+    robot = cell.robot
+    panel = JogPanel(cell, refresh_s=None)
+    z = robot.flange_pose()[2, 3]
+    robot.safety.workspace_max = np.array([1.0, 1.0, z + 0.001])
+    panel.jog("z", +1)
+    message = panel.output.value
+    assert f"z={(z + STEP_M) * 1000:.1f} mm" in message, message
+    assert f"workspace limit {(z + 0.001) * 1000:.1f} mm" in message, message
+    assert not re.search(r"\d m\b", message), message
+    assert "set in metres" in message  # the setting's own unit, for whoever widens it
+
+    robot.safety.workspace_max = np.array([1.0, 1.0, 1.3])
+    robot.safety.max_step = 0.004
+    panel.jog("y", 1)
+    assert "a single move of 5.0 mm exceeds Safety.max_step=4.0 mm" in panel.output.value
+
+
+def test_in_panel_units_converts_only_quantities_with_si_units():
+    assert in_panel_units("target flange x=0.4010 m is beyond 0.4000 m") == (
+        "target flange x=401.0 mm is beyond 400.0 mm")
+    assert in_panel_units("speed 0.300 m/s is too fast").startswith("speed 300.0 mm/s")
+    assert in_panel_units("turn 0.5 rad") == "turn 28.65 deg"
+    joint = "joint 0 target +3.1000 rad (+177.6 deg) is outside its limits"
+    assert in_panel_units(joint) == joint  # degrees already given beside it
+    assert in_panel_units("no units here: 5 mm, 2 deg, tool0") == "no units here: 5 mm, 2 deg, tool0"
