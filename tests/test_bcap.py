@@ -155,8 +155,8 @@ def test_connect_sequence_bytes_match_the_spec(server):
     client.service_start("")
     h_ctrl = client.controller_connect("", "CaoProv.DENSO.VRC", "localhost", "")
     h_robot = client.controller_get_robot(h_ctrl, "Arm", "")
-    client.robot_change(h_robot, "Tool0")
     client.robot_execute(h_robot, "TakeArm", [0, 0])
+    client.robot_change(h_robot, "Tool0")
     client.robot_execute(h_robot, "Motor", [1, 0])
     client.robot_execute(h_robot, "ExtSpeed", [50.0, 50.0, 50.0])
     client.robot_move(h_robot, 2, "@E P(200.0, 0.0, 150.0, 180.0, 0.0, 180.0, 5)",
@@ -176,8 +176,8 @@ def test_connect_sequence_bytes_match_the_spec(server):
         ("Controller_Connect", [spec_bstr(""), spec_bstr("CaoProv.DENSO.VRC"),
                                 spec_bstr("localhost"), spec_bstr("")]),
         ("Controller_GetRobot", [spec_i4(H_CTRL), spec_bstr("Arm"), spec_bstr("")]),
-        ("Robot_Change", [spec_i4(H_ROBOT), spec_bstr("Tool0")]),
         ("Robot_Execute", [spec_i4(H_ROBOT), spec_bstr("TakeArm"), spec_i4_array([0, 0])]),
+        ("Robot_Change", [spec_i4(H_ROBOT), spec_bstr("Tool0")]),
         ("Robot_Execute", [spec_i4(H_ROBOT), spec_bstr("Motor"), spec_i4_array([1, 0])]),
         ("Robot_Execute", [spec_i4(H_ROBOT), spec_bstr("ExtSpeed"),
                            spec_r8_array([50.0, 50.0, 50.0])]),
@@ -215,6 +215,42 @@ def test_interim_executing_replies_are_skipped(server):
     server.executing_notices = 3
     client = BCAPClient("127.0.0.1", server.port, timeout_s=1.0)
     assert client.controller_connect("", "CaoProv.DENSO.VRC", "localhost", "") == H_CTRL
+    client.close()
+
+
+def test_interim_executing_replies_extend_the_deadline(server):
+    # A long call answered by S_EXECUTING every 0.2 s for 0.8 s, with a 0.3 s reply limit: the
+    # controller is alive and working, so the call must wait for the final reply.
+    server.executing_notices, server.executing_interval_s = 4, 0.2
+    client = BCAPClient("127.0.0.1", server.port, timeout_s=0.3)
+    t0 = time.monotonic()
+    assert client.controller_connect("", "CaoProv.DENSO.VRC", "localhost", "") == H_CTRL
+    assert time.monotonic() - t0 >= 0.75
+    assert client.connected
+    client.close()
+
+
+def test_interim_replies_that_stop_still_time_out(server):
+    # Interim replies, then silence: the deadline restarts at the last one and then expires.
+    server.executing_notices, server.executing_interval_s = 2, 0.1
+    client = BCAPClient("127.0.0.1", server.port, timeout_s=0.3)
+    server.mute_after_notices = True
+    t0 = time.monotonic()
+    with pytest.raises(ConnectionTimeoutError, match="within 0.3 s"):
+        client.service_start("")
+    assert 0.4 < time.monotonic() - t0 < 2.0
+    assert not client.connected
+
+
+def test_robot_change_before_take_arm_is_refused_like_the_controller(server):
+    client = BCAPClient("127.0.0.1", server.port, timeout_s=1.0)
+    h_ctrl = client.controller_connect("", "CaoProv.DENSO.VRC", "localhost", "")
+    h_robot = client.controller_get_robot(h_ctrl, "Arm", "")
+    with pytest.raises(BCAPError, match="0x83500130"):
+        client.robot_change(h_robot, "Tool0")
+    client.robot_execute(h_robot, "TakeArm", [0, 0])
+    client.robot_change(h_robot, "Tool0")
+    assert server.tool == "Tool0"
     client.close()
 
 

@@ -1,5 +1,6 @@
 """The AUBO-i5 driver (robots/drivers/aubo.py) against a fake pyaubo_sdk with the same API."""
 
+import time
 from operator import attrgetter
 
 import numpy as np
@@ -93,6 +94,69 @@ def test_refused_move_raises_with_the_code():
             cell.robot.move_to(target, 0.05)
         with pytest.raises(aubo.AuboMotionError, match="code -1"):
             cell.robot.move_joints(cell.robot.joint_positions() + 0.01, 0.2)
+
+
+def test_positive_codes_are_refusals_raised_at_once_naming_the_cause():
+    # The controller answers moveLine/moveJoint with +1 (AUBO_BAD_STATE) while a safeguard
+    # stop is active: nothing is queued, so nothing may be reported as done.
+    with make_cell() as cell:
+        arm, robot = fake_arm(), cell.robot
+        arm.safety_mode = aubo_fake.SafetyModeType.SafeguardStop
+        q0 = robot.joint_positions()
+        target = robot.flange_pose() @ make_pose(t=[0.01, 0, 0])
+        for move in (lambda: robot.move_to(target, 0.05), lambda: robot.move_joints(q0 + 0.01, 0.2)):
+            started = time.monotonic()
+            with pytest.raises(aubo.AuboMotionError, match=r"code 1\).*SafeguardStop.*pendant"):
+                move()
+            assert time.monotonic() - started < 0.5  # at once, not after a wait
+        np.testing.assert_allclose(robot.joint_positions(), q0)
+        arm.safety_mode = aubo_fake.SafetyModeType.Normal
+        for code, words in ((2, "queue is full"), (3, "still running")):
+            arm.reject_code = code
+            with pytest.raises(aubo.AuboRefusedError, match=words) as refused:
+                robot.move_joints(q0 + 0.01, 0.2)
+            assert refused.value.code == code
+
+
+def test_pure_wrist_turn_is_sent_as_rotational_speed_and_timed_as_rotation():
+    # Under 1 mm of TCP travel the controller reads a and v as rad/s^2 and rad/s. A 1 rad turn
+    # at speed=0.1 must go at the driver's rotation rate and finish within its time limit.
+    with make_cell(motion_timeout_s=0.2) as cell:
+        arm, robot = fake_arm(), cell.robot
+        arm.time_scale = 20.0
+        start = robot.flange_pose()
+        offset = robot.tcp_offset()
+        turn = pose_from_rotvec([0, 0, 1.0])  # about the TCP's own axis: the TCP stays put
+        target = start @ offset @ turn @ np.linalg.inv(offset)
+        robot.move_to(target, 0.1)
+        _kind, _pose, a, v, _blend, _duration = arm.commands[-1]
+        plan = arm.last_plan
+        assert plan["rotational"] and v == pytest.approx(robot.max_rotation_speed)
+        assert a == pytest.approx(robot.rotation_acceleration)
+        np.testing.assert_allclose(robot.flange_pose(), target, atol=1e-9)
+
+
+def test_turn_with_a_short_translation_keeps_its_rate():
+    # 1.5 mm of travel (linear units) with a 1 rad turn: at 0.1 m/s the travel would take 15 ms
+    # and the wrist would whip round at the controller's limit; the driver slows the line down.
+    with make_cell() as cell:
+        arm, robot = fake_arm(), cell.robot
+        offset = robot.tcp_offset()
+        tcp_step = make_pose(t=[0.0015, 0, 0]) @ pose_from_rotvec([1.0, 0, 0])
+        target = robot.flange_pose() @ offset @ tcp_step @ np.linalg.inv(offset)
+        robot.move_to(target, 0.1)
+        plan = arm.last_plan
+        assert not plan["rotational"]
+        assert plan["rotation_rate"] <= 0.5 * 1.001  # the driver's default max_rotation_speed
+
+
+def test_plan_line_units_and_duration():
+    a, v, planned, rotational = aubo.plan_line(0.0, 1.0, 0.1, 0.5, 0.5, 1.0)
+    assert rotational and (a, v) == (1.0, 0.5) and planned == pytest.approx(1 / 0.5 + 0.5 / 1.0)
+    a, v, planned, rotational = aubo.plan_line(0.1, 0.0, 0.1, 0.5, 0.5, 1.0)
+    assert not rotational and (a, v) == (0.5, 0.1) and planned == pytest.approx(1.0 + 0.2)
+    _a, v, planned, _ = aubo.plan_line(0.01, 1.0, 0.1, 0.5, 0.5, 1.0)  # turn-bound
+    assert v == pytest.approx(0.005) and planned >= 2.0
 
 
 # --------------------------------------------------------------------------- connection

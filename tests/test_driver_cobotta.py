@@ -46,11 +46,32 @@ def test_connect_and_close_sequence(server):
         assert server.ext_speed == 50.0
         assert isinstance(cell.robot.tool, CobottaGripper)
     assert commands(server) == [
-        "Service_Start", "Controller_Connect", "Controller_GetRobot", "Robot_Change",
-        "TakeArm", "Motor", "ExtSpeed", "Robot_Halt", "Robot_Halt", "Motor", "GiveArm",
+        "Service_Start", "Controller_Connect", "Controller_GetRobot", "TakeArm",
+        "Robot_Change", "Motor", "ExtSpeed", "Robot_Halt", "Robot_Halt", "Motor", "GiveArm",
         "Robot_Release", "Controller_Disconnect", "Service_Stop",
     ]
     assert not server.motor_on and not server.arm_taken
+
+
+def test_take_arm_comes_before_robot_change_and_give_arm_at_the_end(server):
+    # DENSO's order: the controller refuses Robot_Change (and motion) before TakeArm.
+    with connect("cobotta", host="127.0.0.1", port=server.port, service_option="WDT=400") as cell:
+        sent = commands(server)
+        assert sent.index("TakeArm") < sent.index("Robot_Change") < sent.index("Motor")
+        assert server.tool == "Tool0" and server.service_options == ["WDT=400"]
+        cell.robot.move_to(cell.robot.flange_pose(), 0.05)
+    sent = commands(server)
+    assert sent[-4:] == ["GiveArm", "Robot_Release", "Controller_Disconnect", "Service_Stop"]
+    assert not server.arm_taken
+
+
+def test_call_with_interim_replies_outlasts_the_reply_limit(server):
+    # CurPos answered by S_EXECUTING every 0.25 s for 1 s while a 0.4 s reply limit holds: the
+    # controller is busy but alive, so the driver waits instead of dropping the link.
+    with connect("cobotta", host="127.0.0.1", port=server.port, timeout_s=0.4) as cell:
+        server.executing_notices, server.executing_interval_s = 4, 0.25
+        np.testing.assert_allclose(cell.robot.flange_pose()[:3, 3], [0.2, 0.0, 0.2])
+        server.executing_notices = 0
 
 
 def test_failed_connect_releases_what_was_opened(server):

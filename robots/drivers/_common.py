@@ -16,6 +16,7 @@ from robots.geometry import as_pose, pose_from_rpy, rpy_from_pose
 from robots.interfaces import RobotDisconnectedError
 
 __all__ = [
+    "ROTATION_LEVER_M",
     "ConnectionTimeoutError",
     "MotionTimeoutError",
     "as_reading",
@@ -40,6 +41,12 @@ class ConnectionTimeoutError(RobotDisconnectedError):
 TIME_LIMIT_FACTOR = 2.0
 TIME_LIMIT_MARGIN_S = 3.0
 
+# How rotation is weighed against translation when a move is planned or timed: a turn of
+# 1 rad counts as 0.1 m, the path of a point on the tool 10 cm from the flange axis. So
+# ``speed / ROTATION_LEVER_M`` (rad/s) is the turn rate that matches a linear speed (m/s).
+ROTATION_LEVER_M = 0.1
+MIN_PACE = 0.05  # see wait_for: the slowest speed scaling a time limit stretches for
+
 
 def motion_time_limit_s(
     distance: float, speed: float, factor: float = TIME_LIMIT_FACTOR,
@@ -59,19 +66,29 @@ def wait_for(
     stop: Callable[[], None],
     what: str,
     poll_s: float = 0.01,
+    pace: Callable[[], float] | None = None,
 ) -> None:
     """Poll ``done()`` until it returns True; after ``timeout_s`` call ``stop()`` and raise.
 
     Waiting in Python (rather than inside a blocking SDK call) is what lets Ctrl-C reach the
     driver mid-move: ``KeyboardInterrupt`` arrives between polls and ``Robot.move_to`` stops
     the arm. Raises :class:`MotionTimeoutError` naming ``what`` and the limit.
+
+    ``pace``: the controller's current speed scaling (1.0 = full programmed speed; the
+    pendant's speed slider). The limit then counts motion time, not wall time: a second at
+    40% scaling uses 0.4 s of it, so slowing the arm on the pendant stretches the limit to
+    match. Scaling is floored at ``MIN_PACE`` so a slider at 0% still times out, 20x later.
     """
-    deadline = time.monotonic() + timeout_s
+    used, last = 0.0, time.monotonic()
     while not done():
-        if time.monotonic() > deadline:
+        now = time.monotonic()
+        rate = 1.0 if pace is None else min(max(float(pace()), MIN_PACE), 1.0)
+        used, last = used + (now - last) * rate, now
+        if used > timeout_s:
             stop()
+            scaled = "" if pace is None else " of motion at the pendant's speed scaling"
             raise MotionTimeoutError(
-                f"{what} did not finish within {timeout_s:.1f} s; the robot was stopped. "
+                f"{what} did not finish within {timeout_s:.1f} s{scaled}; the robot was stopped. "
                 "Check the teach pendant for a protective stop or an error, that nothing "
                 "blocks the arm, and that the speed override on the pendant is not near 0%"
             )

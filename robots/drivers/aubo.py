@@ -13,11 +13,23 @@ Conventions of the SDK (from its API documentation) and how they are mapped here
   offset from ``RobotConfig.getTcpOffset()``, same 6-vector convention, in the flange frame), so
   ``move_to`` sends ``base_T_flange @ flange_T_tcp_offset``. The robot's TCP setting is read,
   never changed, so the pendant is left as it was.
-* ``moveLine``/``moveJoint`` only queue the motion and return at once (0 = accepted, > 0 a
-  warning, < 0 an error). ``MotionControl.getExecId()`` is the id of the command being executed
-  and -1 when idle; :meth:`AuboRobot._wait_arrival` waits for it to start and then to end, and
-  stops the robot (``stopLine`` / ``stopJoint``) and raises :class:`AuboTimeoutError` if it
-  takes longer than the planned duration plus ``motion_timeout_s``.
+* ``moveLine``/``moveJoint`` only queue the motion and return at once. They return 0 when
+  the motion was accepted; *every* other value is a refusal and nothing moves: negative codes
+  are errors (-1: the arm is not in Running mode, -4: the call timed out, -5: a bad argument)
+  and positive codes are refusals too (1 ``AUBO_BAD_STATE``: the safety mode is not Normal,
+  Reduced or Recovery, e.g. a protective or safeguard stop; 2 ``AUBO_QUEUE_FULL``: the
+  trajectory queue is full; 3 ``AUBO_BUSY``: the previous command is still running). The
+  driver raises :class:`AuboRefusedError` naming the cause and the fix at once.
+  ``MotionControl.getExecId()`` is the id of the command being executed and -1 when idle;
+  :meth:`AuboRobot._wait_arrival` waits for it to start and then to end, and stops the robot
+  (``stopLine`` / ``stopJoint``) and raises :class:`AuboTimeoutError` if it takes longer than
+  the planned duration plus ``motion_timeout_s``. A move that ends away from its target
+  raises :class:`AuboMotionError`, so nothing is reported as done that was not done.
+* Units of ``moveLine(pose, a, v, ...)``: ``a`` in m/s^2 and ``v`` in m/s, **except** when
+  the TCP moves less than 1 mm while turning more than 1e-4 rad: then the controller reads
+  ``a`` and ``v`` as rad/s^2 and rad/s. :func:`plan_line` chooses the units the controller
+  will apply, limits the turn to ``max_rotation_speed`` (rad/s) in every case, and times the
+  move from whichever of translation and rotation takes longer.
 * The suction cup is a standard digital output: ``IoControl.setStandardDigitalOutput(pin, on)``.
 """
 
@@ -29,6 +41,7 @@ import time
 import numpy as np
 
 from robots.backends import BackendNotAvailableError
+from robots.drivers._common import ROTATION_LEVER_M
 from robots.geometry import (
     as_pose,
     pose_from_rpy,
@@ -41,11 +54,13 @@ from robots.interfaces import Robot, RobotDisconnectedError, SuctionCup, Workcel
 __all__ = [
     "AuboError",
     "AuboMotionError",
+    "AuboRefusedError",
     "AuboRobot",
     "AuboSuctionCup",
     "AuboTimeoutError",
     "aubo_from_pose",
     "create_workcell",
+    "plan_line",
     "pose_from_aubo",
 ]
 
@@ -64,6 +79,55 @@ class AuboTimeoutError(AuboMotionError, TimeoutError):
     """A move did not finish in time; the robot was stopped."""
 
 
+class AuboRefusedError(AuboMotionError):
+    """The controller refused to queue a move (``code`` is its return value); nothing moved."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
+# moveLine's rule (pyaubo-sdk's MotionControl documentation): below this TCP displacement,
+# with a turn above ROTATION_THRESHOLD_RAD, ``a`` and ``v`` are rotational (rad/s^2, rad/s).
+ROTATION_MODE_BELOW_M = 1e-3
+ROTATION_THRESHOLD_RAD = 1e-4
+
+# What a refusal code means and what to do about it (pyaubo-sdk's moveLine/moveJoint docs).
+_REFUSALS = {
+    1: ("the controller's safety mode is {mode}, not Normal",
+        "clear the stop on the teach pendant (release the emergency stop button, close the "
+        "safeguard or reset the protective stop), then move again"),
+    2: ("the controller's trajectory queue is full",
+        "call robot.stop() and wait until the arm stands still, then move again"),
+    3: ("the previous command is still running",
+        "wait for it to finish or call robot.stop(), then move again"),
+    -1: ("the arm is not in Running mode",
+         "power it on and release the brakes on the pendant (Startup), then move again"),
+    -4: ("the request timed out", "check the network link to the controller"),
+    -5: ("the target has the wrong length", "this is a driver bug; please report it"),
+}
+
+
+def plan_line(distance_m: float, angle_rad: float, speed: float, acceleration: float,
+              max_rotation_speed: float, rotation_acceleration: float):
+    """``(a, v, planned_s, rotational)`` for a ``moveLine`` of the TCP.
+
+    ``distance_m``: TCP displacement (m); ``angle_rad``: its turn (rad); ``speed`` (m/s) and
+    ``acceleration`` (m/s^2) as asked. The turn runs at ``min(max_rotation_speed, speed /
+    ROTATION_LEVER_M)`` rad/s at most. Below 1 mm of displacement (with a turn above 1e-4
+    rad) the controller reads a and v as rad/s^2 and rad/s, so they are sent that way
+    (``rotational`` True); otherwise the linear speed is lowered until the turn keeps to its
+    rate. ``planned_s`` is the cruise time plus one ramp (v / a).
+    """
+    omega = min(float(max_rotation_speed), speed / ROTATION_LEVER_M)
+    if distance_m < ROTATION_MODE_BELOW_M and angle_rad > ROTATION_THRESHOLD_RAD:
+        return rotation_acceleration, omega, angle_rad / omega + omega / rotation_acceleration, True
+    v = speed
+    if angle_rad > 0 and distance_m > 0 and angle_rad / omega > distance_m / speed:
+        v = distance_m * omega / angle_rad  # the turn sets the pace: slow the line to it
+    return acceleration, v, distance_m / v + v / acceleration, False
+
+
 def pose_from_aubo(pose6) -> np.ndarray:
     """(4, 4) pose from AUBO's ``[x, y, z, rx, ry, rz]`` (m, rad; R = Rz(rz) Ry(ry) Rx(rx))."""
     p = np.asarray(pose6, dtype=float).reshape(-1)
@@ -79,9 +143,9 @@ def aubo_from_pose(T) -> list[float]:
 
 
 def _check(rc, what: str) -> int:
-    """AUBO calls return 0 on success, > 0 for a warning and < 0 for an error."""
-    if rc is not None and int(rc) < 0:
-        raise AuboError(f"{what} failed with AUBO error code {int(rc)}")
+    """AUBO calls return 0 on success; any other code (negative or positive) is a failure."""
+    if rc is not None and int(rc) != 0:
+        raise AuboError(f"{what} failed with AUBO code {int(rc)}")
     return rc
 
 
@@ -130,22 +194,29 @@ class AuboRobot(Robot):
     """An AUBO-i5 (6 joints) over RPC. Build it with ``connect("aubo", host=...)``.
 
     ``acceleration`` (m/s^2) and ``joint_acceleration`` (rad/s^2) go with every move;
-    ``motion_timeout_s`` is added to the planned duration before a move counts as stuck;
-    ``poll_s`` is how often ``getExecId`` is asked.
+    ``max_rotation_speed`` (rad/s) and ``rotation_acceleration`` (rad/s^2) bound how fast the
+    TCP turns during a linear move (see :func:`plan_line`); ``motion_timeout_s`` is added to
+    the planned duration before a move counts as stuck; ``poll_s`` is how often ``getExecId``
+    is asked. A move that ends farther than ``position_tolerance_m`` /
+    ``orientation_tolerance_deg`` / ``joint_tolerance_rad`` from its target raises.
     """
 
     def __init__(self, client, robot_name: str, safety=None, tool=None,
                  acceleration: float = 0.5, joint_acceleration: float = 1.0,
+                 max_rotation_speed: float = 0.5, rotation_acceleration: float = 1.0,
                  motion_timeout_s: float = 10.0, poll_s: float = 0.02,
-                 position_tolerance_m: float = 0.001, orientation_tolerance_deg: float = 0.5):
+                 position_tolerance_m: float = 0.001, orientation_tolerance_deg: float = 0.5,
+                 joint_tolerance_rad: float = 0.005):
         super().__init__("aubo_i5", safety=safety, tool=tool)
         self._client = client
         self._iface = client.getRobotInterface(robot_name)
         self.robot_name = robot_name
         self.acceleration, self.joint_acceleration = acceleration, joint_acceleration
+        self.max_rotation_speed, self.rotation_acceleration = max_rotation_speed, rotation_acceleration
         self.motion_timeout_s, self.poll_s = motion_timeout_s, poll_s
         self.position_tolerance_m = position_tolerance_m
         self.orientation_tolerance_deg = orientation_tolerance_deg
+        self.joint_tolerance_rad = joint_tolerance_rad
 
     # ----- reading
 
@@ -201,20 +272,37 @@ class AuboRobot(Robot):
             time.sleep(self.poll_s)
             exec_id = motion.getExecId()
 
+    def _safety_mode(self) -> str:
+        """The controller's safety mode by name ("Normal", "SafeguardStop", ...), for messages."""
+        try:
+            mode = self._state().getSafetyModeType()
+        except Exception as error:  # only used to explain a refusal; never hide the refusal
+            return f"unknown (reading it failed: {error})"
+        return str(getattr(mode, "name", mode))
+
+    def _require_accepted(self, rc, command: str) -> None:
+        """Raise AuboRefusedError unless ``rc`` is 0; positive codes are refusals as well."""
+        code = int(rc)
+        if code == 0:
+            return
+        cause, fix = _REFUSALS.get(code, (f"the controller refused it with code {code}",
+                                           "read the error on the teach pendant"))
+        if code == 1:
+            cause = cause.format(mode=self._safety_mode())
+        raise AuboRefusedError(f"{command} was refused (AUBO code {code}): {cause}; {fix}. "
+                               "The arm did not move", code)
+
     def _move_to(self, base_T_flange: np.ndarray, speed: float) -> None:
         offset = self.tcp_offset()
         target_tcp = base_T_flange @ offset
-        start = self.flange_pose()
-        distance = float(np.linalg.norm(base_T_flange[:3, 3] - start[:3, 3]))
-        planned = distance / speed + speed / self.acceleration
-        rc = self._iface.getMotionControl().moveLine(
-            aubo_from_pose(target_tcp), self.acceleration, speed, 0.0, 0.0
-        )
-        if int(rc) < 0:
-            raise AuboMotionError(
-                f"moveLine was refused (AUBO code {int(rc)}): the robot may not be powered on "
-                "and released (pendant: Startup), or is in a protective stop"
-            )
+        start_tcp = self.flange_pose() @ offset  # moveLine's 1 mm rule is about the TCP
+        distance = translation_error(start_tcp, target_tcp)
+        angle = float(np.radians(rotation_error_deg(start_tcp, target_tcp)))
+        a, v, planned, _rotational = plan_line(
+            distance, angle, speed, self.acceleration, self.max_rotation_speed,
+            self.rotation_acceleration)
+        rc = self._iface.getMotionControl().moveLine(aubo_from_pose(target_tcp), a, v, 0.0, 0.0)
+        self._require_accepted(rc, "moveLine")
         self._wait_arrival(planned, "the linear move")
         reached = self.flange_pose()
         if (translation_error(reached, base_T_flange) > self.position_tolerance_m
@@ -231,9 +319,14 @@ class AuboRobot(Robot):
         rc = self._iface.getMotionControl().moveJoint(
             [float(v) for v in q], self.joint_acceleration, speed, 0.0, 0.0
         )
-        if int(rc) < 0:
-            raise AuboMotionError(f"moveJoint was refused (AUBO code {int(rc)})")
+        self._require_accepted(rc, "moveJoint")
         self._wait_arrival(planned, "the joint move")
+        off = float(np.abs(self.joint_positions() - q).max())
+        if off > self.joint_tolerance_rad:
+            raise AuboMotionError(
+                f"the joint move ended {np.degrees(off):.2f} deg from its target on one joint; "
+                "it was probably stopped (pendant, safety limit or collision detection)"
+            )
 
     def _close(self) -> None:
         client, self._iface, self._client = self._client, None, None

@@ -23,13 +23,16 @@ VARIANT 12, UI1 17 ... with 0x2000 added for an array), element count (uint32; 1
 scalar, also for EMPTY), then the data. A BSTR is its byte length (uint32) followed by UTF-16LE
 text; a BOOL is int16 (-1 true, 0 false); an array of VARIANTs holds its elements back to back
 *without* the per-argument length prefix. A reply with HRESULT S_EXECUTING (0x00000900) is an
-interim "still working" notice; the final reply with the same serial follows.
+interim "still working" notice; the final reply with the same serial follows. The controller
+sends these while a long call (a blocking move, a hand motion) is in progress.
 
 Function IDs used here: Service_Start 1, Service_Stop 2, Controller_Connect 3,
 Controller_Disconnect 4, Controller_GetRobot 7, Controller_Execute 17, Robot_Execute 64,
 Robot_Change 66, Robot_Halt 70, Robot_Move 72, Robot_Release 84 (same numbers in both sources).
 
-Timeouts: every call has a deadline. A controller that does not answer in time raises
+Timeouts: every call has a deadline, and each interim S_EXECUTING reply to that call restarts
+it (the controller has shown it is alive and working on the request), so a long call is given
+as long as it keeps reporting progress. A controller that does not answer in time raises
 :class:`~robots.drivers._common.ConnectionTimeoutError` and the socket is closed, because a
 late reply would otherwise be mistaken for the answer to the next request. A closed or reset
 connection raises :class:`~robots.interfaces.RobotDisconnectedError`.
@@ -315,9 +318,9 @@ class BCAPClient:
     def call(self, function: str, args=(), timeout_s: float | None = None) -> list:
         """Send ``function`` with ``args`` and return the reply's values (a list, often empty).
 
-        Raises BCAPError for a failure HRESULT, ConnectionTimeoutError if no final reply comes
-        within ``timeout_s`` (default ``self.timeout_s``), RobotDisconnectedError if the link
-        is closed or drops.
+        Raises BCAPError for a failure HRESULT, ConnectionTimeoutError if no reply comes within
+        ``timeout_s`` (default ``self.timeout_s``) of the request or of the last interim
+        S_EXECUTING reply, RobotDisconnectedError if the link is closed or drops.
         """
         func_id = FUNC[function]
         limit = self.timeout_s if timeout_s is None else float(timeout_s)
@@ -333,8 +336,11 @@ class BCAPClient:
             deadline = time.monotonic() + limit
             while True:
                 reply = self._receive(deadline, function, limit)
-                if reply.serial == serial and reply.code != S_EXECUTING:
+                if reply.serial != serial:
+                    continue  # a stale reply to an earlier request; not ours
+                if reply.code != S_EXECUTING:
                     break
+                deadline = time.monotonic() + limit  # alive and still working: wait again
         if reply.code < 0:
             raise BCAPError(reply.code, function)
         return reply.args
@@ -402,6 +408,8 @@ class BCAPClient:
     # ----- the functions the Cobotta driver uses (argument order as in the b-CAP spec)
 
     def service_start(self, option: str = "") -> None:
+        """Start the b-CAP service. ``option``: e.g. ``"WDT=400"``, a watchdog in ms (see
+        docs/robots/cobotta.md); "" for none."""
         self.call("Service_Start", [option])
 
     def service_stop(self) -> None:

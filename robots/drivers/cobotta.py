@@ -4,11 +4,14 @@ Uses this project's own b-CAP client (:mod:`robots.drivers.bcap`); nothing to in
 
 What the driver sends (b-CAP function, arguments), in order:
 
-* connect: ``Service_Start("")``, ``Controller_Connect("", "CaoProv.DENSO.VRC", "localhost",
-  "")`` (the RC8-family provider, as in DENSO's samples), ``Controller_GetRobot(ctrl, "Arm",
-  "")``, ``Robot_Change(robot, "Tool0")`` so positions are the flange (tool 0 = mechanical
-  interface, the UR "TCP set to zero" equivalent), ``Robot_Execute(robot, "TakeArm", [0, 0])``,
-  ``Robot_Execute(robot, "Motor", [1, 0])``, ``Robot_Execute(robot, "ExtSpeed", [s, a, d])``.
+* connect, in DENSO's order (the controller refuses ``Robot_Change`` and motion from a client
+  that has not taken the arm): ``Service_Start(option)`` (``service_option``, "" by default;
+  ``"WDT=<ms>"`` asks for a watchdog), ``Controller_Connect("", "CaoProv.DENSO.VRC",
+  "localhost", "")`` (the RC8-family provider, as in DENSO's samples),
+  ``Controller_GetRobot(ctrl, "Arm", "")``, ``Robot_Execute(robot, "TakeArm", [0, 0])``, then
+  ``Robot_Change(robot, "Tool0")`` so positions are the flange (tool 0 = mechanical interface,
+  the UR "TCP set to zero" equivalent), ``Robot_Execute(robot, "Motor", [1, 0])``,
+  ``Robot_Execute(robot, "ExtSpeed", [s, a, d])``.
 * read: ``Robot_Execute(robot, "CurPos")`` -> ``[x, y, z, rx, ry, rz, fig]`` in mm and degrees;
   ``Robot_Execute(robot, "CurJnt")`` -> joint angles in degrees (6 used; RC8 may append more).
 * move: ``Robot_Move(robot, comp, "@E P(x, y, z, rx, ry, rz, fig)", "SPEED=p, NEXT")`` with
@@ -22,7 +25,8 @@ What the driver sends (b-CAP function, arguments), in order:
 * hand (COBOTTA electric gripper, via ``Controller_Execute`` as in DENSO's COBOTTA samples):
   ``"HandMoveA", [width_mm, speed_percent]`` opens to a width; ``"HandMoveH", [force_N, True]``
   closes and holds with a force.
-* close: ``Motor [0, 0]``, ``GiveArm``, ``Robot_Release``, ``Controller_Disconnect``,
+* close: ``Motor [0, 0]``, ``GiveArm`` (the arm is given back before its handle is released,
+  so the pendant or another client can take it), ``Robot_Release``, ``Controller_Disconnect``,
   ``Service_Stop``, then the socket; every step runs even if one fails.
 
 Euler convention (verify on your arm, see docs/robots/cobotta.md): DENSO's (RX, RY, RZ) are
@@ -287,13 +291,16 @@ def create_workcell(
     camera: Camera | None = None,
     provider: str = PROVIDER,
     robot_name: str = "Arm",
+    service_option: str = "",
 ) -> Workcell:
     """Connect to a COBOTTA and return a Workcell (``robots.connect("cobotta", ...)`` calls this).
 
     ``host``/``port``: the controller's address (factory default 192.168.0.1, port 5007).
     ``tool``: "gripper" (the electric hand) or "none". ``safety``: limits (default
     :func:`default_safety`); ``mode="confirm"`` asks before every move. ``timeout_s``: the
-    limit for connecting and for each reply. ``ext_speed_pct``: the controller's external
+    limit for connecting and for each reply (an interim "still executing" reply restarts it).
+    ``service_option``: the ``Service_Start`` option, e.g. ``"WDT=400"`` for a 400 ms
+    watchdog (see docs/robots/cobotta.md). ``ext_speed_pct``: the controller's external
     speed/acceleration override set at connect. ``camera``: an already opened Camera, if any.
     On any failure while connecting, whatever was opened is released before the error is raised.
     """
@@ -315,15 +322,15 @@ def create_workcell(
     client = BCAPClient(host, port, timeout_s)
     opened = []  # shutdown steps for what is open so far, run in reverse on failure
     try:
-        client.service_start("")
+        client.service_start(service_option)
         opened.append(client.service_stop)
         h_ctrl = client.controller_connect("", provider, "localhost", "")
         opened.append(lambda: client.controller_disconnect(h_ctrl))
         h_robot = client.controller_get_robot(h_ctrl, robot_name, "")
         opened.append(lambda: client.robot_release(h_robot))
-        client.robot_change(h_robot, "Tool0")
         client.robot_execute(h_robot, "TakeArm", [0, 0])
         opened.append(lambda: client.robot_execute(h_robot, "GiveArm"))
+        client.robot_change(h_robot, "Tool0")
         client.robot_execute(h_robot, "Motor", [1, 0], timeout_s=max(timeout_s, 10.0))
         opened.append(lambda: client.robot_execute(h_robot, "Motor", [0, 0]))
         ext = float(ext_speed_pct)

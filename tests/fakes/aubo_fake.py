@@ -3,9 +3,20 @@
 It simulates an AUBO-i5-sized 6R arm (standard DH with the i5's link lengths) behind the RPC
 client: poses are ``[x, y, z, rx, ry, rz]`` in metres with ``R = Rz(rz) Ry(ry) Rx(rx)``
 (written out with elementary rotations here, independently of robots.geometry), joint angles
-in radians, return codes 0 / negative. ``moveLine`` moves the **TCP** (flange times the TCP
-offset) and is asynchronous: it returns at once, ``getExecId()`` then reports the command's id
-for ``ticks_per_move`` polls and -1 once the arm has arrived.
+in radians. ``moveLine`` moves the **TCP** (flange times the TCP offset) and is asynchronous:
+it returns at once, ``getExecId()`` then reports the command's id until the move's duration
+has passed (controller seconds divided by ``time_scale``, and at least ``ticks_per_move``
+polls) and -1 once the arm has arrived.
+
+Like the controller (pyaubo-sdk's MotionControl documentation):
+
+* return codes: 0 accepted; **positive codes are refusals too**: 1 (AUBO_BAD_STATE) whenever
+  ``safety_mode`` is not Normal, ReducedMode or Recovery (a protective or safeguard stop,
+  an emergency stop), 2 / 3 via ``reject_code``; negative codes via ``reject_code``.
+* units: ``moveLine``'s ``a`` and ``v`` are m/s^2 and m/s, except when the TCP moves less than
+  1 mm while turning more than 1e-4 rad: then they are rad/s^2 and rad/s. The duration and
+  the turn rate that follow are recorded in ``arm.last_plan``; the turn never exceeds
+  ``MAX_TCP_ROTATION_SPEED`` (what the controller saturates at).
 
 ``SDK_NAMES`` lists every attribute the driver touches; tests check the fake has them and,
 where pyaubo-sdk is installed, that the real module does too.
@@ -13,6 +24,8 @@ where pyaubo-sdk is installed, that the real module does too.
 
 from __future__ import annotations
 
+import enum
+import time
 import types
 import typing
 
@@ -35,6 +48,7 @@ SDK_NAMES = [
     "RobotState.getToolPose",
     "RobotState.getTcpPose",
     "RobotState.getJointPositions",
+    "RobotState.getSafetyModeType",
     "RobotConfig.getTcpOffset",
     "RobotConfig.getJointMinPositions",
     "RobotConfig.getJointMaxPositions",
@@ -60,6 +74,27 @@ _DH = np.array(
     ]
 )
 LIMIT = np.radians(175.0)
+MAX_TCP_ROTATION_SPEED = np.pi  # rad/s the fake controller's turn saturates at
+ROTATION_MODE_BELOW_M, ROTATION_THRESHOLD_RAD = 1e-3, 1e-4
+
+
+class SafetyModeType(enum.IntEnum):
+    """pyaubo_sdk.SafetyModeType (same member names and values)."""
+
+    Undefined = 0
+    Normal = 1
+    ReducedMode = 2
+    Recovery = 3
+    Violation = 4
+    ProtectiveStop = 5
+    SafeguardStop = 6
+    SystemEmergencyStop = 7
+    RobotEmergencyStop = 8
+    Fault = 9
+
+
+MOVABLE_MODES = (SafetyModeType.Normal, SafetyModeType.ReducedMode, SafetyModeType.Recovery)
+AUBO_BAD_STATE = 1
 START_Q = np.array([0.0, -1.2, 1.6, -1.97, -1.57, 0.0])
 
 
@@ -136,8 +171,11 @@ class FakeArm:
         self.inputs = {}
         self.exec_id = -1
         self.next_id = 100
-        self.pending = None  # (target q, polls left)
+        self.pending = None  # [target q, polls left, wall-clock end]
         self.ticks_per_move = 3
+        self.time_scale = 50.0  # controller seconds per wall-clock second
+        self.safety_mode = SafetyModeType.Normal
+        self.last_plan = None  # {"rotational", "duration_s", "rotation_rate"} of the last moveLine
         self.stuck = False  # True: a started move never finishes
         self.stops = []
         self.commands = []
@@ -156,6 +194,9 @@ class FakeRobotState:
 
     def getJointPositions(self):
         return list(map(float, self._arm.q))
+
+    def getSafetyModeType(self):
+        return self._arm.safety_mode
 
 
 class FakeRobotConfig:
@@ -176,34 +217,59 @@ class FakeMotionControl:
     def __init__(self, arm):
         self._arm = arm
 
-    def _queue(self, q_target):
+    def _queue(self, q_target, duration_s):
         arm = self._arm
         arm.exec_id, arm.next_id = arm.next_id, arm.next_id + 1
-        arm.pending = [q_target, arm.ticks_per_move]
+        arm.pending = [q_target, arm.ticks_per_move, time.monotonic() + duration_s / arm.time_scale]
         return 0
+
+    def _refusal(self):
+        arm = self._arm
+        if arm.reject_code is not None:
+            return arm.reject_code
+        if arm.safety_mode not in MOVABLE_MODES:
+            return AUBO_BAD_STATE
+        return None
 
     def moveLine(self, pose, a, v, blend_radius, duration):
         arm = self._arm
         assert len(pose) == 6 and a > 0 and v > 0
         arm.commands.append(("moveLine", list(pose), a, v, blend_radius, duration))
-        if arm.reject_code is not None:
-            return arm.reject_code
-        flange_goal = matrix_from_pose6(pose) @ np.linalg.inv(matrix_from_pose6(arm.tcp_offset))
-        return self._queue(_ik(arm.q, flange_goal))
+        refused = self._refusal()
+        if refused is not None:
+            return refused
+        start = flange_fk(arm.q) @ matrix_from_pose6(arm.tcp_offset)
+        goal = matrix_from_pose6(pose)
+        err = _error(start, goal)
+        distance, angle = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+        if distance < ROTATION_MODE_BELOW_M and angle > ROTATION_THRESHOLD_RAD:
+            rate = min(v, MAX_TCP_ROTATION_SPEED)  # v is rad/s here, a rad/s^2
+            seconds = angle / rate + rate / a
+            rotational = True
+        else:  # v is m/s; the turn is spread over the linear cruise, up to the saturation
+            cruise = distance / v
+            rate = min(angle / cruise, MAX_TCP_ROTATION_SPEED) if cruise > 0 else 0.0
+            seconds = max(cruise, angle / MAX_TCP_ROTATION_SPEED) + v / a
+            rotational = False
+        arm.last_plan = {"rotational": rotational, "duration_s": seconds, "rotation_rate": rate}
+        flange_goal = goal @ np.linalg.inv(matrix_from_pose6(arm.tcp_offset))
+        return self._queue(_ik(arm.q, flange_goal), seconds)
 
     def moveJoint(self, q, a, v, blend_radius, duration):
         arm = self._arm
         assert len(q) == 6 and a > 0 and v > 0
         arm.commands.append(("moveJoint", list(q), a, v, blend_radius, duration))
-        if arm.reject_code is not None:
-            return arm.reject_code
-        return self._queue(np.asarray(q, float))
+        refused = self._refusal()
+        if refused is not None:
+            return refused
+        q = np.asarray(q, float)
+        return self._queue(q, float(np.abs(q - arm.q).max()) / v + v / a)
 
     def getExecId(self):
         arm = self._arm
         if arm.pending is not None and not arm.stuck:
             arm.pending[1] -= 1
-            if arm.pending[1] <= 0:
+            if arm.pending[1] <= 0 and time.monotonic() >= arm.pending[2]:
                 arm.q, arm.pending, arm.exec_id = arm.pending[0], None, -1
         return arm.exec_id
 
@@ -302,6 +368,7 @@ def make_sdk():
         RpcClient=FakeRpcClient,
         RobotInterface=FakeRobotInterface,
         RobotState=FakeRobotState,
+        SafetyModeType=SafetyModeType,
         RobotConfig=FakeRobotConfig,
         MotionControl=FakeMotionControl,
         IoControl=FakeIoControl,

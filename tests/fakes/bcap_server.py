@@ -4,7 +4,9 @@ Used by tests/test_bcap.py and tests/test_driver_cobotta.py. Its packet codec is
 separately from ``robots.drivers.bcap`` (plain ``struct`` calls following the layout table in
 that module's docstring), so a mistake in the client's encoder is not mirrored here.
 
-What it simulates: the controller's handles and state (TakeArm, Motor, ExtSpeed, Tool0), the
+What it simulates: the controller's handles and state (TakeArm, Motor, ExtSpeed, Tool0; like
+the controller it refuses ``Robot_Change``, ``Motor`` and motion from a client that has not
+taken the arm with TakeArm first, and GiveArm frees it), the
 current position (mm, degrees, figure) and joints (degrees), moves that take time at the
 commanded speed (``time_scale`` speeds the clock up for tests), ``MotionComplete``,
 ``Robot_Halt`` freezing the arm mid-move, and the electric hand. It does NOT model the
@@ -13,7 +15,9 @@ controller couples the two. The backend contract checks each on its own.
 
 Fault injection for tests: ``mute`` (read requests, never answer), ``drop()`` (close every
 client socket), ``stall_motion`` (moves never finish), ``fail_next[command] = hresult``
-(one failure reply), ``executing_notices`` (interim S_EXECUTING packets before each reply),
+(one failure reply), ``executing_notices`` (interim S_EXECUTING packets before each reply,
+``executing_interval_s`` apart, so a call can outlast the client's timeout while the
+controller keeps showing it is alive),
 ``hand_object`` (whether HandMoveH finds something to grip).
 """
 
@@ -147,6 +151,9 @@ class FakeCobottaServer:
         self.stall_motion = False
         self.fail_next: dict[str, int] = {}
         self.executing_notices = 0
+        self.executing_interval_s = 0.0
+        self.mute_after_notices = False  # True: send the interim notices, never the final reply
+        self.service_options: list[str] = []
         self.hand_object = True
         self.position = np.array([200.0, 0.0, 200.0, 180.0, 0.0, 180.0])  # mm, deg
         self.fig = 5
@@ -218,7 +225,9 @@ class FakeCobottaServer:
                     hresult, values = self._handle(func, args)
                 for _ in range(self.executing_notices):
                     conn.sendall(reply_bytes(serial, S_EXECUTING))
-                conn.sendall(reply_bytes(serial, hresult, values))
+                    time.sleep(self.executing_interval_s)
+                if not self.mute_after_notices:
+                    conn.sendall(reply_bytes(serial, hresult, values))
         except OSError:
             return
 
@@ -239,7 +248,8 @@ class FakeCobottaServer:
             return self.position.copy(), self.joints.copy()
 
     def _handle(self, func: int, args: list):
-        if func == 1:  # Service_Start
+        if func == 1:  # Service_Start(option)
+            self.service_options.append(args[0] if args else None)
             return S_OK, []
         if func == 2:  # Service_Stop
             return S_OK, []
@@ -257,7 +267,9 @@ class FakeCobottaServer:
             return (S_OK, [H_ROBOT]) if args[1] == "Arm" else (E_INVALIDARG, [])
         if func == 84:  # Robot_Release
             return S_OK, []
-        if func == 66:  # Robot_Change(robot, "Tool0")
+        if func == 66:  # Robot_Change(robot, "Tool0"): only for the client holding the arm
+            if not self.arm_taken:
+                return E_NOT_TAKEN, []
             self.tool = args[1]
             return S_OK, []
         if func == 17:
