@@ -90,6 +90,36 @@ def test_protective_stop_is_reported(arm):
             cell.robot.move_to(target, speed=0.05)
 
 
+def test_safeguard_stop_mid_move_is_raised_within_a_second(arm):
+    # A light curtain is crossed 40 % into a 0.4 s move: the controller pauses the arm in a
+    # safeguard stop (safety mode 5, status bit 4), which is not a protective stop.
+    with cell_for(arm) as cell:
+        target = cell.robot.flange_pose()
+        target[0, 3] += 0.02
+        arm.time_scale = 1.0
+        arm.safeguard_at_fraction = 0.4
+        t0 = time.monotonic()
+        with pytest.raises(RuntimeError, match="safeguard stop.*light curtain") as stopped:
+            cell.robot.move_to(target, speed=0.05)
+        assert time.monotonic() - t0 < 1.0
+        from robots.drivers.ur import URSafeguardStopError
+
+        assert isinstance(stopped.value, URSafeguardStopError)
+        assert stopped.value.safety_mode == 5 and stopped.value.status_bits >> 4 & 1
+        assert any(e[0] == "stopL" for e in arm.log)
+
+
+def test_time_limit_follows_the_pendant_speed_slider(arm):
+    # The slider at 10 %: a 0.4 s move takes 4 s, longer than its 3.8 s limit at full speed.
+    # The limit counts motion time at the controller's speed scaling, so the move completes.
+    with cell_for(arm) as cell:
+        target = cell.robot.flange_pose()
+        target[1, 3] += 0.04
+        arm.time_scale, arm.speed_scaling = 1.0, 0.1
+        cell.robot.move_to(target, speed=0.1)
+        np.testing.assert_allclose(cell.robot.flange_pose()[:3, 3], target[:3, 3], atol=2e-4)
+
+
 def test_dropped_connection_raises(arm):
     with cell_for(arm) as cell:
         arm.drop()
@@ -148,7 +178,8 @@ USED = [
 ] + [
     ("rtde_receive", "RTDEReceiveInterface", m)
     for m in ("getActualTCPPose", "getActualQ", "isProtectiveStopped", "isEmergencyStopped",
-              "isConnected", "disconnect")
+              "getSafetyStatusBits", "getSafetyMode", "getSpeedScaling", "isConnected",
+              "disconnect")
 ] + [
     ("rtde_io", "RTDEIOInterface", m)
     for m in ("setStandardDigitalOut", "setToolDigitalOut", "disconnect")

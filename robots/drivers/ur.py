@@ -11,7 +11,8 @@ against the installed module by tests/test_driver_ur.py):
   ``moveJ(q, speed, acceleration, asynchronous)`` in rad, rad/s, rad/s^2;
   ``stopL(a)`` / ``stopJ(a)`` (deceleration), ``isConnected()``, ``isSteady()``, ``disconnect()``.
 * ``rtde_receive.RTDEReceiveInterface(hostname)``: ``getActualTCPPose()``, ``getActualQ()``,
-  ``isProtectiveStopped()``, ``isEmergencyStopped()``, ``isConnected()``, ``disconnect()``.
+  ``isProtectiveStopped()``, ``isEmergencyStopped()``, ``getSafetyStatusBits()``,
+  ``getSafetyMode()``, ``getSpeedScaling()``, ``isConnected()``, ``disconnect()``.
 * ``rtde_io.RTDEIOInterface(hostname)``: ``setStandardDigitalOut(id, level)`` (or
   ``setToolDigitalOut``), ``disconnect()``.
 
@@ -21,12 +22,30 @@ Conventions: the TCP offset is set to zero at connect (and checked), so
 ``asynchronous=True`` and waited for in Python with a time limit, so a stuck move is stopped
 (``stopL``/``stopJ``) and reported, and Ctrl-C reaches the driver mid-move.
 
+Safety stops: every poll during a move reads ``getSafetyStatusBits()`` (RTDE
+``safety_status_bits``: bit 0 normal, 1 reduced, 2 protective stopped, 3 recovery, 4 safeguard
+stopped, 5 system emergency stopped, 6 robot emergency stopped, 7 emergency stopped,
+8 violation, 9 fault, 10 stopped due to safety) and ``getSafetyMode()`` (1 normal, 2 reduced,
+3 protective stop, 4 recovery, 5 safeguard stop, 6 system e-stop, 7 robot e-stop, 8 violation,
+9 fault, 12 automatic-mode safeguard stop, 13 three-position enabling stop). Any stop raises
+:class:`URSafetyStopError` (:class:`URSafeguardStopError` for a safeguard stop: an external
+safety input such as a light curtain or a door switch) within one poll, ~10 ms. The move's
+time limit counts motion time at ``getSpeedScaling()`` (the pendant's speed slider times any
+trajectory slowdown), so a slider at 30% gives the move 1/0.3 as long.
+
+Connecting: the ur_rtde constructors block, holding the interpreter lock, for minutes when
+the host accepts TCP on port 30004 but never speaks RTDE (another device at a mistyped
+address). :func:`probe_rtde` therefore first sends RTDE's protocol-version request itself,
+with a socket timeout, and refuses the host with a clear message if no RTDE reply comes.
+
 Speed caps below ur_rtde's defaults (moveL 0.25 m/s, 1.2 m/s^2; moveJ 1.05 rad/s, 1.4
 rad/s^2): at most ``MAX_TCP_SPEED`` and ``MAX_JOINT_SPEED`` whatever ``Safety`` allows.
 """
 
 from __future__ import annotations
 
+import socket
+import struct
 import time
 import warnings
 from types import SimpleNamespace
@@ -50,12 +69,16 @@ from robots.safety import Safety
 __all__ = [
     "MAX_JOINT_SPEED",
     "MAX_TCP_SPEED",
+    "RTDE_PORT",
     "URDigitalTool",
     "URGripper",
     "URRobot",
+    "URSafeguardStopError",
+    "URSafetyStopError",
     "URSuctionCup",
     "create_workcell",
     "default_safety",
+    "probe_rtde",
 ]
 
 MAX_TCP_SPEED = 0.20  # m/s (ur_rtde default 0.25)
@@ -66,6 +89,92 @@ STOP_DECELERATION_L = 2.0  # m/s^2, firm but not a jolt
 STOP_DECELERATION_J = 2.0  # rad/s^2
 REACHED_TOL_M, REACHED_TOL_RAD = 2e-4, 2e-3  # "at the target" while waiting for a move
 UR_JOINT_LIMITS = np.tile([-2 * np.pi, 2 * np.pi], (6, 1))  # e-Series: +-360 deg every joint
+
+RTDE_PORT = 30004
+# RTDE framing (UR's RTDE guide): big-endian uint16 package size (header included), uint8
+# package type; RTDE_REQUEST_PROTOCOL_VERSION is type 86 ('V') with a uint16 version, and the
+# controller answers with type 86 and a uint8 "accepted".
+RTDE_REQUEST_PROTOCOL_VERSION = 86
+RTDE_PROTOCOL_VERSION = 2
+
+# safety_status_bits (RTDE) -> what it means, in the order they are reported.
+SAFETY_STATUS_BITS = {
+    2: "a protective stop",
+    4: "a safeguard stop",
+    5: "a system emergency stop",
+    6: "a robot emergency stop",
+    7: "an emergency stop",
+    8: "a safety violation",
+    9: "a safety fault",
+}
+SAFEGUARD_BIT = 4
+# getSafetyMode() values that stop the arm (ur_rtde / UR's SafetyMode enum).
+SAFETY_MODE_STOPS = {
+    3: "a protective stop", 5: "a safeguard stop", 6: "a system emergency stop",
+    7: "a robot emergency stop", 8: "a safety violation", 9: "a safety fault",
+    12: "an automatic-mode safeguard stop", 13: "a three-position enabling stop",
+}
+SAFEGUARD_MODES = (5, 12, 13)
+
+
+class URSafetyStopError(RuntimeError):
+    """The controller stopped the arm for safety (protective, safeguard or emergency stop).
+
+    ``safety_mode`` is ``getSafetyMode()`` and ``status_bits`` ``getSafetyStatusBits()`` at the
+    moment it was seen; the driver has already asked the arm to stop.
+    """
+
+    def __init__(self, message: str, safety_mode: int, status_bits: int):
+        super().__init__(message)
+        self.safety_mode, self.status_bits = safety_mode, status_bits
+
+
+class URSafeguardStopError(URSafetyStopError):
+    """A safeguard stop: an external safety input (light curtain, door switch, scanner) opened."""
+
+
+def probe_rtde(host: str, port: int | None = None, timeout_s: float = 3.0) -> int:
+    """Check that ``host`` speaks RTDE before ur_rtde is let near it; return the "accepted" flag.
+
+    Sends RTDE_REQUEST_PROTOCOL_VERSION (version 2) and waits up to ``timeout_s`` seconds for
+    the controller's answer. Raises RobotDisconnectedError naming the host if nothing listens,
+    the connection fails, or the host stays silent / answers something that is not RTDE
+    (the case in which ur_rtde's constructors hang for minutes).
+    """
+    port = RTDE_PORT if port is None else int(port)
+    what = (f"check that {host} is the UR controller's address (pendant: Settings > System > "
+            "Network), that the robot is switched on, and that RTDE is not disabled "
+            "(Settings > Security > Services)")
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout_s)
+    except OSError as error:
+        raise RobotDisconnectedError(
+            f"cannot reach the UR at {host}:{port} ({error}); {what}") from error
+    try:
+        sock.settimeout(timeout_s)
+        sock.sendall(struct.pack(">HBH", 5, RTDE_REQUEST_PROTOCOL_VERSION, RTDE_PROTOCOL_VERSION))
+        deadline = time.monotonic() + timeout_s
+        reply = b""
+        while len(reply) < 4:
+            sock.settimeout(max(deadline - time.monotonic(), 0.001))
+            chunk = sock.recv(4 - len(reply))
+            if not chunk:
+                raise OSError("the host closed the connection without an RTDE reply")
+            reply += chunk
+    except (OSError, TimeoutError) as error:
+        detail = "no reply" if isinstance(error, TimeoutError) else str(error)
+        raise RobotDisconnectedError(
+            f"{host}:{port} accepts connections but does not speak RTDE ({detail} within "
+            f"{timeout_s:.0f} s to RTDE's protocol-version request); it is probably not a UR "
+            f"controller: {what}") from error
+    finally:
+        sock.close()
+    size, kind, accepted = struct.unpack(">HBB", reply)
+    if kind != RTDE_REQUEST_PROTOCOL_VERSION or size < 4:
+        raise RobotDisconnectedError(
+            f"{host}:{port} answered, but not with RTDE (package type {kind}, size {size}); "
+            f"it is probably not a UR controller: {what}")
+    return accepted
 
 
 def default_safety(mode: str = "auto") -> Safety:
@@ -183,11 +292,28 @@ class URRobot(Robot):
             self.control.stopL(STOP_DECELERATION_L)
 
     def _raise_if_stopped(self) -> None:
-        if self.receive.isEmergencyStopped() or self.receive.isProtectiveStopped():
-            raise RuntimeError(
-                f"the {self.name} is in an emergency or protective stop; find the cause, clear "
-                "it on the teach pendant, then move again"
-            )
+        """Raise URSafetyStopError if the controller reports any safety stop."""
+        bits = int(self.receive.getSafetyStatusBits())
+        mode = int(self.receive.getSafetyMode())
+        causes = [text for bit, text in SAFETY_STATUS_BITS.items() if bits >> bit & 1]
+        if mode in SAFETY_MODE_STOPS and SAFETY_MODE_STOPS[mode] not in causes:
+            causes.append(SAFETY_MODE_STOPS[mode])
+        if self.receive.isEmergencyStopped() and not any("emergency" in c for c in causes):
+            causes.append("an emergency stop")
+        if self.receive.isProtectiveStopped() and "a protective stop" not in causes:
+            causes.append("a protective stop")
+        if not causes:
+            return
+        if bits >> SAFEGUARD_BIT & 1 or mode in SAFEGUARD_MODES:
+            raise URSafeguardStopError(
+                f"the {self.name} is in a safeguard stop (safety mode {mode}, status bits "
+                f"{bits:#06x}): an external safety input opened (light curtain, door switch, "
+                "area scanner). Clear the area, close or reset the safeguard, and resume on the "
+                "pendant if it asks; then move again", mode, bits)
+        raise URSafetyStopError(
+            f"the {self.name} is in {' and '.join(causes)} (safety mode {mode}, status bits "
+            f"{bits:#06x}); find the cause, clear it on the teach pendant, then move again",
+            mode, bits)
 
     def _wait(self, reached, time_limit_s: float, what: str) -> None:
         def done():
@@ -195,7 +321,8 @@ class URRobot(Robot):
             self._raise_if_stopped()
             return reached() and self.control.isSteady()
 
-        wait_for(done, time_limit_s, self.stop, what, self.poll_s)
+        wait_for(done, time_limit_s, self.stop, what, self.poll_s,
+                 pace=self.receive.getSpeedScaling)
 
     def _move_to(self, base_T_flange: np.ndarray, speed: float) -> None:
         if speed > MAX_TCP_SPEED:
@@ -257,6 +384,8 @@ def create_workcell(
     arm: str = "ur5e",
     camera: Camera | None = None,
     sdk=None,
+    probe: bool | None = None,
+    probe_timeout_s: float = 3.0,
 ) -> Workcell:
     """Connect to a UR over RTDE and return a Workcell (``robots.connect("ur", ...)``).
 
@@ -264,6 +393,8 @@ def create_workcell(
     if ``tool_output``) or "none"; ``flange_T_tcp`` its tip in the flange frame. ``safety``:
     limits (default :func:`default_safety`); ``mode="confirm"`` asks before every move.
     ``sdk``: an object with the three ur_rtde classes (tests pass a fake; default: ur_rtde).
+    ``probe``: first check that the host answers RTDE's handshake within ``probe_timeout_s``
+    (see :func:`probe_rtde`); default: whenever the real ur_rtde is used.
     """
     if not host:
         raise ValueError("connect('ur') needs host=, the robot's IP address, or COBOTLAB_HOST")
@@ -274,7 +405,11 @@ def create_workcell(
     elif mode is not None:
         safety.mode = mode
         safety.validate()
+    if probe is None:
+        probe = sdk is None
     sdk = _load_sdk() if sdk is None else sdk
+    if probe:
+        probe_rtde(host, timeout_s=probe_timeout_s)
 
     opened = []
     try:

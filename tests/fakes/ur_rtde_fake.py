@@ -7,6 +7,14 @@ UR5e: standard-DH forward kinematics, numerical IK for linear moves, moves that 
 the commanded speed (``time_scale`` speeds the clock up), stopL/stopJ freezing the arm, a TCP
 offset (non-zero at start, like a pendant configured for a gripper), digital outputs, and
 faults (``drop()``, ``protective_stop``, ``stall_motion``).
+
+Safety as the controller reports it: ``safety_mode`` (getSafetyMode: 1 normal, 3 protective
+stop, 5 safeguard stop, 7 robot emergency stop, ...) and the matching ``safety_status_bits``
+(bit 2 protective stopped, bit 4 safeguard stopped, bit 7 emergency stopped, ...). A stop
+freezes the arm where it is and the motion stays pending, as on the real arm (a safeguard
+stop pauses; the move does not finish by itself). ``safeguard_at_fraction`` makes the arm
+enter a safeguard stop part-way through the next move, like a light curtain being crossed.
+``speed_scaling`` (getSpeedScaling, the pendant's slider) slows every move down.
 """
 
 from __future__ import annotations
@@ -66,21 +74,40 @@ class FakeUR:
         self.q = np.array(HOME_Q)
         self.tcp_offset = [0.0, 0.0, 0.15, 0.0, 0.0, 0.0]  # as if the pendant set a gripper TCP
         self.connected = True
-        self.protective_stop = False
+        self.safety_mode = 1  # NORMAL
+        self.safeguard_at_fraction = None  # e.g. 0.4: safeguard stop 40 % into the next move
+        self.speed_scaling = 1.0
         self.stall_motion = False
         self.digital_out = {}
         self.tool_digital_out = {}
         self.motion = None  # (kind, start_q or start_T, target, t0, duration)
         self.log: list[tuple] = []
 
+    # protective_stop as a flag, kept for the tests written against it
+    @property
+    def protective_stop(self) -> bool:
+        return self.safety_mode == 3
+
+    @protective_stop.setter
+    def protective_stop(self, on: bool) -> None:
+        self.safety_mode = 3 if on else 1
+
+    def safety_status_bits(self) -> int:
+        bits = {1: 1 << 0, 2: 1 << 1, 3: 1 << 2 | 1 << 10, 4: 1 << 3, 5: 1 << 4 | 1 << 10,
+                6: 1 << 5 | 1 << 7 | 1 << 10, 7: 1 << 6 | 1 << 7 | 1 << 10, 8: 1 << 8 | 1 << 10,
+                9: 1 << 9 | 1 << 10}
+        return bits.get(self.safety_mode, 1 << 10)
+
     def drop(self):
         self.connected = False
 
     def _advance(self):
-        if self.motion is None or self.stall_motion or self.protective_stop:
+        if self.motion is None or self.stall_motion or self.safety_mode != 1:
             return
         kind, start, target, t0, duration = self.motion
         s = min(1.0, (time.monotonic() - t0) / duration)
+        if self.safeguard_at_fraction is not None and s >= self.safeguard_at_fraction:
+            s, self.safety_mode, self.safeguard_at_fraction = self.safeguard_at_fraction, 5, None
         if kind == "J":
             self.q = (1 - s) * start + s * target
         else:
@@ -123,7 +150,8 @@ class RTDEControlInterface(_Interface):
         with r.lock:
             r._advance()
             target = np.asarray(pose_matrix(pose)) @ np.linalg.inv(pose_matrix(r.tcp_offset))
-            duration = np.linalg.norm(target[:3, 3] - fk(r.q)[:3, 3]) / speed / r.time_scale
+            duration = (np.linalg.norm(target[:3, 3] - fk(r.q)[:3, 3]) / speed / r.time_scale
+                        / r.speed_scaling)
             r.motion = ("L", fk(r.q), target, time.monotonic(), max(duration, 1e-3))
         if not asynchronous:
             while r.motion is not None and not r.stall_motion:
@@ -137,7 +165,7 @@ class RTDEControlInterface(_Interface):
         with r.lock:
             r._advance()
             target = np.asarray(q, dtype=float)
-            duration = np.abs(target - r.q).max() / speed / r.time_scale
+            duration = np.abs(target - r.q).max() / speed / r.time_scale / r.speed_scaling
             r.motion = ("J", r.q.copy(), target, time.monotonic(), max(duration, 1e-3))
         if not asynchronous:
             while r.motion is not None and not r.stall_motion:
@@ -184,10 +212,19 @@ class RTDEReceiveInterface(_Interface):
         return list(r.state()) if r.connected else []
 
     def isProtectiveStopped(self) -> bool:
-        return self._robot.protective_stop
+        return bool(self._robot.safety_status_bits() >> 2 & 1)
 
     def isEmergencyStopped(self) -> bool:
-        return False
+        return bool(self._robot.safety_status_bits() >> 7 & 1)
+
+    def getSafetyStatusBits(self) -> int:
+        return self._robot.safety_status_bits()
+
+    def getSafetyMode(self) -> int:
+        return self._robot.safety_mode
+
+    def getSpeedScaling(self) -> float:
+        return self._robot.speed_scaling
 
 
 class RTDEIOInterface(_Interface):
