@@ -131,13 +131,14 @@ def _build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _robot_check(kind, host, arm, jog: bool = False) -> None:
+def _robot_check(kind, host, arm, jog: bool = False, realtime=None) -> None:
     import numpy as np
 
     from robots import connect
     from robots.geometry import rpy_from_pose
 
-    options = {k: v for k, v in (("host", host), ("arm", arm)) if v is not None}
+    options = {k: v for k, v in (("host", host), ("arm", arm), ("realtime", realtime))
+               if v is not None}
     with connect(kind, **options) as cell:
         robot = cell.robot
         q = robot.joint_positions()
@@ -147,6 +148,9 @@ def _robot_check(kind, host, arm, jog: bool = False) -> None:
         print("joints (deg):  " + "  ".join(f"{v:8.2f}" for v in np.degrees(q)))
         print("joint limits:  " + "  ".join(f"[{lo:.0f}, {hi:.0f}]" for lo, hi in np.degrees(limits)))
         print("flange (mm):   " + "  ".join(f"{v:8.1f}" for v in T[:3, 3] * 1000))
+    check.add_argument("--realtime", default=None, choices=("enforce", "ignore"),
+                       help="franka only: 'ignore' connects without a PREEMPT_RT kernel "
+                            "(libfranka's kIgnore; motions may abort under load)")
         print("flange rpy (deg, R = Rz(yaw) Ry(pitch) Rx(roll)): "
               + "  ".join(f"{v:7.2f}" for v in rpy_from_pose(T, degrees=True)))
         safety = robot.safety
@@ -376,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
             grade_course(args.course_dir, args.assignment, workers=args.workers,
                          run_nbgrader=not args.no_nbgrader)
         elif args.command == "robot" and args.robot_command == "check":
-            _robot_check(args.kind, args.host, args.arm, jog=args.jog)
+            _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:
         print("cobotlab: interrupted", file=sys.stderr)
         return 130

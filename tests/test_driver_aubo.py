@@ -231,3 +231,22 @@ def test_installed_pyaubo_sdk_exposes_the_names_the_driver_uses():
         except AttributeError:
             missing.append(name)
     assert not missing, f"pyaubo_sdk lacks {missing}; the fake and the driver must follow it"
+
+
+def test_installed_pyaubo_sdk_codes_units_and_modes_match_the_driver_and_fake():
+    try:
+        sdk = aubo._import_sdk(None)
+    except ImportError as error:
+        pytest.skip(f"pyaubo-sdk is not installed here ({error}); the `real` extra brings it")
+    codes = sdk.AuboErrorCodes
+    assert (int(codes.AUBO_BAD_STATE), int(codes.AUBO_QUEUE_FULL), int(codes.AUBO_BUSY)) == (1, 2, 3)
+    assert int(codes.AUBO_TIMEOUT) == 4 and int(codes.AUBO_INVL_ARGUMENT) == 5
+    # moveLine(pose, a, v, blend_radius, duration) -> int: five arguments, an int code back.
+    for name in ("moveLine", "moveJoint"):
+        doc = getattr(sdk.MotionControl, name).__doc__
+        signature = doc.strip().splitlines()[0]
+        assert "arg0: List[float], arg1: float, arg2: float, arg3: float, arg4: float) -> int" in (
+            signature), signature
+    real_modes = {name: int(value) for name, value in sdk.SafetyModeType.__members__.items()}
+    fake_modes = {m.name: int(m) for m in aubo_fake.SafetyModeType}
+    assert fake_modes == real_modes

@@ -1,5 +1,6 @@
 """The Franka Panda driver (robots/drivers/franka.py) against a fake panda_py with the same API."""
 
+import inspect
 from operator import attrgetter
 
 import numpy as np
@@ -23,7 +24,12 @@ def make_cell(**options):
 
 @pytest.mark.parametrize("check", contract.CONTRACT_CHECKS, ids=lambda c: c.__name__)
 def test_franka_contract(check):
-    check(make_cell)
+    # The Panda's impedance controllers settle a little short of the goal (the fake reproduces
+    # it), so the contract is held to the tolerances the driver documents and the arm meets.
+    tolerances = {"tol_m": franka.POSITION_TOLERANCE_M, "tol_deg": franka.ORIENTATION_TOLERANCE_DEG,
+                  "tol_rad": franka.JOINT_TOLERANCE_RAD}
+    accepted = inspect.signature(check).parameters
+    check(make_cell, **{k: v for k, v in tolerances.items() if k in accepted})
 
 
 # --------------------------------------------------------------------------- conventions
@@ -83,6 +89,7 @@ def test_move_to_streams_quaternions_xyzw_and_follows_a_line():
         start = robot.flange_pose()
         target = start @ pose_from_rotvec([0, 0, np.radians(10)], [0.04, 0.0, 0.0])
         panda = franka_fake.FakePanda.instances[-1]
+        panda.settles_short = False  # this test is about the streamed line, not the settling
         real_tick = panda._tick
 
         def watching_tick():
@@ -127,7 +134,67 @@ def test_reflex_raises_motion_error_and_recover_clears_it():
         cell.robot.recover()
         assert panda.recoveries == recoveries + 1
         cell.robot.move_to(target, 0.05)
-        assert translation_error(cell.robot.flange_pose(), target) < 1e-3
+        assert translation_error(cell.robot.flange_pose(), target) < franka.POSITION_TOLERANCE_M
+
+
+def test_move_settles_short_like_the_impedance_controller_and_succeeds():
+    # The fake settles 1.5 mm / 1.5e-3 rad short and stays there, as panda-py's controllers do
+    # (~2 mm / 2e-3 rad): the move must end successfully and say where it settled.
+    with make_cell() as cell:
+        robot = cell.robot
+        target = robot.flange_pose() @ pose_from_rotvec([0, 0, np.radians(5)], [0.02, 0.01, 0])
+        robot.move_to(target, 0.05)
+        error = robot.last_move_error
+        assert error.position_m == pytest.approx(franka_fake.SHORT_M, rel=0.05)
+        assert error.orientation_rad == pytest.approx(franka_fake.SHORT_RAD, rel=0.05)
+        assert error.position_m <= robot.position_tolerance_m
+        assert translation_error(robot.flange_pose(), target) == pytest.approx(
+            franka_fake.SHORT_M, rel=0.05)
+        q = robot.joint_positions() + 0.1
+        robot.move_joints(q, 0.3)
+        assert robot.last_move_error.joint_rad == pytest.approx(franka_fake.SHORT_RAD, rel=0.05)
+        assert robot.last_move_error.position_m is None
+
+
+def test_timeout_reports_where_the_arm_ended():
+    with make_cell(settle_timeout_s=0.3) as cell:
+        panda = franka_fake.FakePanda.instances[-1]
+        panda.stuck = True
+        target = cell.robot.flange_pose() @ make_pose(t=[0.02, 0, 0])
+        with pytest.raises(franka.FrankaTimeoutError, match=r"ended 20\.0 mm"):
+            cell.robot.move_to(target, 0.05)
+        assert cell.robot.last_move_error.position_m == pytest.approx(0.02, abs=1e-6)
+
+
+def test_null_space_target_is_the_posture_at_the_start_of_the_move():
+    # panda_py's default q_nullspace is its fixed home posture, which would drag the elbow
+    # towards home during every Cartesian move made from anywhere else.
+    with make_cell() as cell:
+        robot = cell.robot
+        panda = franka_fake.FakePanda.instances[-1]
+        robot.move_joints(franka_fake.HOME_Q + np.array([0.3, 0.1, -0.2, 0.2, 0.1, 0.1, 0.0]), 0.3)
+        q_before = robot.joint_positions()
+        robot.move_to(robot.flange_pose() @ make_pose(t=[0.0, 0.02, 0.0]), 0.05)
+        controller = panda.controllers[-1]
+        assert isinstance(controller, franka_fake.FakeCartesianImpedance)
+        assert controller.q_nullspace is not None, "q_nullspace left at panda_py's home default"
+        np.testing.assert_allclose(controller.q_nullspace, q_before, atol=1e-12)
+
+
+def test_gripper_is_homed_at_connect_so_release_opens_fully():
+    # libfranka knows the Hand's max_width only after homing (the fake reads 0 before).
+    with make_cell() as cell:
+        hand = franka_fake.FakeGripper.instances[-1]
+        assert hand.calls[0] == ("homing",)
+        cell.robot.tool.release()
+        assert cell.robot.tool.opening() == pytest.approx(franka_fake.FakeGripper.HAND_MAX_WIDTH)
+
+
+def test_failed_homing_is_a_clear_error(monkeypatch):
+    monkeypatch.setattr(franka_fake.FakeGripper, "homing_fails", True)
+    with pytest.raises(franka.FrankaError, match="homing the Franka Hand failed.*fingers"):
+        make_cell()
+    assert franka_fake.FakeGripper.instances[-1].stopped
 
 
 def test_connect_recovers_a_left_over_error():
@@ -206,6 +273,26 @@ def test_connect_by_name_through_the_registry(monkeypatch):
         assert cell.robot.name == "panda" and cell.camera is None
 
 
+def test_robot_check_cli_accepts_realtime_ignore(monkeypatch, capsys):
+    # A lab PC without PREEMPT_RT: `cobotlab robot check --kind franka --realtime ignore`.
+    from cobotlab import cli
+
+    sdk = franka_fake.make_sdk()
+    monkeypatch.setattr(franka_fake.FakePanda, "host_realtime", False)
+    monkeypatch.setattr(robots.backends, "_registry", dict(robots.backends._registry))
+    register_backend("franka", lambda **o: franka.create_workcell(sdk=sdk, **o))
+    monkeypatch.setattr(franka, "host_has_realtime_kernel", lambda: False)
+    with pytest.warns(RuntimeWarning, match="real-time checks disabled"):
+        assert cli.main(["robot", "check", "--kind", "franka", "--host", "172.16.0.2",
+                         "--realtime", "ignore"]) == 0
+    panda = franka_fake.FakePanda.instances[-1]
+    assert panda.realtime_config == franka_fake.RealtimeConfig.kIgnore
+    assert "connected: franka / panda" in capsys.readouterr().out
+    # Without the flag the same PC is refused with the fix named, in one line.
+    assert cli.main(["robot", "check", "--kind", "franka", "--host", "172.16.0.2"]) != 0
+    assert "PREEMPT_RT" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- the real SDK
 
 
@@ -227,3 +314,15 @@ def test_installed_panda_py_exposes_the_names_the_driver_uses():
         except AttributeError:
             missing.append(name)
     assert not missing, f"panda_py lacks {missing}; the fake and the driver must follow it"
+
+
+def test_installed_panda_py_takes_q_nullspace_and_homes_the_gripper():
+    sdk = pytest.importorskip("panda_py", reason="panda-python is not installed here")
+    import panda_py.controllers
+    import panda_py.libfranka
+
+    doc = panda_py.controllers.CartesianImpedance.set_control.__doc__
+    assert "position" in doc and "orientation" in doc and "q_nullspace" in doc, doc
+    assert "-> bool" in panda_py.libfranka.Gripper.homing.__doc__
+    assert hasattr(panda_py.libfranka.RobotState, "dq") and sdk.Panda is not None
+

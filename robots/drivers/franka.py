@@ -24,12 +24,27 @@ Motion
 ------
 ``move_to`` interpolates the end-effector pose along a straight line (SLERP for rotation) with a
 minimum-jerk time law whose peak speed is the requested m/s, and streams it to panda_py's
-``CartesianImpedance`` controller at 100 Hz; it then waits until the pose is within
-``position_tolerance_m`` / ``orientation_tolerance_deg``. ``move_joints`` does the same with
-the ``JointPosition`` controller. Either one gives up after the planned duration plus
-``settle_timeout_s``, stops the controller and raises :class:`FrankaTimeoutError`. A controller
-error (a reflex after a collision, a joint limit) raises :class:`FrankaMotionError`; call
-``robot.recover()`` (libfranka's automatic error recovery) once the cause is cleared.
+``CartesianImpedance`` controller at 100 Hz, with the posture at the start of the move as the
+null-space target (``q_nullspace``; panda_py's default would pull the elbow towards its fixed
+home posture during every move). ``move_joints`` does the same with the ``JointPosition``
+controller.
+
+Both controllers are impedance controllers without integral action: the arm settles where
+friction and model error balance the spring, a little short of the goal, and stays there
+(panda-py's own motion generators allow for it the same way; about 2 mm and 2e-3 rad on a
+real Panda at the default gains). A move therefore ends successfully once the set-point has
+arrived, the joints have come to rest (every ``|dq|`` below ``SETTLED_DQ`` rad/s) and the
+pose is within the documented tolerances: ``position_tolerance_m`` (3 mm),
+``orientation_tolerance_deg`` (0.5 deg) and ``joint_tolerance_rad`` (0.005 rad). What it
+settled to is kept in ``robot.last_move_error`` (:class:`SettleError`: metres and radians).
+A move gives up after the planned duration plus ``settle_timeout_s``, stops the controller and
+raises :class:`FrankaTimeoutError` with the error it ended at. A controller error (a reflex
+after a collision, a joint limit) raises :class:`FrankaMotionError`; call ``robot.recover()``
+(libfranka's automatic error recovery) once the cause is cleared.
+
+Gripper: libfranka estimates the Hand's ``max_width`` by homing, so ``connect`` homes the
+gripper (``Gripper.homing()``: the fingers close and open fully once; keep the jaws clear)
+unless ``home_gripper=False``.
 
 Real-time kernel
 ----------------
@@ -45,11 +60,13 @@ from __future__ import annotations
 import importlib
 import os
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from robots.backends import BackendNotAvailableError
+from robots.drivers._common import ROTATION_LEVER_M
 from robots.geometry import as_pose, invert, rotation_error_deg, translation_error
 from robots.interfaces import Gripper, Robot, RobotDisconnectedError, Workcell
 
@@ -60,6 +77,7 @@ __all__ = [
     "FrankaRealtimeError",
     "FrankaRobot",
     "FrankaTimeoutError",
+    "SettleError",
     "column_major_from_pose",
     "create_workcell",
     "host_has_realtime_kernel",
@@ -67,6 +85,12 @@ __all__ = [
 ]
 
 CONTROL_RATE_HZ = 100.0  # set-point updates from Python; the torque loop itself runs at 1 kHz
+SETTLED_DQ = 1e-3  # rad/s: every joint slower than this counts as at rest (panda-py's dq_threshold)
+# What the impedance controllers reliably settle within on a Panda (they stop ~2 mm, ~2e-3 rad
+# short); the defaults of FrankaRobot's tolerances.
+POSITION_TOLERANCE_M = 0.003
+ORIENTATION_TOLERANCE_DEG = 0.5
+JOINT_TOLERANCE_RAD = 0.005
 _REALTIME_FIX = (
     "install and boot a PREEMPT_RT kernel (Ubuntu: `sudo pro enable realtime-kernel`, or build one "
     "as in Franka's 'Setting up the real-time kernel' guide), and give your user real-time "
@@ -89,6 +113,19 @@ class FrankaMotionError(FrankaError):
 
 class FrankaTimeoutError(FrankaMotionError, TimeoutError):
     """A move did not reach its target in time; the robot was stopped."""
+
+
+@dataclass(frozen=True)
+class SettleError:
+    """Where the last move settled relative to its goal.
+
+    ``position_m`` and ``orientation_rad``: the end effector's distance and rotation angle
+    from the goal pose (Cartesian moves); ``joint_rad``: the largest joint error (every move).
+    """
+
+    joint_rad: float
+    position_m: float | None = None
+    orientation_rad: float | None = None
 
 
 # --------------------------------------------------------------------------- conversions
@@ -212,9 +249,9 @@ class FrankaRobot(Robot):
         sdk,
         safety=None,
         tool=None,
-        position_tolerance_m: float = 0.001,
-        orientation_tolerance_deg: float = 0.5,
-        joint_tolerance_rad: float = 0.002,
+        position_tolerance_m: float = POSITION_TOLERANCE_M,
+        orientation_tolerance_deg: float = ORIENTATION_TOLERANCE_DEG,
+        joint_tolerance_rad: float = JOINT_TOLERANCE_RAD,
         settle_timeout_s: float = 5.0,
         max_rotation_speed: float = 0.5,
     ):
@@ -226,6 +263,7 @@ class FrankaRobot(Robot):
         self.joint_tolerance_rad = joint_tolerance_rad
         self.settle_timeout_s = settle_timeout_s
         self.max_rotation_speed = max_rotation_speed  # rad/s cap for the flange's turn
+        self.last_move_error: SettleError | None = None  # set at the end of every move
 
     # ----- reading
 
@@ -275,19 +313,26 @@ class FrankaRobot(Robot):
 
     # ----- moving
 
-    def _stream(self, controller, setpoint, duration: float, reached, what: str) -> None:
-        """Run ``controller``; each tick send ``setpoint(t)``; finish when ``reached()`` after
-        ``duration`` s; time out ``settle_timeout_s`` later. Always stops the controller."""
+    def _at_rest(self) -> bool:
+        return bool(np.abs(np.asarray(self._state().dq, dtype=float)).max() < SETTLED_DQ)
+
+    def _stream(self, controller, setpoint, duration: float, settle_error, within, what: str):
+        """Run ``controller``; each tick send ``setpoint(t)``; finish once ``t >= duration``, the
+        arm is at rest and ``within(settle_error())``; time out ``settle_timeout_s`` later.
+        Always stops the controller and records ``last_move_error``."""
         panda = self._panda
         timeout = duration + self.settle_timeout_s
+        self.last_move_error = None
         try:
             panda.start_controller(controller)
             with panda.create_context(frequency=CONTROL_RATE_HZ, max_runtime=timeout) as ctx:
                 while ctx.ok():
                     t = ctx.num_ticks / CONTROL_RATE_HZ
                     setpoint(t)
-                    if t >= duration and reached():
-                        return
+                    if t >= duration and self._at_rest():
+                        error = self.last_move_error = settle_error()
+                        if within(error):
+                            return
             panda.raise_error()  # a reflex ends the context early: report it as such
         except RuntimeError as error:
             raise FrankaMotionError(
@@ -296,19 +341,26 @@ class FrankaRobot(Robot):
             ) from error
         finally:
             panda.stop_controller()
+        error = self.last_move_error = settle_error()
+        ended = f"{error.joint_rad:.4f} rad on one joint"
+        if error.position_m is not None:
+            ended = (f"{error.position_m * 1000:.1f} mm and "
+                     f"{np.degrees(error.orientation_rad):.2f} deg from the goal ({ended})")
         raise FrankaTimeoutError(
             f"{what} did not finish within {timeout:.1f} s (planned {duration:.1f} s plus "
-            f"settle_timeout_s={self.settle_timeout_s} s); the controller was stopped. The arm "
-            "may be blocked or the tolerances too tight for the impedance controller "
-            "(position_tolerance_m, orientation_tolerance_deg)"
+            f"settle_timeout_s={self.settle_timeout_s} s); it ended {ended} and the controller "
+            "was stopped. The arm may be blocked, or the tolerances tighter than the impedance "
+            "controller settles (position_tolerance_m, orientation_tolerance_deg, "
+            "joint_tolerance_rad; see docs/robots/franka.md)"
         )
 
     def _move_to(self, base_T_flange: np.ndarray, speed: float) -> None:
         start_ee, F_T_EE = self._ee_and_flange()
         goal_ee = base_T_flange @ F_T_EE
+        q_start = self.joint_positions()  # the null-space posture to keep (see module doc)
         distance = float(np.linalg.norm(goal_ee[:3, 3] - start_ee[:3, 3]))
         angle = float(np.radians(rotation_error_deg(start_ee, goal_ee)))
-        rot_speed = min(self.max_rotation_speed, speed / 0.1)
+        rot_speed = min(self.max_rotation_speed, speed / ROTATION_LEVER_M)
         duration = _PEAK_SLOPE * max(distance / speed, angle / rot_speed, 0.1)
         slerp = Slerp([0.0, 1.0], Rotation.from_matrix([start_ee[:3, :3], goal_ee[:3, :3]]))
         controller = self._sdk.controllers.CartesianImpedance()
@@ -316,16 +368,22 @@ class FrankaRobot(Robot):
         def setpoint(t):
             s = _smooth(t / duration)
             position = (1 - s) * start_ee[:3, 3] + s * goal_ee[:3, 3]
-            controller.set_control(position, slerp(s).as_quat())  # panda_py: quaternion xyzw
+            # panda_py takes the quaternion as (x, y, z, w), like scipy's as_quat().
+            controller.set_control(position, slerp(s).as_quat(), q_start)
 
-        def reached():
+        def settle_error():
             ee = self._ee_and_flange()[0]
-            return (
-                translation_error(ee, goal_ee) <= self.position_tolerance_m
-                and rotation_error_deg(ee, goal_ee) <= self.orientation_tolerance_deg
+            return SettleError(
+                joint_rad=float(np.abs(self.joint_positions() - q_start).max()),
+                position_m=translation_error(ee, goal_ee),
+                orientation_rad=float(np.radians(rotation_error_deg(ee, goal_ee))),
             )
 
-        self._stream(controller, setpoint, duration, reached, "the linear move")
+        def within(error):
+            return (error.position_m <= self.position_tolerance_m
+                    and np.degrees(error.orientation_rad) <= self.orientation_tolerance_deg)
+
+        self._stream(controller, setpoint, duration, settle_error, within, "the linear move")
 
     def _move_joints(self, q: np.ndarray, speed: float) -> None:
         start = self.joint_positions()
@@ -337,10 +395,13 @@ class FrankaRobot(Robot):
             ds = 30 * (t / duration) ** 2 * (1 - t / duration) ** 2 / duration if t < duration else 0
             controller.set_control(start + s * (q - start), ds * (q - start))
 
-        def reached():
-            return np.abs(self.joint_positions() - q).max() <= self.joint_tolerance_rad
+        def settle_error():
+            return SettleError(joint_rad=float(np.abs(self.joint_positions() - q).max()))
 
-        self._stream(controller, setpoint, duration, reached, "the joint move")
+        def within(error):
+            return error.joint_rad <= self.joint_tolerance_rad
+
+        self._stream(controller, setpoint, duration, settle_error, within, "the joint move")
 
     def _close(self) -> None:
         if isinstance(self.tool, FrankaGripper):
@@ -380,7 +441,10 @@ def create_workcell(
     realtime: str = "enforce",
     auto_recover: bool = True,
     settle_timeout_s: float = 5.0,
-    position_tolerance_m: float = 0.001,
+    position_tolerance_m: float = POSITION_TOLERANCE_M,
+    orientation_tolerance_deg: float = ORIENTATION_TOLERANCE_DEG,
+    joint_tolerance_rad: float = JOINT_TOLERANCE_RAD,
+    home_gripper: bool = True,
     sdk=None,
 ) -> Workcell:
     """Connect to a Panda's FCI at ``host`` and return a :class:`~robots.interfaces.Workcell`.
@@ -389,7 +453,9 @@ def create_workcell(
     (with ``camera_options`` for :func:`robots.drivers.realsense.open_realsense`) or a Camera.
     ``realtime``: "enforce" (default; refuse without a PREEMPT_RT kernel) or "ignore".
     ``auto_recover``: clear a left-over error from an earlier session on connect.
-    ``sdk`` replaces the ``panda_py`` module (tests pass a fake with the same API).
+    ``home_gripper``: home the Hand at connect (libfranka measures ``max_width`` by homing;
+    the fingers close and reopen once). The tolerances are what a move must settle within
+    (see the module docstring). ``sdk`` replaces the ``panda_py`` module (tests pass a fake with the same API).
     """
     if realtime not in ("enforce", "ignore"):
         raise ValueError(f"realtime must be 'enforce' or 'ignore', got {realtime!r}")
@@ -426,10 +492,22 @@ def create_workcell(
         if auto_recover:
             panda.get_robot().automatic_error_recovery()
         F_T_EE = pose_from_column_major(panda.get_state().F_T_EE)
-        tool = FrankaGripper(sdk.libfranka.Gripper(host), F_T_EE) if gripper else None
+        tool = None
+        if gripper:
+            hand = sdk.libfranka.Gripper(host)
+            tool = FrankaGripper(hand, F_T_EE)
+            if home_gripper and not hand.homing():
+                tool.close()
+                raise FrankaError(
+                    "homing the Franka Hand failed, so its maximum width is unknown; check "
+                    "that nothing is between or around the fingers and that the Hand is "
+                    "enabled in Desk, then connect again (or pass gripper=False)"
+                )
         robot = FrankaRobot(
             panda, sdk, safety=safety, tool=tool, settle_timeout_s=settle_timeout_s,
             position_tolerance_m=position_tolerance_m,
+            orientation_tolerance_deg=orientation_tolerance_deg,
+            joint_tolerance_rad=joint_tolerance_rad,
         )
         from robots.drivers.realsense import camera_from_option
 

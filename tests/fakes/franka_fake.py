@@ -3,8 +3,13 @@
 It simulates a Panda with the Franka Hand: joint angles (rad), forward kinematics from Franka's
 published modified-DH parameters, ``O_T_EE`` / ``F_T_EE`` as libfranka's column-major
 16-vectors, quaternions in (x, y, z, w) order as panda_py takes them, widths in metres.
-Controllers track their set-point perfectly at each tick of the context (simulated time, no
-sleeping), using damped least-squares IK for the Cartesian impedance controller.
+Controllers follow their set-point at each tick of the context (simulated time, no sleeping),
+using damped least-squares IK for the Cartesian impedance controller, but like the real
+impedance controllers (no integral action: friction and model error balance the spring) they
+settle **short** and stay there: ``SHORT_M`` = 1.5 mm and ``SHORT_RAD`` = 1.5e-3 rad back
+along the move (a pure turn sags 1.5 mm down), and every moved joint ``SHORT_RAD`` short.
+``RobotState.dq`` is the joint velocity of the last tick. The Hand reports ``max_width`` 0
+until it has been homed, since libfranka measures the maximum width by homing.
 
 ``SDK_NAMES`` lists every attribute the driver touches; tests check the fake has them and,
 where panda-python is installed, that the real module does too.
@@ -41,11 +46,13 @@ SDK_NAMES = [
     "libfranka.RobotState.O_T_EE",
     "libfranka.RobotState.F_T_EE",
     "libfranka.RobotState.q",
+    "libfranka.RobotState.dq",
     "libfranka.Gripper",
     "libfranka.Gripper.move",
     "libfranka.Gripper.grasp",
     "libfranka.Gripper.read_once",
     "libfranka.Gripper.stop",
+    "libfranka.Gripper.homing",
     "libfranka.GripperState.width",
     "libfranka.GripperState.max_width",
     "libfranka.GripperState.is_grasped",
@@ -67,6 +74,7 @@ _DH = np.array(
 LOWER = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
 UPPER = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
 HOME_Q = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+SHORT_M, SHORT_RAD = 1.5e-3, 1.5e-3  # where the impedance controllers settle, short of the goal
 
 
 def _hand_F_T_EE() -> np.ndarray:
@@ -101,11 +109,12 @@ def _pose_error(T, goal) -> np.ndarray:
 class FakeRobotState:
     """libfranka.RobotState: column-major ``O_T_EE``, ``F_T_EE`` (lists of 16) and ``q``."""
 
-    q = O_T_EE = F_T_EE = None  # class-level so the API-surface test sees the names
+    q = dq = O_T_EE = F_T_EE = None  # class-level so the API-surface test sees the names
 
-    def __init__(self, q, F_T_EE):
+    def __init__(self, q, F_T_EE, dq=None):
         O_T_EE = flange_fk(q) @ F_T_EE
         self.q = list(map(float, q))
+        self.dq = [0.0] * 7 if dq is None else list(map(float, dq))
         self.O_T_EE = O_T_EE.reshape(-1, order="F").tolist()
         self.F_T_EE = F_T_EE.reshape(-1, order="F").tolist()
 
@@ -113,10 +122,15 @@ class FakeRobotState:
 class FakeCartesianImpedance:
     def __init__(self):
         self.target = None
+        self.q_nullspace = None  # None: the caller left panda_py's default (the home posture)
 
-    def set_control(self, position, orientation):
+    def set_control(self, position, orientation, q_nullspace=None):
         position, orientation = np.asarray(position, float), np.asarray(orientation, float)
         assert position.shape == (3,) and orientation.shape == (4,)
+        if q_nullspace is not None:
+            q_nullspace = np.asarray(q_nullspace, float)
+            assert q_nullspace.shape == (7,)
+        self.q_nullspace = q_nullspace
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(orientation).as_matrix()  # x, y, z, w like panda_py
         T[:3, 3] = position
@@ -177,6 +191,7 @@ class FakePanda:
         if realtime_config == RealtimeConfig.kEnforce and not type(self).host_realtime:
             raise RuntimeError("libfranka: Running kernel does not have realtime capabilities.")
         self.hostname = hostname
+        self.realtime_config = realtime_config
         self.q = HOME_Q.copy()
         self.F_T_EE = _hand_F_T_EE()
         self.controller = None
@@ -185,11 +200,16 @@ class FakePanda:
         self.stop_count = 0
         self.recoveries = 0
         self.fail_after_ticks = None  # an int: raise a reflex after that many ticks
+        self.settles_short = True  # False: an ideal controller that reaches the set-point
+        self.dq = np.zeros(7)
+        self.controllers = []  # every controller started, in order
+        self._frequency = 1000.0
+        self._start_q = self.q.copy()
         self._ticks = 0
         FakePanda.instances.append(self)
 
     def get_state(self):
-        return FakeRobotState(self.q, self.F_T_EE)
+        return FakeRobotState(self.q, self.F_T_EE, self.dq)
 
     def get_joint_limits_lower(self):
         return LOWER.copy()
@@ -204,12 +224,15 @@ class FakePanda:
         if self.error is not None:
             raise RuntimeError(f"libfranka: {self.error}")
         self.controller = controller
+        self.controllers.append(controller)
+        self._start_q = self.q.copy()
 
     def stop_controller(self):
         self.stop_count += 1
         self.controller = None
 
     def create_context(self, frequency, max_runtime=0.0, max_iter=0):
+        self._frequency = frequency
         return FakeContext(self, frequency, max_runtime, max_iter)
 
     def raise_error(self):
@@ -223,12 +246,34 @@ class FakePanda:
             self.controller = None
             return
         c = self.controller
-        if self.stuck or c is None or c.target is None:
-            return
-        if isinstance(c, FakeJointPosition):
-            self.q = np.clip(c.target, LOWER, UPPER)
-        else:
-            self.q = self._ik(c.target @ np.linalg.inv(self.F_T_EE))
+        before = self.q.copy()
+        if not (self.stuck or c is None or c.target is None):
+            if isinstance(c, FakeJointPosition):
+                self.q = np.clip(self._short_joints(c.target), LOWER, UPPER)
+            else:
+                self.q = self._ik(self._short_pose(c.target) @ np.linalg.inv(self.F_T_EE))
+        self.dq = (self.q - before) * self._frequency
+
+    def _short_joints(self, target):
+        if not self.settles_short:
+            return target
+        step = target - self._start_q
+        return target - np.sign(step) * np.minimum(np.abs(step), SHORT_RAD)
+
+    def _short_pose(self, target_ee):
+        """Where the impedance controller settles for set-point ``target_ee``."""
+        if not self.settles_short:
+            return target_ee
+        start = flange_fk(self._start_q) @ self.F_T_EE
+        out = target_ee.copy()
+        travel = target_ee[:3, 3] - start[:3, 3]
+        n = np.linalg.norm(travel)
+        out[:3, 3] -= travel / n * min(n, SHORT_M) if n > 1e-6 else [0.0, 0.0, SHORT_M]
+        turn = Rotation.from_matrix(target_ee[:3, :3] @ start[:3, :3].T).as_rotvec()
+        angle = np.linalg.norm(turn)
+        back = -turn / angle * min(angle, SHORT_RAD) if angle > 1e-6 else [SHORT_RAD, 0.0, 0.0]
+        out[:3, :3] = Rotation.from_rotvec(back).as_matrix() @ target_ee[:3, :3]
+        return out
 
     def _ik(self, goal_flange) -> np.ndarray:
         q = self.q.copy()
@@ -258,22 +303,38 @@ class FakeGripperState:
 
 
 class FakeGripper:
-    """libfranka.Gripper(franka_address): widths in metres, speed m/s, force N."""
+    """libfranka.Gripper(franka_address): widths in metres, speed m/s, force N.
 
-    max_width = 0.08
+    ``max_width`` reads 0 until ``homing()`` has measured it (``HAND_MAX_WIDTH``).
+    """
+
+    HAND_MAX_WIDTH = 0.08
+    homing_fails = False  # True: homing reports failure (something blocks the fingers)
+    instances: typing.ClassVar[list] = []
 
     def __init__(self, franka_address):
-        self.width = self.max_width
+        self.max_width = 0.0
+        self.width = 0.05  # wherever the fingers were left
         self.object_width = None  # metres; set to put an object between the fingers
         self.grasped = False
         self.stopped = False
         self.calls = []
+        FakeGripper.instances.append(self)
+
+    def homing(self):
+        self.calls.append(("homing",))
+        if type(self).homing_fails:
+            return False
+        self.max_width = self.width = self.HAND_MAX_WIDTH
+        return True
 
     def read_once(self):
         return FakeGripperState(self.width, self.max_width, self.grasped)
 
     def move(self, width, speed):
         self.calls.append(("move", width, speed))
+        if not 0.0 <= width <= self.HAND_MAX_WIDTH:
+            raise RuntimeError("libfranka gripper: command width out of range")
         if self.object_width is not None and width < self.object_width:
             self.width, self.grasped = self.object_width, False
             return False
@@ -294,6 +355,7 @@ class FakeGripper:
 def make_sdk():
     """A fresh module-like namespace shaped like ``panda_py`` (pass as ``sdk=``)."""
     FakePanda.instances = []
+    FakeGripper.instances = []
     return types.SimpleNamespace(
         Panda=FakePanda,
         PandaContext=FakeContext,
