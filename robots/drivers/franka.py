@@ -120,12 +120,13 @@ class SettleError:
     """Where the last move settled relative to its goal.
 
     ``position_m`` and ``orientation_rad``: the end effector's distance and rotation angle
-    from the goal pose (Cartesian moves); ``joint_rad``: the largest joint error (every move).
+    from the goal pose (``move_to``); ``joint_rad``: the largest joint error (``move_joints``).
+    The fields that do not apply to the move are None.
     """
 
-    joint_rad: float
     position_m: float | None = None
     orientation_rad: float | None = None
+    joint_rad: float | None = None
 
 
 # --------------------------------------------------------------------------- conversions
@@ -342,10 +343,11 @@ class FrankaRobot(Robot):
         finally:
             panda.stop_controller()
         error = self.last_move_error = settle_error()
-        ended = f"{error.joint_rad:.4f} rad on one joint"
         if error.position_m is not None:
             ended = (f"{error.position_m * 1000:.1f} mm and "
-                     f"{np.degrees(error.orientation_rad):.2f} deg from the goal ({ended})")
+                     f"{np.degrees(error.orientation_rad):.2f} deg from the goal")
+        else:
+            ended = f"{error.joint_rad:.4f} rad from the goal on one joint"
         raise FrankaTimeoutError(
             f"{what} did not finish within {timeout:.1f} s (planned {duration:.1f} s plus "
             f"settle_timeout_s={self.settle_timeout_s} s); it ended {ended} and the controller "
@@ -374,7 +376,6 @@ class FrankaRobot(Robot):
         def settle_error():
             ee = self._ee_and_flange()[0]
             return SettleError(
-                joint_rad=float(np.abs(self.joint_positions() - q_start).max()),
                 position_m=translation_error(ee, goal_ee),
                 orientation_rad=float(np.radians(rotation_error_deg(ee, goal_ee))),
             )
