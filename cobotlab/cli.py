@@ -128,6 +128,9 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="sim (default), ur, franka, aubo or cobotta; or COBOTLAB_KIND / lab.toml")
     check.add_argument("--host", default=None, help="controller address for a real arm")
     check.add_argument("--arm", default=None, help="sim only: panda, ur5e, ur10e, aubo_i5, cobotta")
+    check.add_argument("--realtime", default=None, choices=("enforce", "ignore"),
+                       help="franka only: 'ignore' connects without a PREEMPT_RT kernel "
+                            "(libfranka's kIgnore; motions may abort under load)")
     return parser
 
 
@@ -148,9 +151,6 @@ def _robot_check(kind, host, arm, jog: bool = False, realtime=None) -> None:
         print("joints (deg):  " + "  ".join(f"{v:8.2f}" for v in np.degrees(q)))
         print("joint limits:  " + "  ".join(f"[{lo:.0f}, {hi:.0f}]" for lo, hi in np.degrees(limits)))
         print("flange (mm):   " + "  ".join(f"{v:8.1f}" for v in T[:3, 3] * 1000))
-    check.add_argument("--realtime", default=None, choices=("enforce", "ignore"),
-                       help="franka only: 'ignore' connects without a PREEMPT_RT kernel "
-                            "(libfranka's kIgnore; motions may abort under load)")
         print("flange rpy (deg, R = Rz(yaw) Ry(pitch) Rx(roll)): "
               + "  ".join(f"{v:7.2f}" for v in rpy_from_pose(T, degrees=True)))
         safety = robot.safety
