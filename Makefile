@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean system-packages
+.PHONY: demo test lint bench clean system-packages student-labs student-wheel
 
 # Reinstall only when the dependency list changes; the package itself is installed editable.
 # The tests also exercise the real-robot drivers against fakes and the RealSense SDK against its
@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev,real]'
 	@touch $(STAMP)
 
-# libusb for pyrealsense2; chromium for the real-browser run of a lab.
-SYSTEM_PACKAGES := libusb-1.0-0 chromium
+# libusb for pyrealsense2; chromium for the real-browser run of a lab; bubblewrap for the
+# grader's sandbox around student code.
+SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap
 system-packages:
 	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); \
@@ -36,6 +37,15 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/handeye_accuracy.py --quick
+
+# What students get: the labs without solutions (give them student_labs/, never labs/), and
+# the install without the reference solvers (dist/cobotlab_student-*.whl).
+student-labs: $(STAMP)
+	$(VENV)/bin/cobotlab labs student student_labs
+
+student-wheel: $(STAMP)
+	rm -rf student/build
+	$(PY) -m pip wheel --no-deps student/ -w dist/
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -49,6 +49,18 @@ MOVES_BY_ARM = {"cobotta": (("e2", "e4"), ("d2", "d4"), ("c2", "c4"))}
 SQUARE_M = 0.05  # the simulator's chess squares on every arm but the Cobotta
 
 
+def require_solutions(command: str) -> None:
+    """Raise ``ModuleNotFoundError`` with one line saying what to install when the reference
+    solvers (``solutions``) are missing, as they are in the student install by design."""
+    import importlib.util
+
+    if importlib.util.find_spec("solutions") is None:
+        raise ModuleNotFoundError(
+            f"cobotlab {command} needs the reference solvers (package 'solutions'), which the "
+            "student install leaves out: run it where the full cobotlab is installed "
+            "(pip install -e . in the repository)", name="solutions")
+
+
 def chess_square_m(robot: str) -> float:
     """Side (m) of the simulator's chess squares for an arm: 30 mm on the small Cobotta."""
     return 0.03 if robot == "cobotta" else SQUARE_M
@@ -594,6 +606,7 @@ def run_demo(robot: str = "panda", seed: int = 0, noise: str = "low", out="out",
     """Run the three parts in the simulator, print their errors against the truth and write
     ``out/report.html`` (figures as PNG files beside it). Returns the numbers as a
     :class:`DemoResult`. Bad options raise ValueError before anything runs."""
+    require_solutions("demo")
     from cobotlab.report import write_report
 
     settings = DemoSettings.make(robot, seed, noise, out, quick, n_poses, progress)
@@ -641,6 +654,7 @@ def run_synthetic(seed: int = 0, n_poses: int = 15, pixel_px: float = 0.3,
     """``cobotlab demo --synthetic``: every hand-eye method on one seeded synthetic problem per
     mount (board corners projected with pixel noise, poses from ``cv2.solvePnP``, robot poses
     with encoder-level noise). Prints the rotation (deg) and translation (mm) error of X."""
+    require_solutions("demo --synthetic")
     from autograder.synthetic import NoiseModel, make_hand_eye
     from solutions.catalog import DEFAULT_METHOD, hand_eye_methods
 

@@ -1,0 +1,130 @@
+"""The students' copies of the labs: nbgrader's release versions, without an nbgrader course.
+
+``labs/`` in the repository holds the instructor's source notebooks, with every
+``### BEGIN SOLUTION`` region and hidden test. :func:`write_student_labs` runs each one through
+the preprocessors ``nbgrader generate_assignment`` uses (solutions replaced by the code stub,
+hidden tests and mark schemes removed, outputs cleared, cells locked and checksummed), checks
+that nothing of the answers is left, and writes it with the lab's other files into a folder
+students can be given. Only the gradebook step is left out: that belongs to the course.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+__all__ = ["LABS_DIR", "RELEASE_LEAKS", "lab_names", "release_notebook", "write_student_labs"]
+
+LABS_DIR = Path(__file__).resolve().parent.parent / "labs"
+
+# Text that only an instructor's notebook holds. A release still carrying one is refused.
+RELEASE_LEAKS = ("BEGIN SOLUTION", "END SOLUTION", "BEGIN HIDDEN TESTS", "END HIDDEN TESTS",
+                 "BEGIN MARK SCHEME", "hidden_test", "import solutions", "from solutions")
+
+# nbgrader's own stub, written out so the release does not depend on a course's config.
+CODE_STUB = "# YOUR CODE HERE\nraise NotImplementedError()"
+
+_SKIP = shutil.ignore_patterns(".ipynb_checkpoints", "__pycache__", "*_results", "*.ipynb")
+
+_README = """\
+# cobotlab labs: student notebooks
+
+Made by `cobotlab labs student` from the course's source notebooks: the graded functions are
+empty (`raise NotImplementedError()`), ready for your code. Open this folder in JupyterLab
+(`jupyter lab`), start with `lab0_frames/`, and run the cells top to bottom. After each function
+you write, its `check(...)` cell scores it on practice problems the way the grader will on
+hidden ones.
+
+{labs}
+"""
+
+
+def _labs_dir(labs_dir) -> Path:
+    labs = Path(labs_dir) if labs_dir is not None else LABS_DIR
+    if not labs.is_dir():
+        raise FileNotFoundError(
+            f"no lab sources at {labs}: `cobotlab labs student` turns the instructor's source "
+            "notebooks (labs/ in the cobotlab repository) into student copies, so run it from "
+            "the full checkout, or ask your instructor for the student notebooks")
+    return labs
+
+
+def lab_names(labs_dir=None) -> list[str]:
+    """Names of the labs in ``labs_dir`` (default: the repository's ``labs/``), sorted."""
+    labs = _labs_dir(labs_dir)
+    return sorted(p.name for p in labs.iterdir() if p.is_dir() and any(p.glob("*.ipynb")))
+
+
+def release_notebook(path):
+    """The release version (an ``nbformat`` notebook) of the source notebook at ``path``.
+
+    Runs nbgrader's ``generate_assignment`` preprocessors in its order, minus the gradebook
+    (``SaveCells``) and the header/footer and test-instantiation steps the labs do not use.
+    Raises ``ValueError`` naming the cell if any solution or hidden-test text survives.
+    """
+    import nbformat
+    from nbgrader.preprocessors import (
+        CheckCellMetadata,
+        ClearHiddenTests,
+        ClearMarkScheme,
+        ClearOutput,
+        ClearSolutions,
+        ComputeChecksums,
+        LockCells,
+    )
+
+    path = Path(path)
+    nb = nbformat.read(path, as_version=nbformat.NO_CONVERT)
+    resources: dict = {"metadata": {"path": str(path.parent)}}
+    # ClearHiddenTests must follow the checksums (nbgrader's own note), and the checksums are
+    # computed again on what the students get.
+    steps = [LockCells(), ClearSolutions(code_stub={"python": CODE_STUB}), ClearOutput(),
+             CheckCellMetadata(), ComputeChecksums(), ClearHiddenTests(), ClearMarkScheme(),
+             ComputeChecksums(), CheckCellMetadata()]
+    for step in steps:
+        nb, resources = step.preprocess(nb, resources)
+    for index, cell in enumerate(nb.cells):
+        leaks = [word for word in RELEASE_LEAKS if word in cell.source]
+        if leaks:
+            raise ValueError(f"{path.name}: cell {index} still holds {', '.join(leaks)} after "
+                             "nbgrader's preprocessors; mark the region with ### BEGIN/END "
+                             "SOLUTION (or HIDDEN TESTS) in a cell with nbgrader metadata")
+    return nb
+
+
+def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> list[Path]:
+    """Write the student version of every lab (or of ``labs``) into ``dest``; return the paths.
+
+    ``dest/<lab>/<lab>.ipynb`` is the release notebook of ``labs_dir/<lab>/`` (default: the
+    repository's ``labs/``), beside copies of that lab's other files (data a lab reads from
+    its own folder); ``dest/README.md`` says how to start. An existing notebook is never
+    overwritten unless ``force``: it may hold a student's work.
+    """
+    import nbformat
+
+    source_root = _labs_dir(labs_dir)
+    names = list(labs) if labs else lab_names(source_root)
+    unknown = [n for n in names if not (source_root / n).is_dir()]
+    if unknown:
+        raise ValueError(f"no lab named {', '.join(unknown)}; the labs are "
+                         f"{', '.join(lab_names(source_root))}")
+    dest = Path(dest)
+    planned = {}
+    for name in names:
+        for source in sorted((source_root / name).glob("*.ipynb")):
+            planned[source] = dest / name / source.name
+    existing = [str(p) for p in planned.values() if p.exists()]
+    if existing and not force:
+        verb = "already exists" if len(existing) == 1 else "already exist"
+        raise FileExistsError(f"{', '.join(existing)} {verb} and may hold your work; write "
+                              "into a new folder, or pass --force to replace them")
+    released = {source: release_notebook(source) for source in planned}  # all or nothing
+    written = []
+    for name in names:
+        shutil.copytree(source_root / name, dest / name, ignore=_SKIP, dirs_exist_ok=True)
+    for source, target in planned.items():
+        nbformat.write(released[source], target)
+        written.append(target)
+    listing = "\n".join(f"- `{name}/`" for name in names)
+    (dest / "README.md").write_text(_README.format(labs=listing))
+    return written
