@@ -38,6 +38,7 @@ __all__ = [
     "make_opencv_scenario",
     "make_flange",
     "make_three_point",
+    "make_real_like_hand_eye",
 ]
 
 MOUNTS = ("eye_in_hand", "eye_to_hand")
@@ -539,4 +540,65 @@ def make_three_point(seed, camera_noise_mm: float = 0.0, pointer_noise_mm: float
         check_base=measure(base_T_world, check, pointer_noise_mm),
         base_T_cam_true=base_T_cam, base_T_world_true=base_T_world, cam_T_world_true=cam_T_world,
         camera_noise_mm=camera_noise_mm, pointer_noise_mm=pointer_noise_mm,
+    )
+
+
+# --------------------------------------------------------------------------- real-like captures
+
+
+def make_real_like_hand_eye(seed, n_poses: int = 28, robot_rot_deg: float = 0.03,
+                            robot_trans_mm: float = 0.25, robot_gain: float = 0.001,
+                            board_scale: float = 0.98, pixel_px: float = 0.07,
+                            motion_deg=(15.0, 45.0)) -> HandEyeProblem:
+    """An eye-in-hand capture with the errors real ones have (modelled on the KUKA kuka_2 set).
+
+    What the other generators leave out and real captures show: robot pose error as large as
+    the camera's (``robot_rot_deg`` / ``robot_trans_mm`` per axis, drawn afresh per view), a
+    part of it that repeats with the arm's configuration (``robot_gain``: the controller
+    reports every translation from the base and every rotation angle away from the first
+    view's orientation ``1 + robot_gain`` times too large, as a slightly miscalibrated arm
+    does), and a board printed at ``board_scale`` times its stated square size. Corners get
+    ``pixel_px`` of noise per axis; ``cam_T_target`` is solvePnP on the *stated* board, so its
+    distances are off by the scale error, as on a real rig.
+
+    The camera is 1920 x 1200 with a 1056 px focal length and the board 24 x 17 inner corners
+    of 15 mm (stated), like kuka_2. Returns a ``HandEyeProblem`` whose ``board`` is the stated
+    board, ``pixels`` the noisy corners, ``true_base_T_flange`` the poses without robot error.
+    """
+    import cv2
+
+    rng = as_generator(seed)
+    if not 0.5 < board_scale < 2.0:
+        raise ValueError(f"board_scale must be a factor near 1 (0.5-2), got {board_scale}")
+    stated = Board(cols=24, rows=17, square_m=0.015)
+    true_board = Board(cols=24, rows=17, square_m=0.015 * board_scale)
+    K = np.array([[1056.0, 0.0, 959.5], [0.0, 1056.0, 599.5], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K=K, dist=np.zeros(5), width=1920, height=1200)
+    cam_T_target = _sample_views(rng, n_poses, true_board, camera, motion_deg)
+    X, Y = _true_flange_T_cam(rng), _true_base_T_target(rng)
+    base_T_flange = Y @ geo.invert(cam_T_target) @ geo.invert(X)
+
+    reported = base_T_flange.copy()
+    reference = base_T_flange[0, :3, :3]
+    for i, T in enumerate(base_T_flange):
+        turn = Rotation.from_matrix(T[:3, :3] @ reference.T).as_rotvec()
+        reported[i, :3, :3] = Rotation.from_rotvec((1.0 + robot_gain) * turn).as_matrix() @ reference
+        reported[i, :3, 3] = (1.0 + robot_gain) * T[:3, 3]
+    reported = np.stack([perturb_pose(T, np.radians(robot_rot_deg), robot_trans_mm / 1000.0, rng)
+                         for T in reported])
+
+    object_points = stated.object_points()
+    pixels = np.stack([camera.project(T, true_board.object_points()) for T in cam_T_target])
+    pixels = pixels + rng.normal(0.0, pixel_px, pixels.shape)
+    measured = np.empty_like(cam_T_target)
+    for i, px in enumerate(pixels):
+        ok, rvec, tvec = cv2.solvePnP(object_points, px, K, camera.dist)
+        if not ok:
+            raise RuntimeError(f"solvePnP failed on synthetic view {i}")
+        measured[i] = geo.make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    noise = NoiseModel(robot_rot_deg=robot_rot_deg, robot_trans_mm=robot_trans_mm, pixel_px=pixel_px)
+    return HandEyeProblem(
+        mount="eye_in_hand", base_T_flange=reported, cam_T_target=measured, X_true=X, Y_true=Y,
+        true_base_T_flange=base_T_flange, true_cam_T_target=cam_T_target, noise=noise,
+        board=stated, camera=camera, pixels=pixels,
     )
