@@ -319,7 +319,9 @@ class Robot(ABC):
 
     Attributes: ``name`` (e.g. "panda"), ``safety`` (a :class:`~robots.safety.Safety`, checked
     before every move), ``tool`` (the mounted :class:`Tool` or None), ``settle_time_s`` (how
-    long to wait after a move before taking a picture; a simulator that stops dead sets 0).
+    long to wait after a move before taking a picture; a simulator that stops dead sets 0),
+    ``move_listeners`` (callables run with no argument after each finished move, e.g. a 3-D
+    view redrawing; one that fails is reported as a warning and never fails the move).
     """
 
     settle_time_s: float = 0.5
@@ -329,6 +331,7 @@ class Robot(ABC):
         self.safety = Safety() if safety is None else safety
         self.tool = tool
         self._closed = False
+        self.move_listeners: list = []
 
     # ----- to implement in a backend
 
@@ -428,6 +431,12 @@ class Robot(ABC):
                     stacklevel=3,
                 )
             raise
+        for listener in list(getattr(self, "move_listeners", ())):
+            try:
+                listener()
+            except Exception as error:  # the move happened; a display must not undo that
+                warnings.warn(f"a move listener failed after the move: {error!r}",
+                              RuntimeWarning, stacklevel=3)
 
     def tcp_pose(self) -> np.ndarray:
         """``base_T_tcp = base_T_flange @ tool.flange_T_tcp`` (the flange pose if no tool)."""
@@ -520,6 +529,16 @@ class Workcell:
 
     def _close(self) -> None:
         """Backend hook, called after the robot and cameras are closed."""
+
+    def visual_scene(self):
+        """What a 3-D view can draw of this cell, read-only: a ``robots.viewer.VisualScene``.
+
+        It holds the cell's shapes (arm links, tool, table, targets, pieces) at their poses
+        now and the true poses of its frames, all in the robot base frame (metres); each call
+        reads them afresh. None (this default) when the backend has no model of the cell, as
+        on a real robot: ``robots.viewer`` then draws the frames it can read from the robot.
+        """
+        return None
 
     def close(self) -> None:
         """Stop the robot, close cameras and robot, then the backend. Idempotent.

@@ -159,6 +159,14 @@ class SimWorkcell(Workcell):
         if p.isConnected(self.client):
             p.disconnect(self.client)
 
+    def visual_scene(self):
+        """Every PyBullet body's visual shapes and the true frames (see Workcell.visual_scene)."""
+        from sim_backends.viewer_scene import SceneReader
+
+        if getattr(self, "_scene_reader", None) is None:
+            self._scene_reader = SceneReader(self)  # geometry read once, poses every call
+        return self._scene_reader.read()
+
 
 # --------------------------------------------------------------------------- helpers
 
