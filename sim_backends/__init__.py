@@ -1,6 +1,7 @@
 """PyBullet simulation backend for cobotlab (the default ``robots.connect("sim", ...)``).
 
-Importing this package is cheap: PyBullet and the world are loaded only when a workcell is
+Importing this package loads PyBullet (a few tens of milliseconds, with its build-time banner
+swallowed: ``_pybullet``); the world and its models are loaded only when a workcell is
 created. ``robots.backends`` finds the factory by name ("sim" ->
 ``sim_backends.world:create_workcell``), so nothing needs registering by hand; the
 ``create_workcell`` attribute below is the same function, imported on first use.
@@ -9,6 +10,8 @@ Modules: ``world`` (the workcell factory and ground truth), ``arms``/``ik``/``to
 simulated robots), ``camera`` (pinhole RGB-D rendering), ``scene`` and ``textures`` (table,
 calibration targets, chess set).
 """
+
+from sim_backends import _pybullet  # noqa: F401  (loads PyBullet without its banner)
 
 __all__ = ["create_workcell"]
 

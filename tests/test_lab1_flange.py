@@ -157,6 +157,20 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests(clean_results):
     text = kit.output_text(nb)
     assert "worst pose 45" in text and "views with the whole board" in text
     assert "fit_rigid refused" in text and "collinear" in text
+    assert "pybullet build time" not in text
+
+
+def test_simulator_starts_without_the_pybullet_banner():
+    """PyBullet prints its build time on stderr when it loads; Jupyter shows that in red."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "import robots\n"
+                           "with robots.connect('sim', arm='panda', seed=0) as cell:\n"
+                           "    print('connected', cell.robot.name)"],
+                          capture_output=True, text=True, timeout=120, check=True)
+    assert "connected" in done.stdout
+    assert "pybullet build time" not in done.stdout + done.stderr, done.stderr
 
 
 @pytest.fixture(scope="module")
@@ -202,3 +216,24 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         text = path.read_text()
         assert secret not in text and "hidden_test" not in text, path
+
+
+# --------------------------------------------------------------------------- the lab's helpers
+
+
+def test_view_plan_pivots_about_the_board_centre():
+    from robots.labkit import lab1
+
+    pivot = np.array([0.0, 0.0, 0.5])
+    T = lab1.turned_about(pivot, [20.0, -10.0, 5.0])
+    assert np.allclose(geo.transform_points(T, pivot), pivot)       # the pivot stays put
+    assert geo.rotation_error_deg(T, np.eye(4)) == pytest.approx(np.linalg.norm([20, -10, 5]))
+    home = geo.make_pose(np.diag([1.0, -1.0, -1.0]), [0.4, 0.0, 0.5])
+    views = lab1.plan_views(home, [(0, 0), (20, 0)], [(0.25, (9, -12))])
+    assert len(views) == 3
+    # An untilted view is the home pose raised 15 cm along the flange axis (z points down here).
+    assert np.allclose(views[0][:3, 3], [0.4, 0.0, 0.65])
+    # Tilted views pivot about the point 0.5 m ahead of the raised flange: it stays in place.
+    ahead = geo.transform_points(views[0], pivot)
+    assert np.allclose(geo.transform_points(views[1], pivot), ahead, atol=1e-12)
+    assert geo.rotation_error_deg(views[1], views[0]) == pytest.approx(20.0)

@@ -64,6 +64,14 @@ def _wrong_sources(solutions: dict[str, str]) -> dict[str, str]:
 # --------------------------------------------------------------------------- the notebook
 
 
+def _strategy_errors(text: str, strategy: str) -> tuple[float, float, float, float]:
+    """(rotation deg, translation mm) at n=3 and at n=15 as the strategy cell prints them."""
+    line = text.split(f"Tsai-Lenz, {strategy:>11}: ", 1)[1].splitlines()[0]
+    numbers = [float(v) for v in line.replace("n=3", "").replace("n=15", "").replace(
+        "deg", "").replace("mm", "").replace("/", " ").replace(",", " ").split()]
+    return tuple(numbers)
+
+
 def test_source_notebook_runs_with_solutions_and_hidden_tests():
     nb = kit.execute_source(ASSIGNMENT, timeout_s=180)
     hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
@@ -71,6 +79,14 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests():
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
     for name in FUNCTIONS:
         assert f"{name}: {POINTS[name]:g} / {POINTS[name]:g} points" in text, name
+    assert "pybullet build time" not in text
+    # The question after the strategy figure says: nearly equal at n = 3, apart at n = 15.
+    consecutive = _strategy_errors(text, "consecutive")
+    everything = _strategy_errors(text, "all")
+    assert abs(consecutive[0] / everything[0] - 1.0) < 0.15, (consecutive, everything)
+    assert everything[2] < 0.8 * consecutive[2], (consecutive, everything)
+    assert "(closed_chain.svg)" in kit.source_notebook(ASSIGNMENT).read_text()
+    assert (kit.source_notebook(ASSIGNMENT).parent / "closed_chain.svg").is_file()
     # the released notebook never calls the instructor's reference solvers
     source = kit.source_notebook(ASSIGNMENT).read_text()
     assert "from solutions" not in source and "import solutions" not in source
@@ -84,6 +100,8 @@ def test_release_has_no_solution_hidden_tests_or_secret(released, solutions):
         "np.linalg.svd(M)",
         "Ak[:3, :3] @ R_X - R_X @ Bk[:3, :3]",
     ))
+    # The closed-chain diagram the markdown shows travels with the notebook.
+    assert (released / "release" / ASSIGNMENT / "closed_chain.svg").is_file()
 
 
 # --------------------------------------------------------------------------- the tolerances

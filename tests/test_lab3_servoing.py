@@ -134,6 +134,23 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests():
     assert "32 pieces found on 32 squares; 32 agree with the truth" in text
     assert "e2 empty: True; on e4: white pawn" in text
     assert "IBVS, gain sign flipped" in text and "wrong calibration (5 mm, 2 deg)" in text
+    assert "pybullet build time" not in text
+    lever = text.split("camera to pawn top at the end of the closed loop: d = ")[1].split(" m")[0]
+    source = nbformat_cells(kit.source_notebook(ASSIGNMENT))
+    quoted = [c.replace("$", "") for c in source if "camera-to-pawn distance" in c]
+    assert len(quoted) == 2 and all(f"{lever} m" in c for c in quoted), (lever, quoted)
+    assert "0.25 m" not in "".join(quoted) and "0.3 m" not in "".join(quoted)
+    # The feature tracks are drawn in pixels, with the commanded velocity beside them.
+    figures = [o for c in nb.cells if "plot_servo_runs" in c.source for o in c.outputs
+               if "image/png" in o.get("data", {})]
+    assert len(figures) == 2
+
+
+def nbformat_cells(path) -> list[str]:
+    """The markdown sources of a notebook."""
+    import nbformat
+
+    return [c.source for c in nbformat.read(path, as_version=4).cells if c.cell_type == "markdown"]
 
 
 @pytest.fixture(scope="module")
@@ -227,3 +244,24 @@ def test_independent_grader_drives_the_law_in_its_worker(tmp_path):
         assert scores[name]["interaction_matrix"].fraction == 1.0  # one hang costs one function
     # The first twist right, then nothing: the velocity check only (0.3 of 4 points) at most.
     assert scores["first_call_only"]["ibvs_velocity"].points <= 0.3 * 4.0 + 1e-9
+
+
+# --------------------------------------------------------------------------- the lab's helpers
+
+
+def test_find_tops_finds_a_raised_block_on_the_board():
+    from robots.interfaces import Intrinsics
+    from robots.labkit import lab3
+
+    intrinsics = Intrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
+    depth = np.full((240, 320), 0.5)                 # the board plane, 0.5 m below the camera
+    depth[100:111, 200:211] = 0.47                   # a 3 cm tall piece: its top is a plateau
+    depth[50, 50] = 0.49                             # one noisy pixel: not a piece
+    depth[150:160, 40:50] = np.nan                   # a hole in the depth image
+    cam_T_chess = np.diag([1.0, -1.0, -1.0, 1.0])    # chess z points at the camera
+    cam_T_chess[2, 3] = 0.5
+    tops = lab3.find_tops(depth, cam_T_chess, intrinsics)
+    assert tops.shape == (1, 2)
+    assert np.allclose(tops[0], [205.0, 105.0])
+    assert np.allclose(lab3.to_pixels([[0.0, 0.0], [0.1, -0.1]], intrinsics.K),
+                       [[160.0, 120.0], [190.0, 90.0]])

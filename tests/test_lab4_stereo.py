@@ -106,7 +106,28 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests():
     assert len(hidden) == len(FUNCTIONS)
     text = kit.output_text(nb, "\n")
     assert "20 views seen by both cameras" in text
-    assert "per-axis RMSE on 12 check points" in text
+    assert "pybullet build time" not in text
+    # What the text says about these outputs: Q's (cx - cx')/Tx is zero with the default
+    # rectification and not without it; the stereo points are worst along depth, the
+    # calibration's check points along camera x, from a tilt mostly about camera y.
+    assert "Q[3, 3] = 0:" in text and "flags=0 instead: Q[3, 3] = 0 " not in text
+    check_rmse = _vector_after(text, "per-axis RMSE on 12 check points (mm, camera x y z):")
+    stereo_rmse = _vector_after(text, "stereo error of all 48 corners (mm RMS, camera x y z):")
+    tilt = _vector_after(text, "rotation error of base_T_cam as a rotation vector, camera axes (deg):")
+    assert np.argmax(check_rmse) == 0 and np.argmax(stereo_rmse) == 2, (check_rmse, stereo_rmse)
+    assert np.argmax(np.abs(tilt)) == 1 and 1.0 < abs(tilt[1]) < 4.0, tilt
+    import nbformat
+
+    markdown = " ".join(" ".join(c.source.split()) for c in nbformat.read(
+        kit.source_notebook(ASSIGNMENT), as_version=4).cells if c.cell_type == "markdown")
+    assert "comes out largest along the camera's $x$ axis" in markdown
+    assert "about two degrees, mostly about the camera's $y$ axis" in markdown
+
+
+def _vector_after(text: str, label: str) -> np.ndarray:
+    """The numbers printed as [a b c] after ``label``."""
+    numbers = text.split(label, 1)[1].split("[", 1)[1].split("]", 1)[0]
+    return np.array([float(v) for v in numbers.split()])
 
 
 def test_release_has_no_solution_hidden_tests_or_secret(released):
@@ -144,3 +165,22 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
         assert secret not in path.read_text(), path
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "reproject" in feedback and " mm" in feedback
+
+
+# --------------------------------------------------------------------------- the lab's helpers
+
+
+def test_find_corners_on_a_drawn_chessboard():
+    from robots.labkit import lab4
+
+    square = 30
+    board = (np.indices((7, 9)).sum(axis=0) % 2 * 255).astype(np.uint8)   # 9 x 7 squares
+    image = np.kron(board, np.ones((square, square), np.uint8))
+    image = np.pad(image, 40, constant_values=255)
+    rgb = np.repeat(image[:, :, None], 3, axis=2)
+    corners = lab4.find_corners(rgb, (8, 6))
+    assert corners.shape == (48, 2)
+    # Inner corners sit on the grid lines, 40 px margin + k squares.
+    grid = 40 + square * np.arange(1, 9)
+    assert np.all(np.min(np.abs(corners[:, :1] - grid[None, :] + 0.5), axis=1) < 1.0)
+    assert lab4.find_corners(np.full_like(rgb, 128), (8, 6)) is None
