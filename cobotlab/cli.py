@@ -80,6 +80,25 @@ def _build_parser() -> argparse.ArgumentParser:
     export.add_argument("name", metavar="NAME", help="a name from `cobotlab data list`")
     export.add_argument("dest", metavar="DIR", help="folder to copy into (created if needed)")
 
+    labs = sub.add_parser("labs", help="the students' copies of the labs (no solutions)")
+    labs_sub = labs.add_subparsers(dest="labs_command", metavar="ACTION", required=True)
+    student = labs_sub.add_parser(
+        "student",
+        help="write the student version of every lab into DIR (solutions and hidden tests out)",
+        description=(
+            "Write DIR/<lab>/<lab>.ipynb for every lab: the release version nbgrader's "
+            "generate_assignment makes (solution regions replaced by `raise "
+            "NotImplementedError()`, hidden tests removed, outputs cleared), with the lab's "
+            "other files and a README. Give students DIR, never the repository's labs/. "
+            "Needs nbgrader (the course extra) and the labs/ sources of a full checkout."
+        ),
+    )
+    student.add_argument("dir", metavar="DIR", help="folder to write into (created if needed)")
+    student.add_argument("--lab", action="append", default=None, metavar="LAB",
+                         help="only this lab (repeat for several; default: every lab)")
+    student.add_argument("--force", action="store_true",
+                         help="replace notebooks already in DIR (they may hold a student's work)")
+
     course = sub.add_parser("course", help="lay out an nbgrader course for the labs")
     course_sub = course.add_subparsers(dest="course_command", metavar="ACTION", required=True)
     init = course_sub.add_parser(
@@ -196,10 +215,12 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
 
     import numpy as np
 
-    from cobotlab.demo import per_pose_residuals
+    from cobotlab.demo import per_pose_residuals, require_solutions
     from robots.calibration_io import save_calibration
     from robots.capture import load_capture
     from robots.geometry import rpy_from_pose
+
+    require_solutions("calibrate")
     from solutions import handeye
 
     if mount not in handeye.MOUNTS:
@@ -370,6 +391,11 @@ def main(argv: list[str] | None = None) -> int:
             _data_list()
         elif args.command == "data" and args.data_command == "export":
             _data_export(args.name, args.dest)
+        elif args.command == "labs" and args.labs_command == "student":
+            from cobotlab.labs import write_student_labs
+
+            for path in write_student_labs(args.dir, labs=args.lab, force=args.force):
+                print(f"wrote {path}")
         elif args.command == "course" and args.course_command == "init":
             from autograder.course import init_course
 
