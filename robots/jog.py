@@ -60,6 +60,7 @@ __all__ = [
     "MAX_JOG_STEP_M",
     "MAX_JOG_STEP_RAD",
     "JogPanel",
+    "RefreshTimer",
     "format_pose",
     "jog",
     "jog_panel",
@@ -403,27 +404,45 @@ def _console_move(robot, axis, step, frame, speed, read, write) -> int:
 # --------------------------------------------------------------------------- notebook panel
 
 
-def start_refresh_timer(period_s: float, refresh: Callable[[], bool]) -> asyncio.Task | None:
-    """Call ``refresh()`` every ``period_s`` seconds on the running event loop until it
-    returns False; the task, or None when no loop is running (a plain script).
+class RefreshTimer:
+    """Calls ``refresh()`` every few seconds on the running event loop until it returns False.
 
-    In Jupyter the kernel's loop runs between cells, so the callback never interrupts a move.
+    In Jupyter the kernel's loop runs between cells, so the callback never interrupts a move;
+    outside a running loop (a plain script) :meth:`start` does nothing and returns False.
+    Shared by the jog panel and the 3-D view (``robots.viewer``).
     """
-    period_s = float(period_s)
-    if not (math.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
-    try:
-        loop = asyncio.get_running_loop()
-    except RuntimeError:
-        return None
 
-    async def every_period() -> None:
+    def __init__(self, refresh: Callable[[], bool]):
+        self._refresh = refresh
+        self._task: asyncio.Task | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    def start(self, period_s: float) -> bool:
+        """(Re)start with a period of ``period_s`` seconds; False when no loop is running."""
+        period_s = float(period_s)
+        if not (math.isfinite(period_s) and period_s > 0):
+            raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
+        self.stop()
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:
+            return False
+        self._task = loop.create_task(self._every(period_s))
+        return True
+
+    def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+    async def _every(self, period_s: float) -> None:
         while True:
             await asyncio.sleep(period_s)
-            if not refresh():
+            if not self._refresh():
                 return
-
-    return loop.create_task(every_period())
 
 
 
@@ -467,9 +486,6 @@ class JogPanel:
     without a terminal. Messages give lengths in mm and angles in degrees, as the sliders do
     (see :func:`in_panel_units`).
 
-    ``on_move`` callables are called with no argument after every move the panel makes (a
-    3-D view redraws there, see ``robots.viewer``); one that fails is reported, not raised.
-
     STOP calls ``robot.stop()`` and drops a planned move. Moves block the notebook kernel, so
     a STOP click during a jog is handled when that (short) jog ends; the jog buttons are
     disabled while a move runs so no clicks queue up. STOP is no substitute for the
@@ -491,11 +507,10 @@ class JogPanel:
         step_deg = _parse_size(str(step_deg), _MAX_STEP_DEG, "deg", "step_deg")
         self.speed = _check_speed(speed)
         self._confirm_moves = None if confirm_moves is None else bool(confirm_moves)
-        self.on_move: list[Callable[[], None]] = []
         self.messages: list[str] = []
         self.pose_text = ""
         self._planned: _PlannedJog | None = None
-        self._refresh_task: asyncio.Task | None = None
+        self._timer = RefreshTimer(self.refresh)
 
         self.step_mm = widgets.FloatSlider(
             value=step_mm, min=0.1, max=_MAX_STEP_MM, step=0.1, description="step (mm)",
@@ -698,17 +713,12 @@ class JogPanel:
             self._set_busy(False)
             self.refresh()
         self._say(f"Moved: {description}.", "ok")
-        for callback in list(self.on_move):
-            try:
-                callback()
-            except Exception as error:  # the move itself succeeded; say what failed after it
-                self._say(f"Moved, but an on_move callback failed: {error}", "error")
 
     # ----- timer
 
     @property
     def auto_refresh_running(self) -> bool:
-        return self._refresh_task is not None and not self._refresh_task.done()
+        return self._timer.running
 
     def start_auto_refresh(self, period_s: float = 0.5) -> bool:
         """Re-read the pose every ``period_s`` seconds on the running event loop.
@@ -717,14 +727,10 @@ class JogPanel:
         in Jupyter the kernel's loop is running. The timer stops by itself once the robot is
         disconnected.
         """
-        self.stop_auto_refresh()
-        self._refresh_task = start_refresh_timer(period_s, self.refresh)
-        return self._refresh_task is not None
+        return self._timer.start(period_s)
 
     def stop_auto_refresh(self) -> None:
-        if self._refresh_task is not None:
-            self._refresh_task.cancel()
-            self._refresh_task = None
+        self._timer.stop()
 
     def close(self) -> None:
         """Stop the timer and close the widgets (the robot stays connected)."""
