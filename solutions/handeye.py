@@ -46,8 +46,11 @@ output cam2base (eye-to-hand call)         ``base_T_cam`` = ``calibrate_eye_to_h
 * Data in the other convention: robot poses reported as base2gripper (``flange_T_base``)
   -> pass ``robots.geometry.invert(them)``; camera poses reported as cam2target
   (``target_T_cam``, e.g. a tracker giving the camera in the board's frame) -> pass
-  ``invert(them)``. Mixing these up is the most common student mistake; it gives a wrong X
-  with large residuals, not an error.
+  ``invert(them)``. Mixing these up is the most common student mistake: every solver would
+  return a wrong X with large residuals, so ``calibrate_*`` refuse such poses (and poses whose
+  lists are not paired view by view) with a ``ValueError`` naming the likely fix, and the
+  motion-level ``solve_*`` warn when X fits the motions far worse than their noise allows (see
+  ``solutions.diagnostics``).
 * ``solve_ax_xb(A, B)`` and the ``solve_*`` functions work on motions; OpenCV has no
   motion-level entry point.
 
@@ -56,8 +59,9 @@ Residual metrics (the course's definitions), over n motions:
 ``translation_residual = (1/n) sum ||R_A t_X + t_A - R_X t_B - t_X||^2`` (metres^2).
 
 Degenerate input raises ``ValueError`` naming the problem and the fix: fewer than 3 poses,
-mismatched lengths, non-rotations or NaN, all rotation axes parallel, and motions that rotate
-by less than ``MIN_MOTION_DEG`` (dropped with a warning when enough others remain). No
+mismatched lengths, non-rotations or NaN, all rotation axes parallel, motions A[k], B[k] whose
+rotation angles disagree by degrees (not the same motion), and motions that rotate by less than
+``MIN_MOTION_DEG`` (dropped with a warning when enough others remain). No
 function here returns a default pose or NaN. Motions of nearly 180 degrees are ambiguous for
 every method here (log map and quaternion sign); calibration motions of 15-45 degrees are
 far from that.
@@ -72,8 +76,6 @@ in a form that is too (see ``_translation_ls``).
 
 from __future__ import annotations
 
-import inspect
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,6 +83,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
+from solutions import diagnostics
+from solutions.diagnostics import MIN_AXIS_SPREAD_DEG, MIN_MOTION_DEG
 from solutions.registration import calibrate_flange  # re-exported: see the docstring
 
 __all__ = [
@@ -113,11 +117,8 @@ METHODS = ("tsai", "park", "daniilidis", "axes_ls", "nonlinear")
 MOUNTS = ("eye_in_hand", "eye_to_hand")
 PAIR_STRATEGIES = ("all", "consecutive")
 
-#: Motions rotating less than this (degrees) have rotation axes dominated by noise.
-MIN_MOTION_DEG = 1.0
-#: The motions' rotation axes must spread over at least this angle (degrees), else the rotation
-#: of X about their common axis (and its translation along it) cannot be observed.
-MIN_AXIS_SPREAD_DEG = 2.0
+# MIN_MOTION_DEG and MIN_AXIS_SPREAD_DEG come from solutions.diagnostics, whose motion
+# screening solutions.robot_world applies too, so both refuse the same motions.
 
 # Robust loss: Huber on each motion's whole residual, with threshold HUBER_K times the median
 # motion residual. A motion is reported as down-weighted (and left out of the final refit) when
@@ -214,12 +215,12 @@ def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.concatenate([w, v], axis=-1)
 
 
-def _warn_caller(message: str) -> None:
-    """UserWarning attributed to the first caller outside this module."""
-    level, frame = 1, inspect.currentframe()
-    while frame is not None and frame.f_code.co_filename == __file__:
-        frame, level = frame.f_back, level + 1
-    warnings.warn(message, UserWarning, stacklevel=level)
+def _solved(m, X: np.ndarray, method: str) -> np.ndarray:
+    """``_check_X``, then a warning if X fits the motions far worse than their noise allows
+    (motions built from inverted poses: see ``solutions.diagnostics``)."""
+    X = _check_X(X, method)
+    diagnostics.check_motion_residuals(m.RA, m.RB, X)
+    return X
 
 
 def _check_X(X: np.ndarray, method: str) -> np.ndarray:
@@ -322,29 +323,9 @@ class _Motions:
     index: np.ndarray  # positions of these motions in the caller's A, B
 
 
-def _motion_label(k: int, pairs) -> str:
-    return f"{k} (poses {pairs[k][0]}->{pairs[k][1]})" if pairs is not None else str(k)
-
-
-def _labels(ks, pairs, limit: int = 8) -> str:
-    ks = list(ks)
-    text = ", ".join(_motion_label(k, pairs) for k in ks[:limit])
-    return text + (f", ... ({len(ks)} in all)" if len(ks) > limit else "")
-
-
-def _axis_spread_deg(rotvecs: np.ndarray) -> float:
-    """How far the rotation axes spread from a common line, degrees (0 when all parallel).
-
-    Uses the angle-weighted axes (rotation vectors): for two equally weighted axes at angle
-    phi, the ratio s2/s1 of their stack's singular values is tan(phi/2); the signs of the axes
-    do not matter to singular values.
-    """
-    s = np.linalg.svd(rotvecs, compute_uv=False)
-    return float(np.degrees(2.0 * np.arctan2(s[1], s[0])))
-
-
-def _prepare(A, B, pairs=None, validate: bool = True) -> _Motions:
-    """Validate A, B and screen out unobservable motions; see the module docstring."""
+def _prepare(A, B, pairs=None, validate: bool = True, from_poses: bool = False) -> _Motions:
+    """Validate A, B and screen out unobservable motions; see the module docstring.
+    ``from_poses``: A and B were built from pose lists already checked as poses."""
     if validate:
         A = geo.as_poses(A, name="A")
         B = geo.as_poses(B, name="B")
@@ -360,34 +341,13 @@ def _prepare(A, B, pairs=None, validate: bool = True) -> _Motions:
         )
     rvA = Rotation.from_matrix(A[:, :3, :3]).as_rotvec()
     rvB = Rotation.from_matrix(B[:, :3, :3]).as_rotvec()
-    angle_deg = np.degrees(np.minimum(np.linalg.norm(rvA, axis=1), np.linalg.norm(rvB, axis=1)))
-    small = np.flatnonzero(angle_deg < MIN_MOTION_DEG)
-    keep = np.flatnonzero(angle_deg >= MIN_MOTION_DEG)
-    if len(keep) < 2:
-        raise ValueError(
-            f"{len(small)} of {len(A)} motions rotate less than {MIN_MOTION_DEG} deg "
-            f"(largest {angle_deg.max():.3g} deg): motions {_labels(small, pairs)}. Pure "
-            "translations or near-identical orientations cannot determine the rotation of X; "
-            "capture poses that rotate the flange 15-45 degrees about different axes"
-        )
-    if len(small):
-        _warn_caller(
-            f"dropped {len(small)} of {len(A)} motions that rotate less than "
-            f"{MIN_MOTION_DEG} deg (their rotation axes are noise): motions "
-            f"{_labels(small, pairs)}"
-        )
+    # A robot motion and the camera motion it causes rotate by the same angle: if most do not,
+    # A[k] and B[k] are not the same motion, and no X can be right. (Motions built here from
+    # poses were checked as poses, with a message about the poses.)
+    if not from_poses:
+        diagnostics.check_motion_pairing(rvA, rvB, pairs)
+    keep = diagnostics.screen_motions(rvA, rvB, pairs)
     rvA, rvB = rvA[keep], rvB[keep]
-    for side, rv in (("robot (A)", rvA), ("camera (B)", rvB)):
-        spread_deg = _axis_spread_deg(rv)
-        if spread_deg < MIN_AXIS_SPREAD_DEG:
-            axis = np.linalg.svd(rv)[2][0]
-            raise ValueError(
-                f"all rotation axes are parallel: the {side} motions all turn about "
-                f"{np.round(axis, 3)} (axes spread {spread_deg:.2g} deg < "
-                f"{MIN_AXIS_SPREAD_DEG} deg), so the rotation of X about that axis and its "
-                "translation along it are unobservable; rotate the flange about at least two "
-                "different axes"
-            )
     return _Motions(A[keep, :3, :3], A[keep, :3, 3], B[keep, :3, :3], B[keep, :3, 3],
                     rvA, rvB, keep)
 
@@ -458,7 +418,8 @@ def solve_tsai(A, B) -> np.ndarray:
     Motion inputs, (M, 4, 4) each; returns X (4, 4). Same formulas as OpenCV's
     CALIB_HAND_EYE_TSAI, but without its pair filter that can return identity.
     """
-    return _check_X(_tsai(_prepare(A, B)), "tsai")
+    m = _prepare(A, B)
+    return _solved(m, _tsai(m), "tsai")
 
 
 def _park(m: _Motions) -> np.ndarray:
@@ -479,7 +440,8 @@ def solve_park(A, B) -> np.ndarray:
     see ``_translation_ls``; OpenCV uses the plain one, so translations differ within noise).
     Returns X (4, 4). Same formulas as OpenCV's CALIB_HAND_EYE_PARK.
     """
-    return _check_X(_park(_prepare(A, B)), "park")
+    m = _prepare(A, B)
+    return _solved(m, _park(m), "park")
 
 
 def _dual_quats(R: np.ndarray, t: np.ndarray):
@@ -539,7 +501,8 @@ def solve_daniilidis(A, B) -> np.ndarray:
     the solution; the unit-norm and q.q' = 0 constraints fix the combination.
     Returns X (4, 4). Same method as OpenCV's CALIB_HAND_EYE_DANIILIDIS.
     """
-    return _check_X(_daniilidis(_prepare(A, B)), "daniilidis")
+    m = _prepare(A, B)
+    return _solved(m, _daniilidis(m), "daniilidis")
 
 
 def _axes_ls(m: _Motions) -> np.ndarray:
@@ -575,7 +538,8 @@ def solve_axes_ls(A, B) -> np.ndarray:
     methods agree to solver tolerance. This one shows the general route (linear least
     squares, then a constrained refinement); Park's shows the closed form.
     """
-    return _check_X(_axes_ls(_prepare(A, B)), "axes_ls")
+    m = _prepare(A, B)
+    return _solved(m, _axes_ls(m), "axes_ls")
 
 
 _CLOSED_FORMS = {"tsai": _tsai, "park": _park, "daniilidis": _daniilidis, "axes_ls": _axes_ls}
@@ -688,7 +652,7 @@ def _nonlinear(m: _Motions, robust: bool):
         if converged:
             break
     flagged = weights < DOWNWEIGHT_FLAG
-    if robust and flagged.any() and _axis_spread_deg(m.rvA[~flagged]) >= MIN_AXIS_SPREAD_DEG:
+    if robust and flagged.any() and diagnostics.axis_spread_deg(m.rvA[~flagged]) >= MIN_AXIS_SPREAD_DEG:
         # Huber bounds an outlier's pull but does not remove it, and one bad pose spoils all
         # n-1 motions that touch it: refit once without the motions Huber flagged.
         X = _refine(m, X, np.where(flagged, 0.0, 1.0), s_rot, s_trans)
@@ -712,8 +676,9 @@ def solve_nonlinear(A, B, robust: bool = True) -> np.ndarray:
     its residual is written in, so reversing a motion or reordering poses changes nothing.
     See ``solve_ax_xb_report`` for the down-weighted motions. Returns X (4, 4).
     """
-    X, *_ = _nonlinear(_prepare(A, B), robust)
-    return _check_X(X, "nonlinear")
+    m = _prepare(A, B)
+    X, *_ = _nonlinear(m, robust)
+    return _solved(m, X, "nonlinear")
 
 
 # --------------------------------------------------------------------------- metrics
@@ -773,13 +738,14 @@ def _report(A, B, method, robust, pairs, validate, mount=None) -> HandEyeResult:
         )
     if validate:
         A, B = geo.as_poses(A, name="A"), geo.as_poses(B, name="B")
-    m = _prepare(A, B, pairs, validate=False)
+    m = _prepare(A, B, pairs, validate=False, from_poses=not validate)
     start = None
     if method == "nonlinear":
         X, w_used, start, _ = _nonlinear(m, robust)
     else:
         X, w_used = _CLOSED_FORMS[method](m), np.ones(len(m.RA))
-    X = _check_X(X, method)
+    # Motions given directly (validate) get the motion-level check; poses were checked whole.
+    X = _solved(m, X, method) if validate else _check_X(X, method)
     return _assemble(A, B, m, X, method, w_used, pairs, mount, start)
 
 
@@ -837,9 +803,15 @@ def _calibrate(base_T_flange, cam_T_target, mount, method, pairs, robust) -> Han
     if method not in METHODS:
         raise ValueError(f"unknown hand-eye method {method!r}; choose one of {METHODS}")
     F, C = _check_pose_lists(base_T_flange, cam_T_target)
+    if mount not in MOUNTS:
+        raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
     A, B, pose_pairs = _hand_eye_motions(F, C, mount, pairs)
     refine = _absolute_refinement() if method == "nonlinear" else None
     if refine is None:
+        # Inverted poses, the wrong mount or lists not paired view by view give every method
+        # a wrong X with large residuals, not an error: refuse them, naming the likely cause.
+        # (solutions.mle.refine_hand_eye makes the same check itself.)
+        diagnostics.check_hand_eye_poses(F, C, mount)
         report = _report(A, B, method, robust, pose_pairs, validate=False, mount=mount)
         if method == "nonlinear":
             # Without solutions/mle.py the motion-based refinement stands in for the
@@ -847,7 +819,7 @@ def _calibrate(base_T_flange, cam_T_target, mount, method, pairs, robust) -> Han
             report.notes.append("solutions.mle missing: motion-based nonlinear refinement only")
         return report
     robust = True if robust is None else bool(robust)
-    m = _prepare(A, B, pose_pairs, validate=False)
+    m = _prepare(A, B, pose_pairs, validate=False, from_poses=True)
     # The absolute-pose refinement starts from Li's AX = YB closed form on the poses themselves
     # (one linear solve: cheaper than trying every motion-based closed form, and as good a start).
     refined = refine(F, C, mount=mount, robust=robust)

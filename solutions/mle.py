@@ -45,13 +45,16 @@ from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
 from robots import geometry as geo
-from solutions import robot_world
+from solutions import ax_yb_closed_forms as closed_forms
+from solutions import diagnostics
 
 __all__ = [
     "MOUNTS",
     "NOISE_MODELS",
     "OUTLIER_CHI2",
+    "CornerNoiseChoice",
     "HandEyeRefinement",
+    "calibrate_from_corners",
     "cramer_rao_covariance",
     "pose_residuals",
     "refine_hand_eye",
@@ -104,6 +107,8 @@ class HandEyeRefinement:
     normalised image coordinates (pixels / focal length) of the virtual board that explains
     the residuals. It grows in proportion to the real pixel noise, but equals it only for a
     board like the virtual one (16 corners spanning 40 % of the viewing distance).
+    ``board_scale``: the factor fitted on the board's stated corner positions (1 unless
+    ``refine_reprojection(fit_board_scale=True)``).
     """
 
     X: np.ndarray
@@ -122,6 +127,7 @@ class HandEyeRefinement:
     per_pose_chi2: np.ndarray = field(default_factory=lambda: np.zeros(0))
     noise_model: str = "isotropic"
     image_sigma_rad: float | None = None
+    board_scale: float = 1.0
 
     @property
     def outlier_pose_indices(self) -> tuple[int, ...]:
@@ -138,9 +144,13 @@ def _check_mount(mount: str) -> None:
 
 
 def _validate(base_T_flange, cam_T_target, mount: str) -> tuple[np.ndarray, np.ndarray]:
-    """Validated (N, 4, 4) robot and camera poses; degeneracy checked as for AX = YB."""
+    """Validated (N, 4, 4) robot and camera poses; degeneracy checked as for AX = YB, and
+    inverted or mis-paired poses refused (``solutions.diagnostics``)."""
     _check_mount(mount)
-    return robot_world.validate_ax_yb(base_T_flange, cam_T_target, "base_T_flange", "cam_T_target")
+    A, C = closed_forms.validate_ax_yb(base_T_flange, cam_T_target, "base_T_flange",
+                                       "cam_T_target")
+    diagnostics.check_hand_eye_poses(A, C, mount)
+    return A, C
 
 
 def _chain(A: np.ndarray, mount: str) -> np.ndarray:
@@ -153,8 +163,8 @@ def _initial_guess(A, C, mount, X0, Y0) -> tuple[np.ndarray, np.ndarray]:
     H = _chain(A, mount)
     if X0 is None and Y0 is None:
         if mount == "eye_in_hand":
-            return robot_world.li_closed_form(A, geo.invert(C))
-        flange_T_target, base_T_cam = robot_world.li_closed_form(A, C)
+            return closed_forms.li_closed_form(A, geo.invert(C))
+        flange_T_target, base_T_cam = closed_forms.li_closed_form(A, C)
         return base_T_cam, flange_T_target
     if X0 is not None:
         X0 = geo.as_pose(X0, "X0")
@@ -540,7 +550,7 @@ def _loss(z2: np.ndarray, loss: str | None) -> tuple[np.ndarray, np.ndarray]:
     """(rho, weight) of squared normalised pose residuals z2 for a robust loss scaled to
     ``LOSS_SCALE_CHI2``; rho is in the units of z2 and weight = d rho / d z2."""
     s = z2 / LOSS_SCALE_CHI2
-    w = robot_world.loss_weights(s, loss)
+    w = closed_forms.loss_weights(s, loss)
     if loss in (None, "linear"):
         rho = s
     elif loss == "huber":
@@ -900,7 +910,8 @@ def _check_camera(board_points, pixels, K, dist, n_views):
     return P, px, K, dist
 
 
-def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view, noise):
+def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view, noise,
+                         fit_scale: bool = False):
     """Normal equations of the corner residuals with each view's robot error marginalised.
 
     Pixel residuals r (measured - projected) of view i are modelled as
@@ -909,64 +920,75 @@ def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view
     N(0, diag(s_rr^2, s_rt^2)), eps ~ N(0, s_px^2) per pixel axis. Eliminating xi_i (Schur
     complement) gives the marginal likelihood's Gauss-Newton system over dg alone.
 
-    Returns (H (12, 12), g (12,), marginal cost per view, raw squared residual per view,
-    EM sufficient statistics (sum over views of E[|u|^2], E[|v|^2], E[|r - J_l xi|^2])).
+    With ``fit_scale`` a 13th parameter ds scales the board (``P`` is the board at its
+    current scale s; s <- s (1 + ds)).
+
+    Returns (H (p, p), g (p,), marginal cost per view, raw squared residual per view,
+    EM sufficient statistics (sum over views of E[|u|^2], E[|v|^2], E[|r - J_l xi|^2])),
+    p = 12 or 13.
     """
     s_px2, s_rr2, s_rt2 = noise
-    prior = np.diag([1 / s_rr2] * 3 + [1 / s_rt2] * 3) if s_rr2 > 0 else None
+    n_par = 13 if fit_scale else 12
     n = len(px)
-    cost = np.zeros(n)
-    raw = np.zeros(n)
-    stats = np.zeros(3)
-    Hm = np.zeros((12, 12))
-    g = np.zeros(12)
-    SP = _skew(P)
-    for i in views:
-        C = Z @ H[i] @ Y
-        R, t = C[:3, :3], C[:3, 3]
-        rvec, _ = cv2.Rodrigues(R)
-        proj, jac = cv2.projectPoints(P, rvec, t, K, dist)
-        m = valid[i]
-        r = (px[i] - proj.reshape(-1, 2))[m].reshape(-1)
-        # d pixel / d tvec is d pixel / d (point in camera frame): the point is R P + t.
-        dpdp = jac[:, 3:6].reshape(-1, 2, 3)[m]
-        pc = (P @ R.T + t)[m]
-        D = np.zeros((len(pc), 3, 12))
-        D[:, :, 0:3] = -_skew(pc)             # Z <- [exp(phi_z), rho_z] Z
-        D[:, :, 3:6] = np.eye(3)
-        D[:, :, 6:9] = -R @ SP[m]             # Y <- Y [exp(phi_y), rho_y]
-        D[:, :, 9:12] = R
-        Jg = -(dpdp @ D).reshape(-1, 12)
-        Hgg, bg, rr = Jg.T @ Jg / s_px2, Jg.T @ r / s_px2, float(r @ r)
-        raw[i] = rr
-        if prior is None:
-            Hm += w_view[i] * Hgg
-            g += w_view[i] * bg
-            cost[i] = rr / s_px2
-            stats[2] += rr
-            continue
-        # The flange origin in camera axes: the robot's rotation error turns about it.
-        flange = Z[:3, 3] if mount == "eye_in_hand" else Z[:3, :3] @ A[i, :3, 3] + Z[:3, 3]
-        Dl = np.zeros((len(pc), 3, 6))
-        Dl[:, :, 0:3] = _skew(pc - flange)
-        Dl[:, :, 3:6] = np.eye(3)
-        Jl = -(dpdp @ Dl).reshape(-1, 6)
-        Hll = Jl.T @ Jl / s_px2 + prior
-        Hll_inv = np.linalg.inv(Hll)
-        Hlg, bl = Jl.T @ Jg / s_px2, Jl.T @ r / s_px2
-        Hm += w_view[i] * (Hgg - Hlg.T @ Hll_inv @ Hlg)
-        g += w_view[i] * (bg - Hlg.T @ Hll_inv @ bl)
-        xi = Hll_inv @ bl
-        cost[i] = rr / s_px2 - bl @ xi
-        e = r - Jl @ xi
-        stats += [xi[:3] @ xi[:3] + np.trace(Hll_inv[:3, :3]), xi[3:] @ xi[3:] + np.trace(Hll_inv[3:, 3:]),
-                  e @ e + np.sum((Jl @ Hll_inv) * Jl)]
+    cost, raw = np.zeros(n), np.zeros(n)
+    V = np.asarray(views)
+    C = Z @ H[V] @ Y
+    R, t = C[:, :3, :3], C[:, :3, 3]
+    pc = np.einsum("vij,nj->vni", R, P) + t[:, None, :]        # corners in camera axes
+    nv, npt = pc.shape[:2]
+    # One projectPoints call for every view: with the identity pose, d pixel / d tvec is
+    # d pixel / d (point in camera axes), the chain-rule factor each view needs.
+    proj, jac = cv2.projectPoints(pc.reshape(-1, 3), np.zeros(3), np.zeros(3), K, dist)
+    seen = valid[V][:, :, None]
+    r = np.where(seen, px[V] - proj.reshape(nv, npt, 2), 0.0).reshape(nv, 2 * npt)
+    dpdp = np.where(seen[..., None], jac[:, 3:6].reshape(nv, npt, 2, 3), 0.0)
+    D = np.zeros((nv, npt, 3, n_par))
+    D[..., 0:3] = -_skew(pc)                                    # Z <- [exp(phi_z), rho_z] Z
+    D[..., 3:6] = np.eye(3)
+    D[..., 6:9] = -R[:, None] @ _skew(P)[None]                  # Y <- Y [exp(phi_y), rho_y]
+    D[..., 9:12] = R[:, None]
+    if fit_scale:
+        D[..., 12] = pc - t[:, None, :]                         # s P <- s (1 + ds) P
+    Jg = -(dpdp @ D).reshape(nv, 2 * npt, n_par)
+    w = w_view[V]
+    rr = np.einsum("vk,vk->v", r, r)
+    raw[V] = rr
+    Hgg = np.swapaxes(Jg, 1, 2) @ Jg / s_px2
+    bg = (np.swapaxes(Jg, 1, 2) @ r[:, :, None])[:, :, 0] / s_px2
+    if s_rr2 <= 0:
+        cost[V] = rr / s_px2
+        return (np.einsum("v,vpq->pq", w, Hgg), w @ bg, cost, raw,
+                np.array([0.0, 0.0, float(rr.sum())]))
+    prior = np.diag([1 / s_rr2] * 3 + [1 / s_rt2] * 3)
+    # The flange origin in camera axes: the robot's rotation error turns about it.
+    if mount == "eye_in_hand":
+        flange = np.broadcast_to(Z[:3, 3], (nv, 3))
+    else:
+        flange = A[V, :3, 3] @ Z[:3, :3].T + Z[:3, 3]
+    Dl = np.zeros((nv, npt, 3, 6))
+    Dl[..., 0:3] = _skew(pc - flange[:, None, :])
+    Dl[..., 3:6] = np.eye(3)
+    Jl = -(dpdp @ Dl).reshape(nv, 2 * npt, 6)
+    Hll_inv = np.linalg.inv(np.swapaxes(Jl, 1, 2) @ Jl / s_px2 + prior)
+    Hlg = np.swapaxes(Jl, 1, 2) @ Jg / s_px2
+    bl = (np.swapaxes(Jl, 1, 2) @ r[:, :, None])[:, :, 0] / s_px2
+    HlgT_inv = np.swapaxes(Hlg, 1, 2) @ Hll_inv
+    Hm = np.einsum("v,vpq->pq", w, Hgg - HlgT_inv @ Hlg)
+    g = w @ (bg - np.einsum("vpq,vq->vp", HlgT_inv, bl))
+    xi = np.einsum("vpq,vq->vp", Hll_inv, bl)
+    cost[V] = rr / s_px2 - np.einsum("vp,vp->v", bl, xi)
+    e = r - (Jl @ xi[:, :, None])[:, :, 0]
+    stats = np.array([
+        float(np.sum(xi[:, :3] ** 2) + np.trace(Hll_inv[:, :3, :3], axis1=1, axis2=2).sum()),
+        float(np.sum(xi[:, 3:] ** 2) + np.trace(Hll_inv[:, 3:, 3:], axis1=1, axis2=2).sum()),
+        float(np.sum(e * e) + np.sum((Jl @ Hll_inv) * Jl)),
+    ])
     return Hm, g, cost, raw, stats
 
 
 def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str = "eye_in_hand",
                         X0=None, Y0=None, robust: bool = True, max_iter: int = 50,
-                        robot_sigma=None) -> HandEyeRefinement:
+                        robot_sigma=None, fit_board_scale: bool = False) -> HandEyeRefinement:
     """Hand-eye calibration by minimising the corner reprojection error (pixels).
 
     Corner j of view i is predicted at ``project(K, dist, inv(X) @ H_i @ Y @ board_points[j])``
@@ -989,9 +1011,14 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     (both required). ``robust`` down-weights views whose RMS error is far above the median
     view's (Cauchy weights at 3 x the median) and reports views above 5 x the median by index.
 
+    ``fit_board_scale`` also fits one factor s on ``board_points`` (a board printed a few per
+    cent off its stated size: the PnP distances are then off by s but the robot's are not);
+    the corners are then predicted at ``s * board_points`` (``board_scale`` of the result).
+
     Returns a ``HandEyeRefinement`` with ``reprojection_rms_px`` (inlier views, before the
-    robot-error correction), ``pixel_sigma_px``, ``robot_rotation_sigma_rad``; its
-    ``translation_sigma_m`` is the robot translation noise and ``rotation_sigma_rad`` 0.
+    robot-error correction), ``pixel_sigma_px``, ``robot_rotation_sigma_rad``,
+    ``board_scale``; its ``translation_sigma_m`` is the robot translation noise and
+    ``rotation_sigma_rad`` 0.
     """
     _check_mount(mount)
     A = geo.as_poses(base_T_flange, "base_T_flange")
@@ -1009,16 +1036,18 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     if len(views) < 3:
         raise ValueError(f"only {len(views)} views have at least 4 corners seen; capture at least "
                          "3 views with the board (10-20 is typical)")
-    robot_world.check_rotation_variety(A[views, :3, :3], "base_T_flange (views with corners)")
+    closed_forms.check_rotation_variety(A[views, :3, :3], "base_T_flange (views with corners)")
     px = np.where(valid[:, :, None], px, 0.0)
     counts = valid.sum(axis=1)
     H = _chain(A, mount)
     Z, Y = geo.invert(X0), Y0.copy()
+    scale = 1.0
     w_view = np.zeros(len(A))
     w_view[views] = 1.0
 
-    def system(Z, Y, w, noise):
-        return _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w, noise)
+    def system(Z, Y, w, noise, scale=1.0):
+        return _reprojection_system(scale * P, px, valid, K, dist, Z, Y, A, H, mount, views, w,
+                                    noise, fit_board_scale)
 
     def view_weights(raw):
         rms = np.sqrt(raw[views] / (2 * counts[views]))
@@ -1038,7 +1067,7 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     converged = False
     for _outer in range(8 if estimate_robot else 2):
         w_view = view_weights(raw)
-        Hm, g, cost_v, raw, stats = system(Z, Y, w_view, noise)
+        Hm, g, cost_v, raw, stats = system(Z, Y, w_view, noise, scale)
         cost = float(w_view @ cost_v)
         lam = 1e-6
         converged = False
@@ -1053,7 +1082,8 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
                 step = np.linalg.solve(Hm + lam * diag, -g)
                 Zn = _exp_se3(step[0:3], step[3:6]) @ Z
                 Yn = Y @ _exp_se3(step[6:9], step[9:12])
-                Hn, gn, cost_vn, rawn, statsn = system(Zn, Yn, w_view, noise)
+                scale_n = scale * (1.0 + step[12]) if fit_board_scale else scale
+                Hn, gn, cost_vn, rawn, statsn = system(Zn, Yn, w_view, noise, scale_n)
                 cost_n = float(w_view @ cost_vn)
                 if cost_n <= cost or lam > 1e8:
                     break
@@ -1062,6 +1092,7 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
                 converged = True
                 break
             Z, Y, Hm, g, cost, raw, stats = Zn, Yn, Hn, gn, cost_n, rawn, statsn
+            scale = scale_n
             lam = max(lam / 10.0, 1e-9)
         # EM update of the noise levels over the views in use.
         n_obs = 2 * counts[views].sum()
@@ -1087,5 +1118,132 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
         translation_sigma_m=float(np.sqrt(noise[2])), weights=w_view, outlier_indices=outliers,
         cost=float(cost), n_iterations=total_it, converged=converged,
         robot_rotation_sigma_rad=float(np.sqrt(noise[1])), reprojection_rms_px=rms,
-        pixel_sigma_px=float(np.sqrt(noise[0])), per_pose_chi2=rms_view,
+        pixel_sigma_px=float(np.sqrt(noise[0])), per_pose_chi2=rms_view, board_scale=scale,
     )
+
+
+# --------------------------------------------------------------------------- noise model by CV
+
+
+#: Robot-noise priors tried by ``calibrate_from_corners``, as fractions of the robot noise the
+#: pose-based fit estimates: 0 is the pixel-only fit (best on the close KUKA views), 1 the fit
+#: that trusts that estimate (best on textbook synthetic data, where the noise model is
+#: exactly Gaussian robot and pixel noise), 0.1 in between (best on the far KUKA views).
+ROBOT_WEIGHT_FRACTIONS = (0.0, 0.1, 1.0)
+#: Views per inner fold are every k-th view, so views captured in runs stay spread over folds.
+_CV_FOLDS = 3
+
+
+@dataclass(frozen=True)
+class CornerNoiseChoice:
+    """One candidate noise model of ``calibrate_from_corners`` and its held-out score.
+
+    ``robot_sigma``: (rotation rad, translation m) of the per-view robot error prior (0, 0 for
+    the pixel-only fit); ``fit_board_scale``: whether the board's scale was a parameter;
+    ``held_out_px``: geometric mean over the views of the RMS pixel error of each view's
+    corners predicted by a fit that did not see it (inner K-fold cross-validation).
+    """
+
+    robot_weight: float
+    robot_sigma: tuple[float, float]
+    fit_board_scale: bool
+    held_out_px: float
+
+
+def _project_view(board_points, K, dist, cam_T_target):
+    rvec, _ = cv2.Rodrigues(cam_T_target[:3, :3])
+    proj, _ = cv2.projectPoints(board_points, rvec, cam_T_target[:3, 3], K, dist)
+    return proj.reshape(-1, 2)
+
+
+def predicted_corners(result: HandEyeRefinement, board_points, K, dist, base_T_flange):
+    """Pixels (n, N, 2) where ``result`` puts the board corners in each view of these robot
+    poses: ``project(K, dist, inv(X) @ H_i @ Y @ (board_scale * board_points))`` with H_i as in
+    the module docstring (``inv(base_T_flange_i @ X) @ Y`` for eye-in-hand)."""
+    A = geo.as_poses(base_T_flange, "base_T_flange")
+    C = geo.invert(result.X) @ _chain(A, result.mount) @ result.Y
+    P = result.board_scale * np.asarray(board_points, dtype=float)
+    return np.array([_project_view(P, K, dist, c) for c in C])
+
+
+def view_rms_px(predicted: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """RMS pixel distance per view (n,) between predicted and detected corners (NaN skipped)."""
+    d2 = np.sum((np.asarray(predicted) - np.asarray(pixels)) ** 2, axis=2)
+    return np.sqrt(np.nanmean(d2, axis=1))
+
+
+def _pnp_poses(board_points, pixels, K, dist) -> np.ndarray:
+    poses = []
+    for i, view in enumerate(pixels):
+        ok = np.all(np.isfinite(view), axis=1)
+        if ok.sum() < 4:
+            raise ValueError(f"view {i} has {ok.sum()} corners; every view needs at least 4 "
+                             "(drop views where the board was not found)")
+        found, rvec, tvec = cv2.solvePnP(board_points[ok], view[ok], K, dist)
+        if not found:
+            raise ValueError(f"solvePnP found no board pose in view {i}")
+        poses.append(geo.make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    return np.array(poses)
+
+
+def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
+                           mount: str = "eye_in_hand", cam_T_target=None, *,
+                           robot_weights=ROBOT_WEIGHT_FRACTIONS, fit_board_scale=(False, True),
+                           folds: int = _CV_FOLDS):
+    """Hand-eye calibration from raw corners with the noise model chosen by held-out views.
+
+    The default for a capture with corners. Real captures carry robot pose error comparable to
+    the camera's, errors that repeat per view, and boards printed slightly off their stated
+    size; which of the pixel-only fit, the fit with a robot-error prior (and how strong) or
+    the fit with the board's scale free predicts best differs from capture to capture. So
+    every candidate of ``robot_weights`` x ``fit_board_scale`` is scored by K-fold
+    cross-validation over the views (``folds``; view i is in fold i % folds): fit
+    ``refine_reprojection`` on the other views, predict the left-out views' corners through
+    the robot poses, and take the geometric mean of their per-view RMS pixel error (the
+    held-out Gaussian log-likelihood with one scale per view). The best candidate is then
+    fitted on all views. Nothing is tuned by hand per capture.
+
+    ``robot_weights`` are fractions of the robot noise that ``refine_hand_eye`` estimates
+    on all views (rotation, and the translation noise it cannot tell from the camera's;
+    0 = pixel-only). Inputs as for ``refine_reprojection``;
+    ``cam_T_target`` (solvePnP poses) is found from the corners when not given.
+
+    Returns ``(result, choices)``: the ``HandEyeRefinement`` of the chosen model (its
+    ``board_scale`` is the fitted scale, 1 when not fitted) and the list of
+    ``CornerNoiseChoice`` scores, best first.
+    """
+    _check_mount(mount)
+    A = geo.as_poses(base_T_flange, "base_T_flange")
+    P, px, K, dist = _check_camera(board_points, pixels, K, dist, len(A))
+    if folds < 2 or folds > len(A):
+        raise ValueError(f"folds must be between 2 and the number of views ({len(A)}), got {folds}")
+    weights = tuple(float(w) for w in robot_weights)
+    scales = tuple(bool(b) for b in fit_board_scale)
+    if not weights or not scales or any(not np.isfinite(w) or w < 0 for w in weights):
+        raise ValueError("robot_weights must be non-empty fractions >= 0 and fit_board_scale a "
+                         "non-empty tuple of booleans")
+    C = _pnp_poses(P, px, K, dist) if cam_T_target is None else geo.as_poses(cam_T_target,
+                                                                              "cam_T_target")
+    start = refine_hand_eye(A, C, mount)
+    # The pose-based fit's REML noise split (camera translation and robot translation share one
+    # term there) sets the robot prior's scale; the candidates rescale it.
+    robot_sigma = np.array([start.robot_rotation_sigma_rad, start.translation_sigma_m])
+    fold_of = np.arange(len(A)) % folds
+
+    choices = []
+    for w in weights:
+        sigma = tuple(float(v) for v in w * robot_sigma)
+        for scale in scales:
+            rms = np.zeros(len(A))
+            for k in range(folds):
+                out, keep = fold_of == k, fold_of != k
+                fit = refine_reprojection(P, px[keep], K, dist, A[keep], mount, X0=start.X,
+                                          Y0=start.Y, robot_sigma=sigma, fit_board_scale=scale)
+                rms[out] = view_rms_px(predicted_corners(fit, P, K, dist, A[out]), px[out])
+            score = float(np.exp(np.mean(np.log(np.maximum(rms, 1e-12)))))
+            choices.append(CornerNoiseChoice(w, sigma, scale, score))
+    choices.sort(key=lambda c: c.held_out_px)
+    best = choices[0]
+    result = refine_reprojection(P, px, K, dist, A, mount, X0=start.X, Y0=start.Y,
+                                 robot_sigma=best.robot_sigma, fit_board_scale=best.fit_board_scale)
+    return result, choices

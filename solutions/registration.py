@@ -35,6 +35,7 @@ from robots import geometry as geo
 
 __all__ = [
     "COLLINEAR_TOL",
+    "MAX_ROTATION_STD_DEG",
     "OUTLIER_K",
     "RigidFit",
     "calibrate_flange",
@@ -51,6 +52,19 @@ __all__ = [
 #: coordinates is below this fraction of the first: its width across the best-fit line is
 #: then under 0.1 % of its length, and the rotation about that line is not determined.
 COLLINEAR_TOL = 1e-3
+
+#: A fit is refused when the rotation it found is this uncertain (degrees, one standard
+#: deviation about the worst-determined axis, from the noise its own residuals show): points
+#: spread over little more than their noise leave the rotation to the noise.
+MAX_ROTATION_STD_DEG = 5.0
+
+#: Rigid motions preserve distances: when the best scaled fit (Umeyama's similarity) has a
+#: scale beyond this factor and explains the points far better (25 x smaller squared residual)
+#: than the rigid fit, the sets are in different units.
+SCALE_MISMATCH = 1.2
+
+#: Point sets spread over more than this (m) are not a lab's: probably millimetres.
+MAX_PLAUSIBLE_SPREAD_M = 50.0
 
 #: Robust mode flags a point when its residual exceeds OUTLIER_K robust scales (see
 #: fit_rigid_report): a gross-error threshold, about 6 sigma for noise along one axis.
@@ -90,7 +104,7 @@ class RigidFit:
 
 
 def _as_points(points, name: str) -> np.ndarray:
-    p = np.asarray(points, dtype=float)
+    p = geo.as_real_array(points, name)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3) (metres), got {p.shape}")
     bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
@@ -115,7 +129,7 @@ def _as_pair(src, dst, src_name: str, dst_name: str) -> tuple[np.ndarray, np.nda
 def _as_weights(weights, n: int) -> np.ndarray:
     if weights is None:
         return np.ones(n)
-    w = np.asarray(weights, dtype=float)
+    w = geo.as_real_array(weights, "weights")
     if w.shape != (n,):
         raise ValueError(f"weights must have shape ({n},), one per point, got {w.shape}")
     bad = np.flatnonzero(~np.isfinite(w) | (w < 0))
@@ -214,9 +228,13 @@ def fit_rigid_report(src, dst, weights=None, robust: bool = False, *, k: float =
         threshold of ``cv2.estimateAffine3D``), for when the sensor noise is known.
     src_name, dst_name : names used in error messages.
 
-    Raises ``ValueError`` for mismatched shapes, NaN/inf, fewer than 3 points, (nearly)
-    collinear points (the message gives the singular values), and in robust mode for fewer
-    than 5 points or when more than half of the points would be flagged.
+    Raises ``ValueError`` for complex values, mismatched shapes, NaN/inf, fewer than 3
+    points, (nearly) collinear points (the message gives the singular values), points spread
+    over too little against the noise the fit leaves (the rotation uncertain by more than
+    ``MAX_ROTATION_STD_DEG``), and in robust mode for fewer than 5 points or when more than
+    half of the points would be flagged. Warns (``UserWarning``, naming the likely cause) when
+    a scaled fit explains the points far better than a rigid one (millimetres passed as
+    metres) or a mirror image far better than any rotation (a flipped axis).
     """
     src, dst = _as_pair(src, dst, src_name, dst_name)
     n = len(src)
@@ -251,6 +269,7 @@ def fit_rigid_report(src, dst, weights=None, robust: bool = False, *, k: float =
     T, sv = _kabsch(src, dst, np.where(fit_mask, w, 0.0), src_name, dst_name)
     r = geo.transform_points(T, src) - dst
     norms = np.linalg.norm(r, axis=1)
+    _check_fit_is_meaningful(src, dst, np.where(fit_mask, w, 0.0), norms, src_name, dst_name)
     r_in = r[fit_mask]
     r_in_src = r_in @ T[:3, :3]  # R^T r: the same residual vectors along the src axes
     return RigidFit(
@@ -266,6 +285,82 @@ def fit_rigid_report(src, dst, weights=None, robust: bool = False, *, k: float =
     )
 
 
+def _check_fit_is_meaningful(src, dst, w, norms, src_name, dst_name) -> None:
+    """Refuse a fit whose rotation is left to the noise; warn when the data look like a mirror
+    image or mixed units. Judged from the data themselves (their spreads and the residuals the
+    fit leaves), so it holds at any scale.
+
+    For isotropic noise sigma per axis the rotation's information matrix is
+    ``sum_i w_i [p_i]x^T [p_i]x`` (p_i the centred source points): with the RMS spreads
+    s1 >= s2 >= s3 along the principal axes and N points, the worst-determined rotation (about
+    the long axis) has standard deviation ``sigma / sqrt(N (s2^2 + s3^2))`` rad.
+    """
+    used = w > 0
+    n = int(used.sum())
+    wn = w[used] / w[used].sum()
+    src_c = src[used] - wn @ src[used]
+    dst_c = dst[used] - wn @ dst[used]
+    s_src = np.linalg.svd(src_c * np.sqrt(wn)[:, None], compute_uv=False)
+    spread_src = float(np.sqrt(np.sum(s_src**2)))
+    spread_dst = float(np.sqrt(wn @ np.sum(dst_c**2, axis=1)))
+    # Per-axis noise from the weighted residuals, 3n observations less the 6 fitted parameters.
+    sse = float(wn @ norms[used] ** 2) * n
+    sigma = np.sqrt(sse / max(3 * n - 6, 1))
+    # Mixed units: a rigid motion keeps distances, so when a scaled fit (Umeyama's similarity)
+    # explains the points far better than the rigid one, the sets differ by that scale.
+    H = (src_c * wn[:, None]).T @ dst_c
+    U, sh, Vt = np.linalg.svd(H)
+    mirrored = np.linalg.det(Vt.T @ U.T) < 0
+    trace_rh = sh[0] + sh[1] - sh[2] if mirrored else float(np.sum(sh))
+    var_src, var_dst = spread_src**2, spread_dst**2
+    sse_rigid = float(wn @ norms[used] ** 2)
+    scale = trace_rh / max(var_src, 1e-300)
+    sse_scaled = max(var_dst - trace_rh**2 / max(var_src, 1e-300), 0.0)
+    if (not SCALE_MISMATCH ** -1 < scale < SCALE_MISMATCH
+            and sse_rigid > 25.0 * max(sse_scaled, 1e-30 * var_dst)):
+        if 300.0 < scale < 3000.0:
+            cause = f"{dst_name} look like millimetres and {src_name} like metres"
+        elif 1.0 / 3000.0 < scale < 1.0 / 300.0:
+            cause = f"{src_name} look like millimetres and {dst_name} like metres"
+        else:
+            cause = ("they are in different units, or are not the same points in the same "
+                     "order")
+        geo.warn_caller(
+            f"{dst_name} match {src_name} scaled by {scale:.4g} (RMS spread {spread_dst:.4g} vs "
+            f"{spread_src:.4g}), but a rigid motion keeps distances: {cause}. Convert both to "
+            f"metres (divide millimetres by 1000); the rigid fit leaves {np.sqrt(sse_rigid):.4g} "
+            "RMS in the units given")
+        return  # the residual is the unit error, not noise: no noise-based test below
+    if min(spread_src, spread_dst) > MAX_PLAUSIBLE_SPREAD_M:
+        geo.warn_caller(
+            f"{src_name} and {dst_name} spread over {spread_src:.4g} m (RMS): far larger than a "
+            "workcell. They look like millimetres: divide them by 1000 (cobotlab works in metres)")
+    # Mirror image: the plain SVD product V U^T is a reflection that fits far better than the
+    # best proper rotation (for planar or noisy sets the two fit about equally well, harmless).
+    if mirrored:
+        sse_proper = sse_rigid
+        sse_mirror = max(sse_proper - 4.0 * sh[2], 0.0)
+        if sse_proper > 25.0 * max(sse_mirror, 1e-30) and sse_proper > 1e-18 * spread_src**2:
+            geo.warn_caller(
+                f"{src_name} and {dst_name} fit a mirror image far better than any rotation "
+                f"(RMS residual {np.sqrt(sse_mirror) * 1000:.3g} mm as a reflection, "
+                f"{np.sqrt(sse_proper) * 1000:.3g} mm as the best rotation, det -1): one set is in "
+                "a left-handed frame or has one axis flipped (e.g. image y up instead of down, "
+                "depth negated, or x and y swapped). Fix the sign or order of that axis")
+            return  # the residual is the mirror, not noise
+    rot_std_deg = np.degrees(sigma / np.sqrt(n * (s_src[1] ** 2 + s_src[2] ** 2)))
+    if rot_std_deg > MAX_ROTATION_STD_DEG:
+        raise ValueError(
+            f"{src_name} spread over too little against their noise: RMS spread "
+            f"{np.array2string(s_src * 1000, precision=3)} mm along the principal axes, but the "
+            f"fit leaves {sigma * 1000:.3g} mm of noise per axis, so its rotation is uncertain "
+            f"by about {rot_std_deg:.0f} deg (limit {MAX_ROTATION_STD_DEG:g} deg). Spread the "
+            f"points over many times the noise (e.g. 10 cm or more in at least two directions), "
+            f"or measure them more precisely; check also that {src_name} and {dst_name} are "
+            "the same points in the same units"
+        )
+
+
 def fit_rigid(src, dst, weights=None, robust: bool = False, **options) -> np.ndarray:
     """Least-squares rigid motion ``dst_T_src`` (4, 4) with ``dst_i ~= dst_T_src @ src_i``.
 
@@ -276,8 +371,9 @@ def fit_rigid(src, dst, weights=None, robust: bool = False, **options) -> np.nda
     also returns them by index; ``options`` are passed on to it).
 
     This is what ``cv2.estimateAffine3D`` would give if it were restricted to rotations and
-    translations. Raises ``ValueError`` for fewer than 3 points, NaN, mismatched shapes or
-    (nearly) collinear points.
+    translations. Raises ``ValueError`` for fewer than 3 points, NaN, mismatched shapes,
+    (nearly) collinear points or points spread over little more than their noise; warns for
+    mixed units and mirror images (see ``fit_rigid_report``).
     """
     return fit_rigid_report(src, dst, weights, robust, **options).dst_T_src
 
@@ -347,7 +443,7 @@ def frame_from_three_points(p_origin, p_x, p_xy, *, min_distance_m: float = 1e-6
     """
     points = []
     for name, p in (("p_origin", p_origin), ("p_x", p_x), ("p_xy", p_xy)):
-        a = np.asarray(p, dtype=float)
+        a = geo.as_real_array(p, name)
         if a.shape != (3,):
             raise ValueError(f"{name} must be a 3-vector (m), got shape {a.shape}")
         if not np.isfinite(a).all():

@@ -202,10 +202,11 @@ def test_inputs_in_the_other_convention_through_the_documented_conversion(mount)
     X = CALIBRATE[mount](p.base_T_flange, p.cam_T_target, method="park")
     X_conv = CALIBRATE[mount](geo.invert(flange_T_base), geo.invert(target_T_cam), method="park")
     assert rot_err(X, X_conv) < 1e-9 and trans_err(X, X_conv) < 1e-9
-    # Skipping the conversion does not fail loudly, it gives a wrong X: that is the trap.
+    # Skipping the conversion is the trap: it used to give a wrong X silently; now it is
+    # refused, and the message names both conversions (the data cannot say which was skipped).
     for F, C in [(flange_T_base, p.cam_T_target), (p.base_T_flange, target_T_cam)]:
-        X_wrong = CALIBRATE[mount](F, C, method="park")
-        assert rot_err(X_wrong, p.X_true) > 1.0 or trans_err(X_wrong, p.X_true) > 0.02
+        with pytest.raises(ValueError, match=r"invert\(base_T_flange\).*invert\(cam_T_target\)"):
+            CALIBRATE[mount](F, C, method="park")
 
 
 def test_reversed_motions_have_equal_residuals_and_solutions():
