@@ -79,6 +79,29 @@ def _build_parser() -> argparse.ArgumentParser:
     export = data_sub.add_parser("export", help="copy a dataset's files (and README) to a folder")
     export.add_argument("name", metavar="NAME", help="a name from `cobotlab data list`")
     export.add_argument("dest", metavar="DIR", help="folder to copy into (created if needed)")
+    imp = data_sub.add_parser(
+        "import",
+        help="make a capture folder for `cobotlab calibrate` from a pose text file and corners "
+             "or images",
+        description=(
+            "Convert a hand-eye capture made elsewhere into a cobotlab capture folder. POSES is "
+            "a text file with one base_T_flange per line: the 16 numbers of the 4 x 4 matrix, "
+            "row-major, metres (as RWHE-Calib's RobotPosesVec.txt). The board comes either as "
+            "--corners, an .npz with corners_px (n, N, 2), board_points_m (N, 3) and "
+            "image_size_wh, or as --images (one image per pose, in name order) with --board. "
+            "The intrinsics are calibrated from the corners (cv2.calibrateCamera)."
+        ),
+    )
+    imp.add_argument("poses", metavar="POSES", help="robot pose text file, one pose per line")
+    imp.add_argument("dest", metavar="CAPTURE_DIR", help="capture folder to write")
+    board_source = imp.add_mutually_exclusive_group(required=True)
+    board_source.add_argument("--corners", metavar="NPZ", help="detected corners (.npz)")
+    board_source.add_argument("--images", metavar="DIR", help="folder of images, one per pose")
+    imp.add_argument("--board", metavar="COLSxROWS:SQUARE_MM", default=None,
+                     help="with --images: inner corners and square size, e.g. 8x6:39")
+    imp.add_argument("--robot", default="", help="robot name to record (optional)")
+    imp.add_argument("--camera", default="", help="camera name to record (optional)")
+    imp.add_argument("--force", action="store_true", help="overwrite an existing capture folder")
 
     labs = sub.add_parser("labs", help="the students' copies of the labs (no solutions)")
     labs_sub = labs.add_subparsers(dest="labs_command", metavar="ACTION", required=True)
@@ -234,6 +257,7 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     if len(F) < 3:
         raise ValueError(f"{capture_dir} has {len(F)} views with a target pose; a hand-eye "
                          "calibration needs at least 3 (better 10-15) with varied orientations")
+    mount_note = _mount_check(F, C, mount)
     solve = (handeye.calibrate_eye_in_hand_report if mount == "eye_in_hand"
              else handeye.calibrate_eye_to_hand_report)
     result = solve(F, C, method=method)
@@ -260,7 +284,16 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
             "  <- large" if t > worst else "")
         print(f"  view {int(views[k]):3d}: {t * 1000:8.3f} mm {r:8.4f} deg{mark}")
     print(f"flagged views: {flagged or 'none'}")
-    mount_note = _mount_check(F, C, method, mount, float(np.median(trans)))
+    kept = np.flatnonzero(has_pose)
+    if len(F) >= 4 and all(len(capture.corners_px[i]) >= 4 for i in kept):
+        held_out = _held_out_px(F, C, [capture.corners_px[i] for i in kept],
+                                [capture.object_points[i] for i in kept], capture.intrinsics.K,
+                                capture.intrinsics.dist, mount,
+                                lambda f, c: solve(f, c, method=method))
+        print(f"held-out error (each view's corners predicted by a calibration without it, "
+              f"through the robot pose): median {np.median(held_out):.2f} px, "
+              f"p95 {np.percentile(held_out, 95):.2f} px, worst view "
+              f"{int(views[int(np.argmax(held_out))])} at {held_out.max():.2f} px")
     if mount_note:
         print(mount_note)
     out = Path(out) if out else Path(capture_dir) / f"{parent}_T_cam.yaml"
@@ -272,39 +305,26 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     print(f"saved {out}")
 
 
-def _mount_check(F, C, method: str, mount: str, median_m: float) -> str:
-    """A warning when the views fit the other mount as well as or better than ``mount``.
+def _mount_check(F, C, mount: str) -> str:
+    """Refuse views that fit the other mount far better; return a warning when they fit both
+    about equally (``solutions.diagnostics``, the check every hand-eye solver makes), else ""."""
+    from solutions import diagnostics
 
-    Views that only tilt the camera about axes in the board's plane (a cone of views aimed at
-    one point, no roll about the viewing axis) fit both mounts exactly: for any rotation R
-    about an axis in that plane, R @ Rz(180 deg) @ R = Rz(180 deg), so a board-flipped
-    solution of the other mount explains them too. Returns "" when ``mount`` is clearly the
-    better fit.
-    """
-    import numpy as np
-
-    from cobotlab.demo import per_pose_residuals
-    from solutions import handeye
-
+    d = diagnostics.diagnose_hand_eye(F, C, mount, full=True)
     other = "eye_to_hand" if mount == "eye_in_hand" else "eye_in_hand"
-    solve = (handeye.calibrate_eye_in_hand if other == "eye_in_hand"
-             else handeye.calibrate_eye_to_hand)
-    try:
-        _, trans = per_pose_residuals(F, C, solve(F, C, method=method), other)
-    except ValueError:
-        return ""  # the other mount cannot even be solved: no doubt about this one
-    other_m = float(np.median(trans))
-    # Residuals below a tenth of a millimetre are detection noise whichever mount fits.
-    floor = 1e-4
-    if other_m * 5 < max(median_m, floor):
-        return (f"WARNING: these views fit --mount {other} far better (median residual "
-                f"{other_m * 1000:.2f} mm against {median_m * 1000:.2f} mm): check where the "
-                "camera is mounted, and that base_T_flange is not inverted")
-    if other_m < 2 * max(median_m, floor):
-        return (f"WARNING: these views fit --mount {other} as well (median residual "
-                f"{other_m * 1000:.2f} mm against {median_m * 1000:.2f} mm), so they cannot tell "
-                "the two mounts apart and the result rests on --mount being right. Add views "
-                "that roll the camera about its viewing axis (15-45 deg) to make it unambiguous")
+    if d.verdict == "flipped":
+        raise ValueError(
+            f"these views fit --mount {other} far better (median rotation residual "
+            f"{d.flipped_residual_deg:.3g} deg per view against {d.residual_deg:.3g} deg, "
+            f"{d.ratio:.0f} times what their noise explains): check where the camera is mounted, "
+            "and that base_T_flange is not inverted (flange_T_base) nor cam_T_target "
+            "(target_T_cam)")
+    if d.verdict == "ok" and diagnostics.mounts_indistinguishable(d):
+        return (f"WARNING: these views fit --mount {other} as well (median rotation residual "
+                f"{d.flipped_residual_deg:.3g} deg against {d.residual_deg:.3g} deg), so they "
+                "cannot tell the two mounts apart and the result rests on --mount being right. "
+                "Add views that roll the camera about its viewing axis (15-45 deg) to make it "
+                "unambiguous")
     return ""
 
 
@@ -369,6 +389,58 @@ def _data_export(name: str, dest) -> None:
         print(f"copied {dest / f.name}")
 
 
+def _data_import(args) -> None:
+    """``cobotlab data import``: pose text file + corners or images -> a capture folder."""
+    import re
+
+    from robots.capture import import_pose_text_capture, save_capture
+
+    board = None
+    if args.images is not None:
+        match = re.fullmatch(r"(\d+)x(\d+):([0-9.]+)", args.board or "")
+        if not match:
+            raise ValueError("--images needs --board COLSxROWS:SQUARE_MM (inner corners and the "
+                             "square size in millimetres), e.g. --board 8x6:39")
+        board = (int(match[1]), int(match[2]), float(match[3]) / 1000.0)
+    capture = import_pose_text_capture(args.poses, corners_file=args.corners,
+                                       images_dir=args.images, board=board,
+                                       robot_name=args.robot, camera_name=args.camera)
+    folder = save_capture(capture, args.dest, overwrite=args.force)
+    i = capture.intrinsics
+    print(f"imported {len(capture)} views ({len(capture.failed_indices)} without the board) "
+          f"into {folder}; intrinsics fx {i.fx:.1f} fy {i.fy:.1f} cx {i.cx:.1f} cy {i.cy:.1f} "
+          f"px, dist {' '.join(f'{v:.4f}' for v in i.dist)}")
+    print(f"next: cobotlab calibrate {folder} --mount eye_in_hand (or eye_to_hand)")
+
+
+def _held_out_px(F, C, corners, objects, K, dist, mount: str, solve):
+    """RMS pixel error of each view's corners predicted by a calibration without that view.
+
+    For view k: X from ``solve`` on the other views, the board pose Y as the chordal mean of
+    what those views imply, then the corners projected through ``inv(X) @ H_k @ Y`` with
+    H_k = inv(base_T_flange_k) (eye-in-hand) or base_T_flange_k (eye-to-hand)."""
+    import warnings
+
+    import cv2
+    import numpy as np
+
+    from robots import geometry as geo
+
+    errors = []
+    for k in range(len(F)):
+        rest = np.arange(len(F)) != k
+        with warnings.catch_warnings():  # the full fit has already warned about these views
+            warnings.simplefilter("ignore", UserWarning)
+            X = solve(F[rest], C[rest]).X
+        H = geo.invert(F) if mount == "eye_in_hand" else F
+        implied = geo.invert(H[rest]) @ X @ C[rest]
+        Y = geo.make_pose(geo.chordal_mean_rotation(implied), implied[:, :3, 3].mean(axis=0))
+        pose = geo.invert(X) @ H[k] @ Y
+        proj, _ = cv2.projectPoints(objects[k], cv2.Rodrigues(pose[:3, :3])[0], pose[:3, 3], K, dist)
+        errors.append(float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - corners[k]) ** 2, axis=1)))))
+    return np.array(errors)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with usage mistakes reported as one line, like every other error."""
 
@@ -391,6 +463,8 @@ def main(argv: list[str] | None = None) -> int:
             _data_list()
         elif args.command == "data" and args.data_command == "export":
             _data_export(args.name, args.dest)
+        elif args.command == "data" and args.data_command == "import":
+            _data_import(args)
         elif args.command == "labs" and args.labs_command == "student":
             from cobotlab.labs import write_student_labs
 

@@ -37,7 +37,9 @@ __all__ = [
     "Detection",
     "capture_pose_pairs",
     "chessboard_detector",
+    "import_pose_text_capture",
     "load_capture",
+    "read_pose_text",
     "save_capture",
 ]
 
@@ -283,6 +285,11 @@ def save_capture(capture: Capture, folder, overwrite: bool = False) -> Path:
         intrinsics=np.array([i.fx, i.fy, i.cx, i.cy, i.width, i.height], dtype=float),
         dist=i.dist,
     )
+    # An imported capture may have corners but no images; then none are written or expected.
+    images_saved = len(capture.images) == len(capture)
+    if capture.images and not images_saved:
+        raise ValueError(f"the capture has {len(capture)} views but {len(capture.images)} "
+                         "images; keep one image per view, or none")
     for index, rgb in zip(capture.pose_indices, capture.images):
         _write_png(cv2, images_dir / f"view_{index:03d}.png", rgb)
     for index, rgb in zip(capture.failed_indices, capture.failed_images):
@@ -307,6 +314,7 @@ def save_capture(capture: Capture, folder, overwrite: bool = False) -> Path:
             for k, r in zip(capture.failed_indices, capture.failed_reasons)
         ],
         "failed_image_saved": [img is not None for img in capture.failed_images],
+        "images_saved": images_saved,
     }
     with open(folder / "meta.yaml", "w") as f:
         yaml.safe_dump(meta, f, sort_keys=False)
@@ -346,7 +354,8 @@ def load_capture(folder) -> Capture:
     counts = data["corner_counts"]
     fx, fy, cx, cy, width, height = data["intrinsics"]
     intrinsics = Intrinsics(fx, fy, cx, cy, int(width), int(height), data["dist"])
-    images = [_read_png(cv2, folder / "images" / f"view_{k:03d}.png") for k in data["pose_indices"]]
+    images = ([_read_png(cv2, folder / "images" / f"view_{k:03d}.png") for k in data["pose_indices"]]
+              if meta.get("images_saved", True) else [])
     failed_images = [
         _read_png(cv2, folder / "images" / f"failed_{k:03d}.png") if saved else None
         for k, saved in zip(data["failed_indices"], meta["failed_image_saved"])
@@ -422,3 +431,131 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
         return Detection(cam_T_target, corners.astype(float), grid.copy())
 
     return detect
+
+
+# --------------------------------------------------------------------------- importing
+
+
+def read_pose_text(path) -> np.ndarray:
+    """Robot poses from a text file: one ``base_T_flange`` per line, the 16 numbers of the 4 x 4
+    matrix in row-major order (metres), separated by spaces, tabs or commas; lines starting
+    with ``#`` are skipped. This is the layout of RWHE-Calib's ``RobotPosesVec.txt``.
+    Returns (n, 4, 4); ``ValueError`` names the first bad line."""
+    poses = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+        text = line.split("#", 1)[0].replace(",", " ").strip()
+        if not text:
+            continue
+        try:
+            values = np.array([float(v) for v in text.split()])
+        except ValueError:
+            raise ValueError(f"{path}:{number}: not a list of numbers: {line.strip()[:60]!r}") from None
+        if values.size != 16:
+            raise ValueError(
+                f"{path}:{number}: {values.size} numbers, expected 16 (a 4 x 4 base_T_flange, "
+                "row-major, metres); convert quaternion or Euler-angle logs to matrices first")
+        poses.append(values.reshape(4, 4))
+    if not poses:
+        raise ValueError(f"{path} holds no poses")
+    poses = np.array(poses)
+    if not np.allclose(poses[:, 3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        bad = int(np.flatnonzero(~np.all(np.isclose(poses[:, 3], [0, 0, 0, 1], atol=1e-6), axis=1))[0])
+        raise ValueError(f"{path}: pose {bad} does not end in 0 0 0 1; is the matrix stored "
+                         "column-major (transposed)?")
+    return as_poses(poses, f"{path} poses")
+
+
+def _corners_from_images(images_dir, n_views: int, board):
+    """(rgb images, corners per view or None, object points, image size) for a chessboard."""
+    import cv2
+
+    cols, rows, square_m = board
+    files = sorted(p for p in Path(images_dir).iterdir()
+                   if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"))
+    if len(files) != n_views:
+        raise ValueError(f"{images_dir} has {len(files)} images but the pose file {n_views} poses; "
+                         "keep one image per pose, named so that they sort in pose order")
+    detect = chessboard_detector(cols, rows, square_m)
+    images, corners, objects, size = [], [], None, None
+    for path in files:
+        rgb = _read_png(cv2, path)
+        size = (rgb.shape[1], rgb.shape[0])
+        # The detector also solves a pose, which needs intrinsics; these are not known yet
+        # (they are calibrated from the corners next), so a nominal camera stands in and only
+        # the corners are kept.
+        nominal = Intrinsics(float(size[0]), float(size[0]), size[0] / 2, size[1] / 2,
+                             size[0], size[1])
+        found = detect(Frame(rgb=rgb, depth=None, timestamp=0.0), nominal)
+        images.append(rgb)
+        corners.append(None if found is None else found.corners_px)
+        objects = found.object_points if found is not None else objects
+    return images, corners, objects, size
+
+
+def import_pose_text_capture(poses_file, corners_file=None, images_dir=None, board=None,
+                             robot_name: str = "", camera_name: str = "") -> Capture:
+    """A ``Capture`` from a robot pose text file and the board's corners or images.
+
+    ``poses_file``: see ``read_pose_text``. Then either ``corners_file``, an ``.npz`` with
+    ``corners_px`` (n, N, 2) pixels (NaN where a corner was not found), ``board_points_m``
+    (N, 3) metres and ``image_size_wh`` (the layout of ``autograder/data/rwhe_kuka``), or
+    ``images_dir`` (one image per pose, sorted by name) with ``board`` = (inner corner
+    columns, rows, square size in metres) of a chessboard, detected here.
+
+    The camera's intrinsics (K; k1, k2, p1, p2, k3) are calibrated with
+    ``cv2.calibrateCamera`` on every view's corners, and each view's ``cam_T_target`` is that
+    calibration's board pose. Views with fewer than 6 corners found are recorded as failed.
+    """
+    import cv2
+
+    base_T_flange = read_pose_text(poses_file)
+    n = len(base_T_flange)
+    if (corners_file is None) == (images_dir is None):
+        raise ValueError("give either corners_file (an .npz of corners) or images_dir with board")
+    images: list = []
+    if corners_file is not None:
+        with np.load(corners_file, allow_pickle=False) as data:
+            missing = {"corners_px", "board_points_m", "image_size_wh"} - set(data.files)
+            if missing:
+                raise ValueError(f"{corners_file} lacks {', '.join(sorted(missing))}; it needs "
+                                 "corners_px (n, N, 2), board_points_m (N, 3), image_size_wh (2,)")
+            pixels = np.array(data["corners_px"], dtype=float)
+            board_points = np.array(data["board_points_m"], dtype=float)
+            size = tuple(int(v) for v in data["image_size_wh"])
+        if pixels.shape[0] != n or pixels.shape[1:] != (len(board_points), 2):
+            raise ValueError(f"{corners_file} has corners of shape {pixels.shape} for {n} poses "
+                             f"and {len(board_points)} board points; expected ({n}, "
+                             f"{len(board_points)}, 2), one row of corners per pose line")
+        corners = []
+        for view in pixels:
+            ok = np.all(np.isfinite(view), axis=1)
+            corners.append((view[ok], board_points[ok]))
+    else:
+        if board is None:
+            raise ValueError("images_dir needs board = (inner columns, inner rows, square_m)")
+        images, found, board_points, size = _corners_from_images(images_dir, n, board)
+        corners = [None if c is None else (c, board_points) for c in found]
+    keep = [i for i, c in enumerate(corners) if c is not None and len(c[0]) >= 6]
+    failed = [i for i in range(n) if i not in keep]
+    if len(keep) < 3:
+        raise ValueError(f"the board was found in only {len(keep)} of {n} views; at least 3 "
+                         "are needed (check the board size and that the images are in pose order)")
+    obj = [corners[i][1].astype(np.float32) for i in keep]
+    img = [corners[i][0].astype(np.float32).reshape(-1, 1, 2) for i in keep]
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, None, None)
+    cam_T_target = np.array([np.vstack([np.hstack([cv2.Rodrigues(r)[0], t.reshape(3, 1)]),
+                                        [0.0, 0.0, 0.0, 1.0]]) for r, t in zip(rvecs, tvecs)])
+    intrinsics = Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                            int(size[0]), int(size[1]), dist.ravel()[:5].astype(float))
+    keep_arr = np.array(keep, dtype=np.int64)
+    return Capture(
+        base_T_flange=base_T_flange[keep_arr], cam_T_target=cam_T_target,
+        corners_px=[corners[i][0] for i in keep], object_points=[corners[i][1] for i in keep],
+        intrinsics=intrinsics, commanded_base_T_flange=base_T_flange, pose_indices=keep_arr,
+        timestamps=np.zeros(len(keep)), images=[images[i] for i in keep] if images else [],
+        failed_indices=np.array(failed, dtype=np.int64),
+        failed_reasons=["board not found (fewer than 6 corners)"] * len(failed),
+        failed_images=[images[i] if images else None for i in failed],
+        robot_name=robot_name, camera_name=camera_name,
+        created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    )

@@ -209,8 +209,13 @@ def test_calibrate_names_the_right_mount_when_the_wrong_one_is_given(capsys, tmp
     _synthetic_capture(tmp_path / "cap", true_mount)
     assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", true_mount]) == 0
     assert "WARNING" not in capsys.readouterr().out
-    assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", wrong_mount]) == 0
-    assert f"these views fit --mount {true_mount} far better" in capsys.readouterr().out
+    # The wrong mount gives every solver a wrong X: refused, naming the mount that fits, and
+    # nothing saved that a lab could mistake for a calibration.
+    (tmp_path / "cap" / "flange_T_cam.yaml").unlink(missing_ok=True)
+    (tmp_path / "cap" / "base_T_cam.yaml").unlink(missing_ok=True)
+    assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", wrong_mount]) == 2
+    assert f"these views fit --mount {true_mount} far better" in capsys.readouterr().err
+    assert not list((tmp_path / "cap").glob("*_T_cam.yaml"))
 
 
 # --------------------------------------------------------------------------- data
