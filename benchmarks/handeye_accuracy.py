@@ -13,14 +13,28 @@ Scenarios (each trial draws a fresh seeded problem; every method sees the very s
                 robot poses exact, n in {5, 10, 20, 40}.
   pixel-noise   corner pixel noise {0.2, 0.5, 1.0} px (poses from solvePnP, as on a real rig)
                 with robot noise 0.02 deg / 0.1 mm, n in {5, 10, 20, 40}.
+Rows with corner pixels also run ``calibrate_from_corners``, the default for captures with
+corners (its noise model chosen by held-out views; see benchmarks/handeye_real.py).
 Each row: median and 95th percentile of the rotation error (deg) and translation error (mm)
 of X against the truth, and the median CPU time per call (ms; process CPU time, so other load
 on the machine does not skew the comparison with OpenCV).
 
-On the pose-noise rows a last row gives the Cramer-Rao bound: the errors of an efficient
-unbiased estimator, drawn (200 per trial) from the bound's covariance at the true poses
-(``solutions.mle.cramer_rao_covariance``). No unbiased method's median can beat it by more
-than sampling noise; when a 15 % target lies below it, the target list says so.
+On the pose-noise rows two more rows show the statistical limit:
+  oracle ML    the exact maximum-likelihood fit that knows the truth's noise model: camera pose
+               noise isotropic with the row's true standard deviations, robot poses exact,
+               started at the true X and Y, no robust stage
+               (``refine_hand_eye(..., X0=X_true, Y0=Y_true, sigma=true, robust=False)``);
+  Cramer-Rao bound  the errors of an efficient unbiased estimator, drawn (200 per trial) from
+               the bound's covariance at the true poses (``solutions.mle.cramer_rao_covariance``).
+
+Targets on the camera-pose-noise rows (issue 17): the default's median rotation and translation
+errors are each at most 1.05 x the oracle's and at least 5 % below OpenCV's best (the best of
+its seven methods for that number); where the oracle itself is at least 20 % below OpenCV's
+best, the default is at least 15 % below. Each ratio is printed with a paired-bootstrap 95 %
+interval (trials resampled, the same trials for both methods), and each row's verdict says
+whether a miss is real (the whole interval is past the target) or within sampling noise.
+Pixel-noise rows keep the earlier target (15 % better than OpenCV's best). Speed: on 20 poses
+the default takes at most 5 x OpenCV PARK's time on every row.
 """
 
 from __future__ import annotations
@@ -46,11 +60,21 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from autograder.synthetic import NoiseModel, make_hand_eye, make_opencv_scenario  # noqa: E402
 from robots import geometry as geo  # noqa: E402
 from solutions.catalog import DEFAULT_METHOD, hand_eye_methods  # noqa: E402
-from solutions.mle import cramer_rao_covariance  # noqa: E402
+from solutions.mle import (  # noqa: E402
+    calibrate_from_corners,
+    cramer_rao_covariance,
+    refine_hand_eye,
+)
 
 MOUNTS = ("eye_in_hand", "eye_to_hand")
 BOUND_LABEL = "Cramer-Rao bound (efficient estimator)"
+ORACLE_LABEL = "oracle ML (true noise, started at the truth)"
+CORNER_LABEL = "calibrate_from_corners (corner default)"
 BOUND_DRAWS = 200
+BOOTSTRAP = 2000
+ORACLE_SLACK = 1.05
+OPENCV_GAIN = 0.95
+OPENCV_GAIN_WHERE_POSSIBLE = 0.85
 
 
 @dataclass(frozen=True)
@@ -92,14 +116,30 @@ def scenarios(quick: bool) -> list[Scenario]:
     return out
 
 
+def _pose_noise_only(scenario: Scenario) -> bool:
+    """Whether the only noise is isotropic camera pose noise (the bound's and oracle's model)."""
+    noise = scenario.noise
+    return not (scenario.kind != "careful" or noise is None or noise.cam_rot_deg <= 0
+                or noise.cam_trans_mm <= 0 or noise.pixel_px or noise.robot_rot_deg
+                or noise.robot_trans_mm or noise.n_outliers)
+
+
+def oracle_fit(scenario: Scenario, problem):
+    """X of the exact ML fit given the true noise model, started at the truth (or None)."""
+    if not _pose_noise_only(scenario):
+        return None
+    noise = scenario.noise
+    return refine_hand_eye(problem.base_T_flange, problem.cam_T_target, problem.mount,
+                           X0=problem.X_true, Y0=problem.Y_true, robust=False,
+                           sigma=(np.radians(noise.cam_rot_deg), noise.cam_trans_mm / 1000)).X
+
+
 def bound_errors(scenario: Scenario, problem, seed: int):
     """Rotation (deg) and translation (mm) errors of an efficient unbiased estimator on this
     problem, BOUND_DRAWS draws from the Cramer-Rao covariance at the truth; None unless the
     only noise is isotropic camera pose noise (the model the bound is computed for)."""
     noise = scenario.noise
-    if (scenario.kind != "careful" or noise is None or noise.cam_rot_deg <= 0
-            or noise.cam_trans_mm <= 0 or noise.pixel_px or noise.robot_rot_deg
-            or noise.robot_trans_mm or noise.n_outliers):
+    if not _pose_noise_only(scenario):
         return None
     cov = cramer_rao_covariance(problem.X_true, problem.Y_true, problem.true_base_T_flange,
                                 problem.mount, rotation_sigma_rad=np.radians(noise.cam_rot_deg),
@@ -119,7 +159,14 @@ def run_trial(args):
     cv2.setNumThreads(1)
     problem = scenario.problem(seed)
     results = {}
-    for label, solve in hand_eye_methods(problem, include_opencv=True):
+    methods = hand_eye_methods(problem, include_opencv=True)
+    if problem.pixels is not None and problem.noise.pixel_px > 0:
+        # The default for captures with corners (benchmarks/handeye_real.py): its noise model
+        # chosen by held-out views, here on data whose noise model is the textbook one.
+        methods.append((CORNER_LABEL, lambda: calibrate_from_corners(
+            problem.board.object_points(), problem.pixels, problem.camera.K, problem.camera.dist,
+            problem.base_T_flange, problem.mount, problem.cam_T_target)[0]))
+    for label, solve in methods:
         start = time.process_time()
         try:
             out = solve()
@@ -132,6 +179,12 @@ def run_trial(args):
         results[label] = (geo.rotation_error_deg(X, problem.X_true),
                           geo.translation_error(X, problem.X_true) * 1000, ms,
                           None if flagged is None else (tuple(flagged), problem.outlier_indices))
+    start = time.process_time()
+    X_oracle = oracle_fit(scenario, problem)
+    if X_oracle is not None:
+        results[ORACLE_LABEL] = (geo.rotation_error_deg(X_oracle, problem.X_true),
+                                 geo.translation_error(X_oracle, problem.X_true) * 1000,
+                                 (time.process_time() - start) * 1000, None)
     bound = bound_errors(scenario, problem, seed)
     if bound is not None:
         results[BOUND_LABEL] = (*bound, np.nan, None)
@@ -177,15 +230,63 @@ def print_table(scenario: Scenario, rows, trials: int, file=sys.stdout):
               f"| {failed} |", file=file)
 
 
+def paired_ratio(ours: np.ndarray, theirs: np.ndarray, rng, draws: int = BOOTSTRAP):
+    """median(ours) / median(theirs) and its paired-bootstrap 95 % interval (same trials)."""
+    idx = rng.integers(0, len(ours), size=(draws, len(ours)))
+    boot = np.median(ours[idx], axis=1) / np.median(theirs[idx], axis=1)
+    return float(np.median(ours) / np.median(theirs)), *np.percentile(boot, [2.5, 97.5])
+
+
+def _verdict(ratio: float, lo: float, hi: float, limit: float) -> str:
+    if ratio <= limit:
+        return "met" if hi <= limit else "met (within noise)"
+    return "MISSED (real: whole interval above)" if lo > limit else "missed (within noise)"
+
+
+def limit_targets(scenario: Scenario, trials: list[dict], file=sys.stdout) -> list[str]:
+    """Issue 17's camera-pose-noise targets, printed with paired-bootstrap intervals; returns
+    the lines of the targets missed (real or within noise)."""
+    if not _pose_noise_only(scenario) or ORACLE_LABEL not in trials[0]:
+        return []
+    rng = np.random.default_rng(1)
+
+    def errors(label, k):
+        return np.array([t[label][k] for t in trials], float)
+
+    opencv = [lab for lab in trials[0] if lab.startswith("opencv")]
+    missed = []
+    print(f"\nTargets, {len(trials)} paired trials (ratio of medians [paired-bootstrap 95 % CI]):",
+          file=file)
+    for k, what in ((0, "rotation"), (1, "translation")):
+        ours, oracle = errors(DEFAULT_METHOD, k), errors(ORACLE_LABEL, k)
+        best = min(opencv, key=lambda lab: np.nanmedian(errors(lab, k)))
+        theirs = np.nan_to_num(errors(best, k), nan=np.inf)
+        to_oracle = paired_ratio(ours, oracle, rng)
+        to_opencv = paired_ratio(ours, theirs, rng)
+        oracle_gain = float(np.median(oracle) / np.median(theirs))
+        gain = OPENCV_GAIN_WHERE_POSSIBLE if oracle_gain <= 0.80 else OPENCV_GAIN
+        checks = ((f"default/oracle {to_oracle[0]:.3f} [{to_oracle[1]:.3f}, {to_oracle[2]:.3f}]"
+                   f" <= {ORACLE_SLACK:.2f}", _verdict(*to_oracle, ORACLE_SLACK)),
+                  (f"default/{best} {to_opencv[0]:.3f} [{to_opencv[1]:.3f}, {to_opencv[2]:.3f}]"
+                   f" <= {gain:.2f} (oracle/{best} {oracle_gain:.3f})",
+                   _verdict(*to_opencv, gain)))
+        for text, verdict in checks:
+            print(f"- {what}: {text}: {verdict}", file=file)
+            if not verdict.startswith("met"):
+                missed.append(f"{scenario.name} {scenario.mount} n={scenario.n_poses} {what}: "
+                              f"{text}: {verdict}")
+    return missed
+
+
 def check_targets(scenario: Scenario, rows) -> list[str]:
-    """The issue's accuracy targets for this scenario; returns the ones missed."""
+    """The accuracy targets other than the pose-noise limit targets; returns the ones missed."""
     by_label = {r[0]: r for r in rows}
     ours = by_label[DEFAULT_METHOD]
     opencv = [r for r in rows if r[0].startswith("opencv")]
     best_rot = min(r[1] for r in opencv)
     best_trans = min(r[3] for r in opencv)
     missed = []
-    noisy = scenario.name.startswith(("pose-noise", "pixel-noise")) and best_rot > 1e-6
+    noisy = scenario.name.startswith("pixel-noise") and best_rot > 1e-6
     if noisy and not (ours[1] <= 0.85 * best_rot and ours[3] <= 0.85 * best_trans):
         line = (f"{scenario.name} {scenario.mount} n={scenario.n_poses}: default "
                 f"{ours[1]:.4f} deg / {ours[3]:.3f} mm vs best OpenCV "
@@ -215,6 +316,8 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--quick", action="store_true", help="n in {10, 20} and 20 trials")
     parser.add_argument("--only", default="", help="run scenarios whose name contains this")
+    parser.add_argument("--poses", type=int, default=0,
+                        help="run only the scenarios with this many poses (default: all)")
     args = parser.parse_args(argv)
     trials = 20 if args.quick and args.trials == 100 else args.trials
 
@@ -224,11 +327,13 @@ def main(argv=None) -> int:
     started = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         for scenario in scenarios(args.quick):
-            if args.only and args.only not in scenario.name:
+            if (args.only and args.only not in scenario.name
+                    or args.poses and scenario.n_poses != args.poses):
                 continue
             results = list(pool.map(run_trial, [(scenario, seed) for seed in range(trials)]))
             rows = summarise(results)
             print_table(scenario, rows, trials)
+            missed += limit_targets(scenario, results)
             missed += check_targets(scenario, rows)
             sys.stdout.flush()
     print(f"\nTotal time {time.perf_counter() - started:.0f} s with {args.workers} workers.")
