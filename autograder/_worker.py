@@ -1,15 +1,19 @@
 """The student-code worker: runs one submission's code and calls its functions on request.
 
-Started by :mod:`autograder.grading` as ``python -I -m autograder._worker REQ_FD REPLY_FD MEM_MB CPU_S FILE_MB``,
-which sets those resource limits on itself before any student code runs, with a scrubbed environment, in an empty temporary directory
-and (where the OS allows) in its own user, PID, mount and network namespaces with the course
-directory hidden. It holds no secret and no ground truth: it receives problem *inputs* only and
-sends back whatever the student's function returned. Everything it sends is re-validated by the
+Started by :mod:`autograder.grading` as ``python -I -m autograder._worker REQ_FD REPLY_FD
+MEM_MB CPU_S FILE_MB``, inside the sandbox of :mod:`autograder.sandbox` where it can run
+(no view of the course, the answer key or the specs; ``autograder.checks`` is replaced by a
+stub so the notebook's ``from autograder.checks import check`` still works), with a clean
+environment; it sets those resource limits on itself before any student code runs. It holds
+no secret and no ground truth: it receives problem *inputs* only and sends back whatever the
+student's function returned. Everything it sends is re-validated (and size-capped) by the
 grader, so student code that patches this module gains nothing but a zero.
 
 Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s}`` runs one notebook
 cell in the shared namespace under an alarm (an exception or timeout ends that cell only);
-``{"op": "call", "name": f, "args": [...], "timeout": s}`` calls a function by name;
+``{"op": "call", "name": f, "args": [...], "timeout": s, "forbidden": [...]}`` calls a
+function by name, with a tripwire on the routines it must not call (reported as
+``"forbidden"`` in the reply; the grader's own static scan is the authoritative rule);
 ``{"op": "quit"}``.
 """
 
@@ -22,8 +26,9 @@ import signal
 import sys
 import time
 import traceback
+import types
 
-from autograder import wire
+from autograder import forbidden, wire
 
 OUTPUT_KEEP = 4096
 
@@ -79,6 +84,15 @@ def _run_guarded(fn, timeout_s: float):
         signal.setitimer(signal.ITIMER_REAL, 0.0)
 
 
+def _stub_checks() -> None:
+    """A do-nothing ``autograder.checks``: notebooks import ``check`` from it, but the real
+    module (and the specs behind it) is not in the sandbox, and practice scores are not
+    needed while grading."""
+    stub = types.ModuleType("autograder.checks")
+    stub.check = stub.hidden_test = lambda *args, **kwargs: None
+    sys.modules["autograder.checks"] = stub
+
+
 def _limit(which: int, value: int) -> None:
     # soft = hard: student code may lower a limit but never raise it again.
     resource.setrlimit(which, (value, value))
@@ -98,6 +112,7 @@ def main(argv: list[str]) -> int:
     out = _CappedWriter()
     sys.stdin, sys.stdout, sys.stderr = io.StringIO(""), out, out
     namespace = {"__name__": "__main__", "__builtins__": builtins}
+    _stub_checks()
     send, receive = wire.send, wire.receive  # bound now: student code may patch the module
 
     while True:
@@ -127,12 +142,17 @@ def main(argv: list[str]) -> int:
                 send(rep_fd, {"ok": False, "error": f"no function named {name} is defined"})
                 continue
             args = request.get("args", [])
+            names = [str(n) for n in request.get("forbidden", [])]
             started = time.monotonic()
+            tripwire = forbidden.Tripwire(names)
             try:
-                value = _run_guarded(lambda: func(*args), request.get("timeout", 10.0))
+                with tripwire:
+                    value = _run_guarded(lambda: func(*args), request.get("timeout", 10.0))
                 reply = {"ok": True, "value": value}
             except BaseException as exc:  # noqa: BLE001
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+            if tripwire.hits:
+                reply["forbidden"] = sorted(tripwire.hits)
             reply["seconds"] = time.monotonic() - started
             reply["output_chars"] = out.total
             try:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from autograder import forbidden
 from robots import geometry as geo
 
 __all__ = [
@@ -48,6 +49,7 @@ __all__ = [
     "hidden_test",
     "run_trial",
     "StudentCallError",
+    "forbidden_result",
 ]
 
 PUBLIC_SEEDS = (0, 1, 2)
@@ -113,6 +115,9 @@ class FunctionSpec:
     # and returns what ``measure`` scores. None: one call with ``trial.args``.
     # ``time_limit_s`` then bounds the whole loop of one trial.
     drive: Callable | None = None
+    # Dotted names of routines this function must not call (the library routine that does
+    # what the lab teaches): a use earns zero for the function (autograder.forbidden).
+    forbidden: tuple[str, ...] = ()
 
 
 @dataclass
@@ -387,13 +392,55 @@ def _copy(a):
     return a
 
 
+def forbidden_result(spec: FunctionSpec, names) -> FunctionResult:
+    """Zero for ``spec``: it uses the forbidden routines ``names``; the reason says which."""
+    listed = ", ".join(sorted(names))
+    return FunctionResult(spec.name, 0.0, spec.points, [], [
+        f"uses {listed}, which {spec.name} must not call: this lab asks you to write that "
+        "computation yourself (score 0 for this function)"])
+
+
+def _static_forbidden(func, spec: FunctionSpec, always=forbidden.ALWAYS_FORBIDDEN) -> list[str]:
+    """Forbidden names in ``func``'s own source, its aliases resolved in its globals."""
+    import inspect
+    import textwrap
+
+    try:
+        source = textwrap.dedent(inspect.getsource(func))
+    except (OSError, TypeError):
+        return []
+    header = []
+    for alias, value in getattr(func, "__globals__", {}).items():
+        target = getattr(value, "__name__", None) if inspect.ismodule(value) else None
+        if target is None and callable(value) and getattr(value, "__module__", None):
+            target = f"{value.__module__}.{getattr(value, '__name__', alias)}"
+        if target and alias.isidentifier() and target.replace(".", "").replace("_", "").isalnum():
+            header.append(f"import {target} as {alias}" if inspect.ismodule(value)
+                          else f"from {target.rsplit('.', 1)[0]} import "
+                               f"{target.rsplit('.', 1)[1]} as {alias}")
+    return forbidden.static_hits(header + [source], func.__name__, spec.forbidden, always)
+
+
 def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,
-             assignment: str | None = None) -> FunctionResult:
-    """Score ``func`` in this process on the problems of the given public ``seeds``."""
+             assignment: str | None = None, reference: bool = False) -> FunctionResult:
+    """Score ``func`` in this process on the problems of the given public ``seeds``.
+
+    The rule of the grader applies: a call of one of the spec's forbidden routines (seen in
+    the function's code or caught while it runs) scores zero, and the result says why.
+    ``reference=True`` is the instructor's self-check of a reference solver (or a thin adapter
+    around one): the reference solvers may then be called, the spec's own forbidden routines
+    still may not. A function defined in ``solutions`` itself is taken as a reference.
+    """
     spec = spec_for(name or getattr(func, "__name__", ""), assignment)
     trials = [t for s in seeds for t in public_trials(spec, s)]
-    result = score_function(spec, trials, [_call_in_process(func, t, spec) for t in trials])
-    return result
+    reference = reference or forbidden.is_reference_solver(func)
+    always = () if reference else forbidden.ALWAYS_FORBIDDEN
+    with forbidden.Tripwire(spec.forbidden, always) as tripwire:
+        outcomes = [_call_in_process(func, t, spec) for t in trials]
+    used = set(tripwire.hits) | set(_static_forbidden(func, spec, always))
+    if used:
+        return forbidden_result(spec, used)
+    return score_function(spec, trials, outcomes)
 
 
 def check(func, name: str | None = None, seeds=PUBLIC_SEEDS,

@@ -7,18 +7,21 @@ process:
 
 1. The submitted notebook is read as JSON (a mangled or renamed notebook still works) and
    every code cell is kept in order, except hidden-test cells and IPython magics.
-2. That code runs in a fresh worker process (:mod:`autograder._worker`) under resource
-   limits (address space, CPU seconds, file size, wall clock with a hard kill), with a
-   scrubbed environment, in an empty temporary directory, and, where Linux user namespaces
-   are available, in its own PID, mount and network namespaces with the course directory
-   hidden and all capabilities dropped.
+2. That code runs in a fresh worker process (:mod:`autograder._worker`) inside the
+   sandbox of :mod:`autograder.sandbox` (bubblewrap: a read-only root holding only the
+   interpreter and the lab packages, not ``solutions/``, the specs or the course; a
+   size-limited /tmp; no network; run as ``nobody``), all of one submission's processes in
+   one cgroup (memory and process count), with per-process limits (address space, CPU
+   seconds, file size) and a wall clock with a hard kill. Where bubblewrap cannot run,
+   rlimits alone remain and every row says so (``sandbox:rlimits_only``).
 3. Problems are drawn from the secret seed, a per-run nonce that never reaches the disk
    before the workers are gone, the assignment, the student id and the function name. Only
    the inputs go to the worker; its replies are decoded defensively (no pickle) and scored
    here, against truth that stays here.
 
 A crash, hang, NaN or exception costs the student the problems it touched, nothing else; a
-worker that dies is restarted for the next function.
+worker that dies is restarted for the next function. A function whose code reaches one of
+its spec's forbidden routines (:mod:`autograder.forbidden`) scores zero, flagged.
 """
 
 from __future__ import annotations
@@ -29,7 +32,6 @@ import json
 import os
 import re
 import secrets
-import shlex
 import shutil
 import signal
 import subprocess
@@ -37,12 +39,12 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, wire
+from autograder import checks, sandbox, wire
+from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
 
 __all__ = [
     "SECRET_ENV",
@@ -69,12 +71,18 @@ HIDDEN_MARK = "BEGIN HIDDEN TESTS"
 class Limits:
     """Resource limits for one submission's worker."""
 
-    memory_mb: int = 2048          # address space; numpy + matplotlib need about 1 GB of it
+    # Memory: each process's address space (numpy + matplotlib need about 1 GB of it) and,
+    # under a cgroup, the resident memory of all the submission's processes together.
+    memory_mb: int = 2048
+    max_processes: int = 32        # processes and threads of the submission at once (cgroup)
     cpu_s: int = 120               # CPU seconds over the worker's whole life
     file_mb: int = 16              # largest file the student code may write
+    scratch_mb: int = 64           # the sandbox's writable /tmp, all files together
+    reply_kb: int = 1024           # largest reply of one call (a pose is about 0.3 KB)
     cell_timeout_s: float = 10.0   # each notebook cell while loading
     load_timeout_s: float = 90.0   # loading, restarts after hung cells included
     call_timeout_s: float | None = None   # per call; None: the function spec's own limit
+    deadline_s: float = 600.0      # the whole submission, wall clock: then it is cut off
 
 
 @dataclass
@@ -215,17 +223,19 @@ def scan_for_tampering(cells: list[str]) -> list[str]:
 # --------------------------------------------------------------------------- the worker
 
 
-@lru_cache(maxsize=1)
 def sandbox_available() -> bool:
-    """True when unprivileged namespaces (``unshare``) and ``setpriv`` work on this machine."""
-    if not (shutil.which("unshare") and shutil.which("setpriv")):
-        return False
-    probe = ["unshare", "--user", "--map-root-user", "--pid", "--fork", "--mount-proc", "--net",
-             "--", "setpriv", "--bounding-set=-all", "--no-new-privs", "--", "true"]
-    try:
-        return subprocess.run(probe, capture_output=True, timeout=10, check=False).returncode == 0
-    except (OSError, subprocess.SubprocessError):
-        return False
+    """True when student code runs under bubblewrap here (see :mod:`autograder.sandbox`)."""
+    return sandbox.capabilities().bwrap
+
+
+# What the worker may see besides the interpreter: the packages a lab notebook imports.
+# Not solutions/ (the answer key), not the specs or checks (stubbed in the worker), not the
+# course, the checkout or $HOME.
+_PKG = Path(__file__).resolve().parent
+_ROOT = _PKG.parent
+WORKER_PACKAGES = ("robots", "sim_backends", "autograder")
+WORKER_HIDDEN = ("autograder/specs", "autograder/checks.py", "autograder/course.py",
+                 "autograder/grading.py")
 
 
 def _worker_env(home: str) -> dict[str, str]:
@@ -235,24 +245,13 @@ def _worker_env(home: str) -> dict[str, str]:
             "MKL_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1", "PYTHONHASHSEED": "0"}
 
 
-def sandbox_prefix(hide: list[str], isolate_network: bool = True) -> list[str]:
-    """Command prefix running a program in new namespaces with ``hide`` paths masked.
-
-    Each hidden directory gets an empty, mode-000 tmpfs on top (a hidden file gets
-    /dev/null bound over it); then every capability is dropped, so the program cannot
-    unmount them, and it sees only its own processes.
-    """
-    mounts = []
-    for path in hide:
-        if os.path.isdir(path):
-            mounts.append(f"mount -t tmpfs -o size=16k,mode=000 none {shlex.quote(path)}")
-        elif os.path.exists(path):
-            mounts.append(f"mount --bind /dev/null {shlex.quote(path)}")
-    script = " && ".join(mounts + ['exec setpriv --bounding-set=-all --inh-caps=-all '
-                                   '--no-new-privs -- "$@"'])
-    flags = ["--user", "--map-root-user", "--mount", "--kill-child"]
-    flags += ["--pid", "--fork", "--mount-proc"] + (["--net"] if isolate_network else [])
-    return ["unshare", *flags, "--", "sh", "-c", script, "sandbox"]
+def worker_jail(limits: Limits) -> sandbox.Jail:
+    """The worker's view: interpreter, venv and the lab packages read-only, a /tmp scratch."""
+    packages = tuple(str(_ROOT / p) for p in WORKER_PACKAGES if (_ROOT / p).exists())
+    hidden = tuple(str(_ROOT / p) for p in WORKER_HIDDEN if (_ROOT / p).exists())
+    return sandbox.Jail(ro=sandbox.python_paths() + packages, hide=hidden,
+                        scratch_mb=limits.scratch_mb, chdir="/tmp",
+                        env=_worker_env("/tmp"))
 
 
 class WorkerFailure(Exception):
@@ -275,24 +274,27 @@ class Worker:
     it. ``load_report`` lists what each cell did.
     """
 
-    def __init__(self, cells: list[str], limits: Limits, hide: list[str] = (),
-                 skip: set[int] = frozenset()):
+    def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
+                 cgroup: sandbox.Cgroup | None = None):
         self.limits = limits
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
         req_r, self._req_w = os.pipe()
         self._rep_r, rep_w = os.pipe()
         python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
                   str(limits.memory_mb), str(limits.cpu_s), str(limits.file_mb)]
-        hide = [p for p in hide if not _contains(p, sys.executable) and not _contains(p, _PKG)]
-        command = (sandbox_prefix(list(hide)) + python) if sandbox_available() else python
+        if sandbox_available():
+            command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
+        else:  # rlimits only: the worker still starts in an empty directory with a clean env
+            command, env = python, _worker_env(self.workdir)
         self._stderr = open(os.path.join(self.workdir, ".worker-stderr"), "w+b")
         self.proc = subprocess.Popen(
-            command, cwd=self.workdir, env=_worker_env(self.workdir), stdin=subprocess.DEVNULL,
+            command, cwd=self.workdir, env=env, stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL, stderr=self._stderr, pass_fds=(req_r, rep_w),
             start_new_session=True)
         os.close(req_r)
         os.close(rep_w)
         self.load_report: list[dict] = []
+        self.tripped: set[str] = set()
         for index, source in enumerate(cells):
             if index in skip:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
@@ -305,10 +307,10 @@ class Worker:
                 raise CellHang(index, f"cell {index}: {exc}") from None
             self.load_report.append(dict(reply, index=index))
 
-    def _request(self, message: dict, timeout_s: float) -> dict:
+    def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
         try:
             wire.send(self._req_w, message)
-            return wire.receive(self._rep_r, time.monotonic() + timeout_s)
+            return wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
         except (wire.WireError, OSError) as exc:
             timed_out = "timed out" in str(exc)
             self.close()
@@ -317,14 +319,24 @@ class Worker:
                 raise WorkerFailure(f"timed out after {timeout_s:g} s") from None
             reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
                       -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
+            if "exceeds" in str(exc):
+                raise WorkerFailure(f"the reply was too large ({exc}; the cap is "
+                                    f"{max_bytes // 1024} KB)") from None
             raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
                                 "are enforced)") from None
 
-    def call(self, name: str, args: tuple, timeout_s: float) -> checks.TrialOutcome:
-        """Call ``name(*args)`` in the worker; a hang or death raises WorkerFailure."""
+    def call(self, name: str, args: tuple, timeout_s: float,
+             forbidden_names=()) -> checks.TrialOutcome:
+        """Call ``name(*args)`` in the worker; a hang, death or oversized reply raises
+        WorkerFailure. Calls of ``forbidden_names`` the tripwire saw go to ``tripped``."""
         # The worker's own alarm fires first; the extra second is for a worker that blocks it.
         reply = self._request({"op": "call", "name": name, "args": list(args),
-                               "timeout": timeout_s}, timeout_s + 2.0)
+                               "timeout": timeout_s, "forbidden": list(forbidden_names)},
+                              timeout_s + 2.0, self.limits.reply_kb * 1024)
+        tripped = reply.get("forbidden")
+        if isinstance(tripped, list):
+            self.tripped.update(str(t)[:80] for t in tripped[:8]
+                                if str(t) in set(forbidden_names) | set(ALWAYS_FORBIDDEN))
         seconds = reply.get("seconds", 0.0)
         seconds = float(seconds) if isinstance(seconds, (int, float)) else 0.0
         if reply.get("ok") is True and "value" in reply:
@@ -366,27 +378,18 @@ class Worker:
         self.close()
 
 
-_PKG = str(Path(__file__).resolve().parent)
-
-
-def _contains(parent: str, child: str) -> bool:
-    try:
-        return os.path.commonpath([os.path.realpath(parent), os.path.realpath(child)]) == \
-            os.path.realpath(parent)
-    except ValueError:
-        return False
-
-
 # --------------------------------------------------------------------------- one submission
 
 
 def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str, nonce: str,
-                   limits: Limits = Limits(), hide: list[str] = ()) -> SubmissionGrade:
-    """Grade one submission (its notebook file or files) on its own hidden problems.
+                   limits: Limits = Limits()) -> SubmissionGrade:
+    """Grade one submission (its frozen notebook file or files) on its own hidden problems.
 
-    ``hide`` lists paths the student code must not see (the course directory). Never
-    raises because of anything in the submission: every failure becomes a zero on the
-    problems it touched and a note.
+    The code runs in the sandboxed worker, all of its processes in one cgroup when the
+    machine has one; a function whose code reaches one of its spec's forbidden routines
+    (static scan here, tripwire in the worker) scores zero with a ``forbidden:<name>`` flag.
+    Never raises because of anything in the submission: every failure becomes a zero on the
+    problems it touched and a note; past ``limits.deadline_s`` the rest scores zero.
     """
     started = time.monotonic()
     specs = checks.SPECS.get(assignment)
@@ -398,17 +401,28 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     grade.flags += scan_for_tampering(cells)
     if not cells:
         grade.notes.append("no code cells found")
+    banned = {spec.name: static_hits(cells, spec.name, spec.forbidden) for spec in specs}
 
+    caps = sandbox.capabilities()
+    cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes) \
+        if caps.bwrap and caps.cgroup else None
     worker: Worker | None = None
     skip: set[int] = set()
     load_deadline = time.monotonic() + limits.load_timeout_s
+    deadline = started + limits.deadline_s
     try:
         for spec in specs:
+            if banned[spec.name]:
+                grade.functions.append(checks.forbidden_result(spec, banned[spec.name]))
+                continue
             trials = checks.make_trials(spec, problem_rng(secret, nonce, assignment,
                                                           student_id, spec.name))
             outcomes: list[checks.TrialOutcome] = []
             failure = None
+            tripped: set[str] = set()
             for trial in trials:
+                if failure is None and time.monotonic() > deadline:
+                    failure = f"not run: the submission's {limits.deadline_s:g} s were used up"
                 if failure is not None:  # one hang is enough: do not wait on every problem
                     outcomes.append(checks.TrialOutcome(error=failure))
                     continue
@@ -416,11 +430,15 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     if worker is None or not worker.alive:
                         if worker is not None:
                             worker.close()
-                        worker = _start_worker(cells, limits, hide, skip, grade, load_deadline)
+                        worker = _start_worker(cells, limits, skip, grade, load_deadline, cgroup)
                         _note_load(grade, worker.load_report)
                     timeout = limits.call_timeout_s or spec.time_limit_s
+                    timeout = max(0.1, min(timeout, deadline - time.monotonic()))
                     outcome = checks.run_trial(
-                        spec, trial, lambda args, t, w=worker, f=spec.name: w.call(f, args, t), timeout)
+                        spec, trial, lambda args, t, w=worker, s=spec: w.call(
+                            s.name, args, t, s.forbidden), timeout)
+                    tripped |= worker.tripped
+                    worker.tripped.clear()
                     outcomes.append(outcome)
                     if outcome.error and outcome.error.startswith("timed out"):
                         failure = f"skipped: an earlier problem timed out after {timeout:g} s"
@@ -430,22 +448,36 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     if worker is not None:
                         worker.close()
                     worker = None
-            grade.functions.append(checks.score_function(spec, trials, outcomes))
+            if tripped:
+                banned[spec.name] = sorted(tripped)
+                grade.functions.append(checks.forbidden_result(spec, tripped))
+            else:
+                grade.functions.append(checks.score_function(spec, trials, outcomes))
     finally:
         if worker is not None:
             worker.close()
+        if cgroup is not None:
+            if cgroup.oom_kills():
+                grade.notes.append(f"the memory limit ({limits.memory_mb} MB for all the "
+                                   f"submission's processes) stopped it {cgroup.oom_kills()} "
+                                   "time(s)")
+            cgroup.remove()
+    grade.flags += [f"forbidden:{name}" for name in
+                    sorted({n for names in banned.values() for n in names})]
+    if not caps.bwrap:
+        grade.flags.append("sandbox:rlimits_only")
     grade.seconds = time.monotonic() - started
     return grade
 
 
-def _start_worker(cells, limits: Limits, hide, skip: set[int], grade: SubmissionGrade,
-                  load_deadline: float) -> Worker:
+def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
+                  load_deadline: float, cgroup: sandbox.Cgroup | None) -> Worker:
     """A loaded worker; cells that hang or time out are skipped on every later restart."""
     while True:
         if time.monotonic() > load_deadline:
             raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s")
         try:
-            worker = Worker(cells, limits, hide, skip)
+            worker = Worker(cells, limits, skip, cgroup)
         except CellHang as exc:
             skip.add(exc.index)
             grade.notes.append(f"  cell error: {exc} (skipped from then on)")

@@ -120,11 +120,16 @@ def _read_exactly(fd: int, n: int, deadline: float | None) -> bytes:
     return b"".join(chunks)
 
 
-def receive(fd: int, deadline: float | None = None) -> dict:
-    """Read one message from ``fd``; ``deadline`` is a ``time.monotonic()`` value or None."""
+def receive(fd: int, deadline: float | None = None, max_bytes: int = MAX_MESSAGE_BYTES) -> dict:
+    """Read one message from ``fd``; ``deadline`` is a ``time.monotonic()`` value or None.
+
+    A message longer than ``max_bytes`` is refused from its length header, before any of it
+    is read or allocated, so the cost of a reply is bounded by the caller's cap.
+    """
     (length,) = _HEADER.unpack(_read_exactly(fd, _HEADER.size, deadline))
-    if length > MAX_MESSAGE_BYTES:
-        raise WireError(f"message of {length} bytes exceeds {MAX_MESSAGE_BYTES}")
+    limit = min(int(max_bytes), MAX_MESSAGE_BYTES)
+    if length > limit:
+        raise WireError(f"message of {length} bytes exceeds {limit}")
     try:
         message = decode(json.loads(_read_exactly(fd, length, deadline).decode("utf-8")))
     except (ValueError, RecursionError, UnicodeDecodeError) as exc:

@@ -140,10 +140,13 @@ def _build_parser() -> argparse.ArgumentParser:
         "grade",
         help="autograde every submission of an assignment on hidden problems; write grades.csv",
         description=(
-            "Grade every submission in COURSE/submitted/*/ASSIGNMENT: nbgrader's autograde "
-            "(each student alone, time- and memory-limited) for its cell results, then the "
-            "isolated grader on fresh hidden problems drawn from the course secret. Writes "
-            "COURSE/grades.csv (nbgrader's export columns plus flags) and per-student "
+            "Grade every submission in COURSE/submitted/*/ASSIGNMENT in three stages: freeze "
+            "the submissions (regular files only, copied before any student code runs); run "
+            "each student's nbgrader autograde in a throwaway sandboxed course and the "
+            "isolated grader on fresh hidden problems from the course secret (bubblewrap, "
+            "one cgroup per submission, no network, the course and the answer key out of "
+            "sight); record validated numbers into gradebook.db (backed up and checked). "
+            "Writes COURSE/grades.csv (nbgrader's export columns plus flags) and per-student "
             "feedback HTML in COURSE/feedback_cobotlab/, and prints a summary."
         ),
     )
@@ -152,6 +155,8 @@ def _build_parser() -> argparse.ArgumentParser:
     grade.add_argument("--workers", type=int, default=1, help="parallel graders (default 1)")
     grade.add_argument("--no-nbgrader", action="store_true",
                        help="skip nbgrader's autograde; use the results gradebook.db already has")
+    grade.add_argument("--nbgrader-timeout", type=float, default=300, metavar="S",
+                       help="wall clock of one student's nbgrader run (default 300 s)")
 
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
@@ -478,7 +483,8 @@ def main(argv: list[str] | None = None) -> int:
             from autograder.course import grade_course
 
             grade_course(args.course_dir, args.assignment, workers=args.workers,
-                         run_nbgrader=not args.no_nbgrader)
+                         run_nbgrader=not args.no_nbgrader,
+                         nbgrader_timeout_s=args.nbgrader_timeout)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:

@@ -158,13 +158,18 @@ def parse_case(path: Path) -> dict:
     text = path.read_text()
     header, _, body = text.partition('"""\n#')
     case = {"earned": None, "min": 0.0, "flags": [], "replace": {}, "extra": None,
-            "mangle": False}
+            "mangle": False, "lab": "lab0_frames", "layer": "notebook", "layout": None,
+            "student": None}
     for line in header.splitlines():
         key, _, value = line.partition(":")
         if key in ("earned", "min"):
             case[key] = float(value)
         elif key == "flags":
             case["flags"] = [v.strip() for v in value.split(",") if v.strip()]
+        elif key in ("lab", "layer", "layout"):
+            case[key] = value.strip()
+        elif key == "student":  # escapes (\n, \x1b) spell characters a folder name can hold
+            case["student"] = value.strip().encode().decode("unicode_escape")
     chunks = ("#" + body).split("# %% ")[1:]
     for chunk in chunks:
         directive, _, code = chunk.partition("\n")
@@ -177,3 +182,67 @@ def parse_case(path: Path) -> dict:
             case["mangle"] = True
     assert case["earned"] is not None, f"{path.name} has no 'earned:' line"
     return case
+
+
+def submit_case(course: Path, assignment: str, name: str, case: dict) -> str:
+    """Hand in corpus case ``name`` (its cells and its ``layout:``); returns its folder name.
+
+    Layouts: ``symlink_notebook_to_source``, ``symlink_folder_to_victim`` (a student named
+    ``victim`` must be submitted too), ``fifo_notebook``.
+    """
+    student = case["student"] or name
+    folder = course / "submitted" / student / assignment
+    layout = case["layout"]
+    if layout == "symlink_folder_to_victim":
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        folder.symlink_to(course / "submitted" / "victim" / assignment, target_is_directory=True)
+        return student
+    submit(course, assignment, student, replace=case["replace"], extra=case["extra"],
+           mangle=case["mangle"])
+    notebook = folder / f"{assignment}.ipynb"
+    if layout == "symlink_notebook_to_source":
+        notebook.unlink()
+        notebook.symlink_to(course / "source" / assignment / f"{assignment}.ipynb")
+    elif layout == "fifo_notebook":
+        notebook.unlink()
+        os.mkfifo(notebook)
+    elif layout is not None:
+        raise ValueError(f"{name}: unknown layout {layout!r}")
+    return student
+
+
+def corpus(lab: str = "lab0_frames") -> dict[str, dict]:
+    """The adversarial cases written for ``lab``, by name."""
+    cases = {p.stem: parse_case(p) for p in sorted(ADVERSARIAL.glob("*.py"))}
+    return {name: case for name, case in cases.items() if case["lab"] == lab}
+
+
+def serve_localhost(port: int, reply: bytes, stop) -> bool:
+    """Answer every connection to 127.0.0.1:``port`` with ``reply`` until ``stop`` (a
+    threading.Event) is set, in a daemon thread: an instructor's local service for attacks
+    to find. False when the port is taken."""
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        server.bind(("127.0.0.1", port))
+    except OSError:
+        server.close()
+        return False
+    server.listen()
+    server.settimeout(0.2)
+
+    def serve():
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            conn.sendall(reply)
+            conn.close()
+        server.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return True

@@ -59,8 +59,8 @@ def _scan_flags(case: dict) -> list[str]:
 def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     functions = LABS[assignment]
     course = kit.released_course(tmp_path, assignment)
-    cases = {p.stem: kit.parse_case(p) for p in sorted(kit.ADVERSARIAL.glob("*.py"))
-             if p.stem not in CORRECT_ANSWERS_ONLY}
+    cases = {n: c for n, c in kit.corpus().items()
+             if n not in CORRECT_ANSWERS_ONLY and c["layer"] == "notebook"}
     assert len(cases) >= 12 and sum(len(_scan_flags(c)) for c in cases.values()) >= 7
     for name, case in cases.items():
         kit.submit(course, assignment, name, replace=_retarget(case, functions),

@@ -102,9 +102,14 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
 # --------------------------------------------------------------------------- adversarial
 
 
+# nbgrader's five scratch runs and the batch take about 2 minutes on 2 idle cores; the
+# default 300 s is too tight when the machine is shared.
+@pytest.mark.timeout(1200)
 def test_adversarial_corpus_graded_in_one_batch(released, tmp_path):
     course = _fresh_course(released, tmp_path)
-    cases = {p.stem: kit.parse_case(p) for p in sorted(kit.ADVERSARIAL.glob("*.py"))}
+    # the cases whose attack is in the notebook's own code (the course, host and layout
+    # layers go through the real flow in tests/test_grading_flow.py)
+    cases = {n: c for n, c in kit.corpus(ASSIGNMENT).items() if c["layer"] == "notebook"}
     assert len(cases) >= 12
     for name, case in cases.items():
         _submit(course, name, replace=case["replace"], extra=case["extra"],
@@ -113,8 +118,9 @@ def test_adversarial_corpus_graded_in_one_batch(released, tmp_path):
     # nbgrader's own (trusting) autograde, for the cross-check, on the cases built to fool it
     # and on one built to wedge it; the other cases run through the independent grader only
     # (nbgrader costs ~8 s a notebook here and proves nothing more on them).
-    for student in ("reference", "sys_modules", "numpy_patch", "kernel_patch", "forge_protocol"):
-        run_nbgrader_autograde(course, ASSIGNMENT, student, timeout_s=60, cell_timeout_s=4)
+    run_nbgrader_autograde(course, ASSIGNMENT, ["reference", "sys_modules", "numpy_patch",
+                                                "kernel_patch", "forge_protocol"],
+                           timeout_s=120, cell_timeout_s=4)
     limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60)
     rows = grade_course(course, ASSIGNMENT, workers=2, limits=limits, quiet=True)
     grades = {r["student_id"]: r for r in rows}

@@ -50,10 +50,26 @@ def pose_from_rotvec(r, t):
 # --------------------------------------------------------------------------- scoring
 
 
+def _reference(name):
+    namespace = {}
+    exec(REFERENCE, namespace)
+    return namespace[name]
+
+
 def test_reference_functions_get_full_marks_on_public_seeds():
-    assert checks.evaluate(geo.invert, "invert_pose").fraction == 1.0
-    assert checks.evaluate(lambda p: geo.compose(*p), "compose_chain").fraction == 1.0
-    assert checks.evaluate(geo.pose_from_rotvec, "pose_from_rotvec").fraction == 1.0
+    for name in ("invert_pose", "compose_chain", "pose_from_rotvec"):
+        assert checks.evaluate(_reference(name), name).fraction == 1.0, name
+
+
+def test_check_zeroes_a_call_of_the_library_routine_the_lab_teaches():
+    # robots.geometry does exactly what lab 0 asks for: calling it earns nothing, and says why
+    for func, name, routine in [(geo.invert, "invert_pose", "robots.geometry.invert"),
+                                (lambda p: geo.compose(*p), "compose_chain",
+                                 "robots.geometry.compose"),
+                                (geo.pose_from_rotvec, "pose_from_rotvec",
+                                 "robots.geometry.pose_from_rotvec")]:
+        result = checks.evaluate(func, name)
+        assert result.points == 0 and routine in result.errors[0], (name, result.errors)
 
 
 def test_wrong_methods_get_partial_or_zero_with_reasons():
@@ -65,10 +81,12 @@ def test_wrong_methods_get_partial_or_zero_with_reasons():
     result = checks.evaluate(forgets_rotation, "invert_pose")
     assert result.fraction == 0.5 and result.failed_checks == ["translation"]
     assert checks.evaluate(lambda T: np.eye(4), "invert_pose").points == 0
-    assert checks.evaluate(lambda p: geo.compose(*p[::-1]), "compose_chain").fraction == \
+    backwards = _reference("compose_chain")
+    assert checks.evaluate(lambda p: backwards(p[::-1]), "compose_chain").fraction == \
         pytest.approx(1 / 3)
     # float32 arithmetic lands in the half-credit band, not full marks
-    single = checks.evaluate(lambda T: geo.invert(T).astype(np.float32), "invert_pose")
+    invert = _reference("invert_pose")
+    single = checks.evaluate(lambda T: invert(T).astype(np.float32), "invert_pose")
     assert 0.4 < single.fraction < 1.0
 
 
@@ -103,10 +121,10 @@ def test_noise_derived_tolerance_passes_reference_and_fails_wrong_methods():
 
 
 def test_check_prints_the_score(capsys):
-    checks.check(geo.invert, "invert_pose")
+    checks.check(_reference("invert_pose"), "invert_pose")
     assert "invert_pose: 3 / 3 points" in capsys.readouterr().out
     with pytest.raises(ValueError, match="no graded function"):
-        checks.check(geo.invert, "not_a_function")
+        checks.check(_reference("invert_pose"), "not_a_function")
 
 
 # --------------------------------------------------------------------------- seeds and secret
@@ -192,12 +210,13 @@ def kill_parent():
 def hog():
     return len(bytearray(8 * 1024**3))
 """.replace("SECRET_PATH", repr(str(course / ".cobotlab" / "secret")))
-    with grading.Worker([probe], LIMITS, hide=[str(course)]) as worker:
+    with grading.Worker([probe], LIMITS) as worker:
         names = worker.call("env", (), 3).value
         assert grading.SECRET_ENV not in names and "PATH" in names
         assert not worker.call("cwd", (), 3).value.startswith(str(course))
         if grading.sandbox_available():
-            assert "PermissionError" in worker.call("secret", (), 3).error
+            # the course is not in the sandbox at all
+            assert "FileNotFoundError" in worker.call("secret", (), 3).error
         assert "MemoryError" in worker.call("hog", (), 3).error
         try:
             worker.call("kill_parent", (), 3)
@@ -237,3 +256,50 @@ def test_a_name_graded_by_two_labs_resolves_by_folder_or_assignment(tmp_path, mo
         assert checks.spec_for("per_axis_rmse") in checks.SPECS[lab]
     with pytest.raises(ValueError, match="unknown assignment"):
         checks.spec_for("per_axis_rmse", "lab9")
+
+
+def test_forbidden_routines_zero_the_function_that_reaches_them_only(tmp_path):
+    import course_kit as kit
+
+    case = kit.parse_case(kit.ADVERSARIAL / "calibrate_hand_eye.py")
+    assert case["lab"] == "lab2_handeye"
+    cells = ["import numpy as np", case["replace"]["tsai_lenz"], case["replace"]["axes_ls"],
+             # comparing with OpenCV in a cell of its own is fine: no graded function uses it
+             "import cv2\ncompare = cv2.calibrateHandEye", "def motions(*a):\n    return 1"]
+    nb = _notebook(tmp_path, *cells)
+    grade = grading.grade_notebook(nb, "lab2_handeye", "eve", SECRET, "n", LIMITS)
+    by_name = {f.name: f for f in grade.functions}
+    assert by_name["tsai_lenz"].points == 0 and by_name["axes_ls"].points == 0
+    assert "cv2.calibrateHandEye" in by_name["tsai_lenz"].errors[0]
+    assert "forbidden:cv2.calibrateHandEye" in grade.flags
+    assert not any("calibrateHandEye" in e for e in by_name["motions"].errors)
+    # and lab 0's reference code is clean of its own rule
+    assert not [f for f in grading.grade_notebook(_notebook(tmp_path, REFERENCE, name="r.ipynb"),
+                                                  "lab0_frames", "a", SECRET, "n", LIMITS).flags
+                if f.startswith("forbidden")]
+
+
+def test_without_bubblewrap_the_rlimits_fallback_still_grades_and_says_so(tmp_path):
+    import subprocess
+    import sys
+
+    path = _notebook(tmp_path, REFERENCE)
+    script = ("from autograder import grading\n"
+              f"g = grading.grade_notebook({str(path)!r}, 'lab0_frames', 'a', {SECRET!r}, 'n',\n"
+              "    grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30))\n"
+              "print(g.score, g.flags)")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, env=dict(os.environ, COBOTLAB_SANDBOX="rlimits"))
+    assert done.stdout.strip() == "10.0 ['sandbox:rlimits_only']", done.stdout + done.stderr
+
+
+def test_check_lets_the_reference_solver_be_itself_but_not_a_student_that_calls_it():
+    # The instructor's self-check scores the reference with evaluate(): the reference is the
+    # answer key, it does not call it. A student function that calls it earns nothing.
+    assert checks.evaluate(fit_rigid, "fit_rigid", assignment="lab1_flange").fraction == 1.0
+
+    def student_fit_rigid(model_points, base_points):
+        return fit_rigid(model_points, base_points)
+
+    result = checks.evaluate(student_fit_rigid, "fit_rigid", assignment="lab1_flange")
+    assert result.points == 0 and "solutions" in result.errors[0]

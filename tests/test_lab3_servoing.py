@@ -68,7 +68,8 @@ def test_reference_and_notebook_solutions_earn_full_marks(name):
     candidates = [mine[name]] + ([REFERENCE[name]] if name in REFERENCE else [])
     for func in candidates:
         for seeds in (checks.PUBLIC_SEEDS, checks.KERNEL_SEEDS, (21, 22, 23)):
-            result = checks.evaluate(func, name, seeds)
+            # the adapters in REFERENCE call the reference solvers: the instructor's self-check
+            result = checks.evaluate(func, name, seeds, reference=func is not mine[name])
             assert result.fraction == 1.0, result.summary()
 
 

@@ -43,18 +43,21 @@ INVERT_POSE = FunctionSpec(
     name="invert_pose", points=3.0, n_trials=6, make_trial=_trial_invert, measure=measure_pose,
     checks=pose_checks("b_T_a = inv(a_T_b): R^T and -R^T t"),
     signature="invert_pose(a_T_b: (4, 4) array) -> b_T_a (4, 4)",
+    forbidden=("robots.geometry.invert",),
 )
 COMPOSE_CHAIN = FunctionSpec(
     name="compose_chain", points=3.0, n_trials=6, make_trial=_trial_compose,
     measure=measure_pose,
     checks=pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
     signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
+    forbidden=("robots.geometry.compose",),
 )
 POSE_FROM_ROTVEC = FunctionSpec(
     name="pose_from_rotvec", points=4.0, n_trials=8, make_trial=_trial_rotvec,
     measure=measure_pose,
     checks=pose_checks("Rodrigues' formula, including a zero rotation vector"),
     signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
+    forbidden=("cv2.Rodrigues", "robots.geometry.pose_from_rotvec"),
 )
 
 SPECS = (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC)

@@ -165,6 +165,9 @@ def _measure_scalar(value, trial: Trial) -> dict[str, float]:
 
 # --------------------------------------------------------------------------- specs
 
+# The solvers are what the lab teaches: OpenCV's own hand-eye routines do the whole job.
+_SOLVERS_FORBIDDEN = ("cv2.calibrateHandEye", "cv2.calibrateRobotWorldHandEye")
+
 
 MOTIONS = FunctionSpec(
     name="motions", points=3.0, n_trials=6, make_trial=_trial_motions, measure=_measure_motions,
@@ -181,11 +184,13 @@ TSAI_LENZ = FunctionSpec(
     name="tsai_lenz", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
     checks=_solver_checks("Tsai-Lenz"),
     signature="tsai_lenz(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+    forbidden=_SOLVERS_FORBIDDEN,
 )
 AXES_LS = FunctionSpec(
     name="axes_ls", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
     checks=_solver_checks("least squares on the rotation axes, projected onto SO(3)"),
     signature="axes_ls(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+    forbidden=_SOLVERS_FORBIDDEN,
 )
 ROTATION_RESIDUAL = FunctionSpec(
     name="rotation_residual", points=2.0, n_trials=4, make_trial=_trial_residual(0),

@@ -1,0 +1,206 @@
+"""The trusted side of grading: write into the instructor's course without losing anything.
+
+* :func:`backup_gradebook` / :func:`gradebook_problem` / :func:`restore_gradebook`: a copy
+  of ``gradebook.db`` before every run, an integrity check after, the copy put back (and
+  the run flagged) when the check fails. A run interrupted half-way leaves a marker that the
+  next run sees and acts on.
+* :func:`record_nbgrader` puts validated cell scores into the real gradebook through
+  nbgrader's API; the penalty is computed here, from the course's own late-submission rule.
+* :func:`write_file` writes atomically (temp file + rename in the same folder) and never
+  follows a symlink on the way; :func:`write_csv` escapes cells a spreadsheet would run.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+import sqlite3
+import stat
+import time
+import warnings
+from pathlib import Path
+
+from autograder.freeze import printable
+
+__all__ = ["backup_gradebook", "gradebook_problem", "restore_gradebook", "record_nbgrader",
+           "write_file", "write_csv", "csv_cell", "RUN_MARKER"]
+
+RUN_MARKER = "grading-in-progress"
+
+
+# --------------------------------------------------------------------------- safe writing
+
+
+def _safe_dir(root: Path, parts) -> int:
+    """An fd of ``root/parts...`` made (0o755) where missing; refuses a symlinked component."""
+    fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    try:
+        for part in parts:
+            if part in ("", ".", "..") or "/" in part:
+                raise ValueError(f"refusing path component {printable(part)!r}")
+            try:
+                os.mkdir(part, 0o755, dir_fd=fd)
+            except FileExistsError:
+                pass
+            try:
+                child = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
+            except OSError as exc:
+                raise ValueError(f"{printable(part)} in {root} is not a plain folder (a symlink?): "
+                                 "refusing to write through it") from exc
+            os.close(fd)
+            fd = child
+        return fd
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def write_file(root: Path, relative: str, data: bytes) -> Path:
+    """Write ``root/relative`` atomically, without following any symlink below ``root``.
+
+    A symlink at the target itself is replaced (rename does not follow it); a directory
+    there is moved aside to ``<name>.moved-<time>`` so the run still ends with the file.
+    """
+    parts = relative.split("/")
+    fd = _safe_dir(Path(root), parts[:-1])
+    name = parts[-1]
+    try:
+        try:
+            info = os.stat(name, dir_fd=fd, follow_symlinks=False)
+            if stat.S_ISDIR(info.st_mode):
+                os.rename(name, f"{name}.moved-{int(time.time())}", src_dir_fd=fd, dst_dir_fd=fd)
+        except FileNotFoundError:
+            pass
+        temp = f".{name}.tmp-{os.getpid()}"
+        out = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644,
+                      dir_fd=fd)
+        with os.fdopen(out, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.rename(temp, name, src_dir_fd=fd, dst_dir_fd=fd)
+    finally:
+        os.close(fd)
+    return Path(root) / relative
+
+
+def csv_cell(value):
+    """A CSV cell a spreadsheet shows as text: ``= + - @`` (and tab, CR) at the start get a
+    leading apostrophe; control characters are escaped. Numbers pass unchanged."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return value
+    text = printable(value, 2000)
+    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+
+
+def write_csv(root: Path, relative: str, columns: list[str], rows: list[dict]) -> Path:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: csv_cell(row.get(k, "")) for k in columns})
+    return write_file(root, relative, buffer.getvalue().encode("utf-8"))
+
+
+# --------------------------------------------------------------------------- the gradebook
+
+
+def gradebook_problem(db: Path) -> str | None:
+    """Why ``db`` is not a healthy nbgrader gradebook, or None (a missing one is healthy)."""
+    if not os.path.lexists(db):
+        return None
+    if not stat.S_ISREG(os.lstat(db).st_mode):
+        return "gradebook.db is not a regular file"
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=10)
+        try:
+            verdict = con.execute("PRAGMA integrity_check").fetchone()[0]
+            if verdict != "ok":
+                return f"sqlite integrity check: {printable(verdict, 200)}"
+            con.execute("SELECT count(*) FROM assignment").fetchone()
+            bad = con.execute("SELECT count(*) FROM grade WHERE auto_score < 0 OR "
+                              "manual_score < 0").fetchone()[0]
+            if bad:
+                return f"{bad} negative scores"
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        return f"{type(exc).__name__}: {printable(exc, 200)}"
+    return None
+
+
+def backup_gradebook(root: Path, private: Path) -> Path | None:
+    """Copy ``root/gradebook.db`` to ``private/gradebook.backup.db`` (atomically)."""
+    db = root / "gradebook.db"
+    if not db.is_file() or db.is_symlink():
+        return None
+    temp = private / ".gradebook.backup.tmp"
+    src = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=30)
+    dst = sqlite3.connect(temp)
+    try:
+        src.backup(dst)  # a consistent copy even if a writer is mid-transaction
+    finally:
+        src.close()
+        dst.close()
+    backup = private / "gradebook.backup.db"
+    os.replace(temp, backup)
+    return backup
+
+
+def restore_gradebook(root: Path, backup: Path) -> None:
+    temp = root / ".gradebook.restore.tmp"
+    shutil.copyfile(backup, temp)
+    os.replace(temp, root / "gradebook.db")
+
+
+def _late_penalty(root: Path, student: str, score: float, seconds_late: float) -> float:
+    """The course's late-submission rule (nbgrader's LateSubmissionPlugin in its config)."""
+    if seconds_late <= 0:
+        return 0.0
+    from nbgrader.plugins import LateSubmissionPlugin
+    from traitlets.config.loader import PyFileConfigLoader
+
+    config = PyFileConfigLoader("nbgrader_config.py", path=str(root)).load_config()
+    penalty = LateSubmissionPlugin(config=config).late_submission_penalty(
+        student, score, seconds_late)
+    return max(0.0, min(float(penalty or 0.0), score))
+
+
+def record_nbgrader(root: Path, assignment: str, student: str, timestamp: str,
+                    cells, notebooks_present: set[str]) -> None:
+    """Put one student's validated cell scores (``scratch.CellScore``) in the real gradebook.
+
+    Only numbers are imported: the student id is the validated folder name, no name or
+    email comes from the run, and the late penalty is computed here.
+    """
+    from nbgrader.api import Gradebook
+    from nbgrader.utils import parse_utc
+    from sqlalchemy.exc import SAWarning
+
+    by_key = {(c.notebook, c.cell): c for c in cells}
+    with warnings.catch_warnings(), \
+            Gradebook(f"sqlite:///{root / 'gradebook.db'}", "cobotlab") as gb:
+        # nbgrader's own autograde raises the same SQLAlchemy autoflush warnings: noise here
+        warnings.simplefilter("ignore", SAWarning)
+        gb.update_or_create_student(student)
+        try:
+            stamp = parse_utc(timestamp) if timestamp else None
+        except (ValueError, OverflowError, TypeError):
+            stamp = None
+        submission = (gb.update_or_create_submission(assignment, student, timestamp=stamp)
+                      if stamp is not None else
+                      gb.update_or_create_submission(assignment, student))
+        for notebook in submission.notebooks:
+            total = 0.0
+            for grade in notebook.grades:
+                cell = by_key.get((notebook.name, grade.name))
+                value = cell.score if cell is not None and notebook.name in notebooks_present \
+                    else 0.0
+                grade.auto_score = min(max(value, 0.0), float(grade.max_score or 0.0))
+                grade.needs_manual_grade = grade.manual_score is not None
+                total += grade.auto_score
+            notebook.late_submission_penalty = _late_penalty(
+                root, student, total, float(submission.total_seconds_late or 0.0)) or None
+        gb.db.commit()

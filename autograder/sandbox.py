@@ -1,0 +1,440 @@
+"""Deny-by-default sandboxes for student code: bubblewrap for the view, a cgroup for the budget.
+
+Everything a submission runs (the grader's worker and nbgrader's autograde with its kernel)
+starts through :func:`command`, which builds a bubblewrap (``bwrap``) command line where:
+
+* the root is an empty, read-only tmpfs; only the interpreter, the virtual environment and
+  the named packages are bound in, read-only (so ``solutions/``, the specs, the course, the
+  checkout, ``$HOME`` and the rest of the disk do not exist there);
+* ``/tmp`` is the one writable place, a tmpfs of ``scratch_mb``; a throwaway directory of the
+  grader's may be bound read-write in addition (nbgrader's scratch course);
+* there is no network (a new network namespace holding only loopback), no view of other
+  processes (a new PID namespace: when its first process ends, every process left in it is
+  killed), and, when the grader runs as root, the code runs as ``nobody`` with every
+  capability dropped;
+* the whole process tree is charged to one cgroup with a memory and a process-count limit,
+  so three forked children cannot each take the per-process budget.
+
+Where bubblewrap cannot run, :func:`capabilities` says so and the caller falls back to
+resource limits on each process (``rlimits only``), which it flags in every result.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import sysconfig
+import time
+import uuid
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+__all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
+           "SANDBOX_UID", "python_paths", "remove_stale_scratch"]
+
+# The unprivileged user student code runs as when the grader itself is root.
+SANDBOX_UID = 65534
+_CGROUP_ROOT = Path("/sys/fs/cgroup")
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What this machine lets the grader use, with the evidence for the run log."""
+
+    bwrap: bool
+    drop_to_uid: bool          # root: run student code as SANDBOX_UID with no capabilities
+    cgroup: str | None         # "v1", "v2" or None
+    evidence: tuple[str, ...] = ()
+
+    @property
+    def mode(self) -> str:
+        if not self.bwrap:
+            return "rlimits only"
+        return "bubblewrap + cgroup" if self.cgroup else "bubblewrap, per-process rlimits"
+
+
+@dataclass(frozen=True)
+class Jail:
+    """What one sandboxed program may see: read-only host paths, read-write binds, limits.
+
+    ``ro`` paths are bound at the same place; ``ro_at`` and ``rw_at`` are (host, inside)
+    pairs; ``hide`` paths (inside) get an empty read-only tmpfs (a directory) or /dev/null
+    (a file) on top, after the binds.
+    """
+
+    ro: tuple[str, ...] = ()
+    ro_at: tuple[tuple[str, str], ...] = ()
+    rw_at: tuple[tuple[str, str], ...] = ()
+    hide: tuple[str, ...] = ()
+    scratch_mb: int = 64
+    chdir: str = "/tmp"
+    env: dict[str, str] = field(default_factory=dict)
+
+
+def python_paths() -> tuple[str, ...]:
+    """Host directories the interpreter and the virtual environment live in."""
+    paths = {os.path.realpath(p) for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    paths.add(os.path.realpath(sysconfig.get_paths()["stdlib"]))
+    paths.add(os.path.realpath(os.path.dirname(sys.executable)))
+    paths.add(sys.prefix)  # the venv as named (its bin/python is a symlink out of it)
+    system = ("/usr", "/etc", "/lib", "/lib64", "/bin", "/sbin")
+    kept = sorted(p for p in paths if not p.startswith(system) and os.path.exists(p))
+    return tuple(p for p in kept if not any(p != q and p.startswith(q + "/") for q in kept))
+
+
+def _system_binds() -> list[str]:
+    """The read-only system part of the root: /usr and /etc, and /lib* /bin /sbin as on the
+    host (symlinks into /usr on a merged-/usr system, directories otherwise)."""
+    args = ["--ro-bind", "/usr", "/usr", "--ro-bind", "/etc", "/etc"]
+    for top in ("/lib", "/lib64", "/lib32", "/bin", "/sbin"):
+        if os.path.islink(top):
+            args += ["--symlink", os.readlink(top), top]
+        elif os.path.isdir(top):
+            args += ["--ro-bind", top, top]
+    return args
+
+
+def _parents(paths) -> list[str]:
+    """Every ancestor directory of ``paths`` (inside the sandbox), shallowest first."""
+    out: set[str] = set()
+    for p in paths:
+        parent = os.path.dirname(p.rstrip("/"))
+        while parent not in ("", "/"):
+            out.add(parent)
+            parent = os.path.dirname(parent)
+    return sorted(out, key=lambda p: (p.count("/"), p))
+
+
+def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
+            caps: Capabilities | None = None) -> list[str]:
+    """The command line running ``argv`` inside ``jail`` (and ``cgroup``, when given).
+
+    ``argv`` and the paths are those inside the sandbox; the environment is ``jail.env``
+    and nothing else. Requires :func:`capabilities` ``.bwrap``.
+    """
+    caps = caps or capabilities()
+    inside = [p for p in jail.ro] + [dst for _, dst in jail.ro_at + jail.rw_at]
+    args = ["bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
+            "--unshare-cgroup-try", "--die-with-parent", "--new-session",
+            "--tmpfs", "/"]
+    args += _system_binds()
+    # Mount points above the binds: traversable (0711), not listable, so the sandbox user
+    # can reach a bound package without seeing what else its parent held on the host.
+    system = ("/usr", "/etc", "/tmp", "/proc", "/dev")
+    for parent in _parents(inside):
+        if not parent.startswith(system):
+            args += ["--perms", "0711", "--dir", parent]
+    for path in jail.ro:
+        args += ["--ro-bind", path, path]
+    args += ["--proc", "/proc", "--dev", "/dev",
+             "--size", str(int(jail.scratch_mb) * 1024 * 1024), "--perms", "1777",
+             "--tmpfs", "/tmp"]
+    for src, dst in jail.rw_at:
+        args += ["--bind", src, dst]
+    for src, dst in jail.ro_at:  # after the read-write binds: may sit inside one
+        args += ["--ro-bind", src, dst]
+    for path in jail.hide:  # an empty read-only directory, or /dev/null over a file
+        if os.path.isdir(path):
+            args += ["--perms", "0555", "--size", "4096", "--tmpfs", path, "--remount-ro", path]
+        else:
+            args += ["--ro-bind", "/dev/null", path]
+    args += ["--remount-ro", "/", "--chdir", jail.chdir, "--clearenv"]
+    for key, value in jail.env.items():
+        args += ["--setenv", key, value]
+    if caps.drop_to_uid:
+        args += ["--", "setpriv", f"--reuid={SANDBOX_UID}", f"--regid={SANDBOX_UID}",
+                 "--clear-groups", "--inh-caps=-all", "--bounding-set=-all", "--no-new-privs"]
+    else:
+        args += ["--unshare-user", "--disable-userns", "--cap-drop", "ALL"]
+    args += ["--", *argv]
+    if cgroup is None:
+        return args
+    # The shell joins the cgroup first, so every process bwrap starts is charged to it.
+    join = " && ".join(f"echo $$ > {shlex.quote(str(p))}" for p in cgroup.procs_files)
+    return ["/bin/sh", "-c", f'{join} && exec "$@"', "cobotlab-sandbox", *args]
+
+
+# --------------------------------------------------------------------------- cgroups
+
+
+class Cgroup:
+    """One cgroup (v1: a memory and a pids group; v2: one group) for one submission.
+
+    ``memory_mb`` caps resident memory plus tmpfs pages of every process in it together;
+    ``max_processes`` caps how many exist at once (a fork bomb meets EAGAIN).
+    """
+
+    def __init__(self, memory_mb: int, max_processes: int):
+        self.version = capabilities().cgroup
+        if self.version is None:
+            raise RuntimeError("no writable cgroup hierarchy on this machine")
+        name = f"cobotlab-{uuid.uuid4().hex[:12]}"
+        self.dirs: list[Path] = []
+        if self.version == "v2":
+            d = _v2_parent() / name
+            d.mkdir()
+            self.dirs = [d]
+            _write(d / "memory.max", str(memory_mb * 1024 * 1024))
+            _write(d / "memory.swap.max", "0", missing_ok=True)
+            _write(d / "pids.max", str(max_processes))
+        else:
+            mem, pids = _v1_parent("memory") / name, _v1_parent("pids") / name
+            mem.mkdir()
+            pids.mkdir()
+            self.dirs = [mem, pids]
+            _write(mem / "memory.limit_in_bytes", str(memory_mb * 1024 * 1024))
+            _write(mem / "memory.memsw.limit_in_bytes", str(memory_mb * 1024 * 1024),
+                   missing_ok=True)
+            _write(pids / "pids.max", str(max_processes))
+
+    @property
+    def procs_files(self) -> list[Path]:
+        return [d / "cgroup.procs" for d in self.dirs]
+
+    def pids(self) -> set[int]:
+        found: set[int] = set()
+        for f in self.procs_files:
+            try:
+                found.update(int(x) for x in f.read_text().split())
+            except OSError:
+                pass
+        return found
+
+    def oom_kills(self) -> int:
+        """How many processes the kernel killed for exceeding the memory limit."""
+        name = "memory.events" if self.version == "v2" else "memory.oom_control"
+        try:
+            for line in (self.dirs[0] / name).read_text().splitlines():
+                key, _, value = line.partition(" ")
+                if key == "oom_kill":
+                    return int(value)
+        except (OSError, ValueError):
+            pass
+        return 0
+
+    def peak_memory_mb(self) -> float:
+        name = "memory.peak" if self.version == "v2" else "memory.max_usage_in_bytes"
+        try:
+            return int((self.dirs[0] / name).read_text()) / 2**20
+        except (OSError, ValueError):
+            return float("nan")
+
+    def kill_all(self, timeout_s: float = 5.0) -> int:
+        """SIGKILL every process in the group until none is left; returns how many."""
+        if self.version == "v2" and (self.dirs[0] / "cgroup.kill").exists():
+            _write(self.dirs[0] / "cgroup.kill", "1")
+        killed, deadline = 0, time.monotonic() + timeout_s
+        while (left := self.pids()) and time.monotonic() < deadline:
+            for pid in left:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                    killed += 1
+                except ProcessLookupError:
+                    pass
+            time.sleep(0.02)
+        return killed
+
+    def remove(self) -> None:
+        self.kill_all()
+        for d in self.dirs:
+            for _ in range(50):
+                try:
+                    d.rmdir()
+                    break
+                except FileNotFoundError:
+                    break
+                except OSError:  # the last processes are still being reaped
+                    time.sleep(0.02)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.remove()
+
+
+def _write(path: Path, value: str, missing_ok: bool = False) -> None:
+    try:
+        path.write_text(value)
+    except FileNotFoundError:
+        if not missing_ok:
+            raise
+
+
+def _own_cgroup(controller: str) -> str | None:
+    """This process's cgroup path for ``controller`` ("" for the v2 line) in /proc/self/cgroup."""
+    try:
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if controller in controllers.split(","):
+            return path
+    return None
+
+
+def _v1_parent(controller: str) -> Path:
+    own = _own_cgroup(controller) or "/"
+    return _CGROUP_ROOT / controller / own.lstrip("/")
+
+
+def _v2_parent() -> Path:
+    own = _own_cgroup("") or "/"
+    return _CGROUP_ROOT / own.lstrip("/")
+
+
+def _probe_cgroup(evidence: list[str]) -> str | None:
+    """"v2" or "v1" when this process can make a child group with memory and pids limits."""
+    if (_CGROUP_ROOT / "cgroup.controllers").exists():
+        parent = _v2_parent()
+        wanted = {"memory", "pids"}
+        try:
+            enabled = set((parent / "cgroup.subtree_control").read_text().split())
+        except OSError:
+            enabled = set()
+        if wanted <= enabled and os.access(parent, os.W_OK):
+            evidence.append(f"cgroup v2 at {parent} with memory and pids delegated")
+            return "v2"
+        evidence.append(f"cgroup v2 at {parent}: memory/pids not delegated ({sorted(enabled)})")
+    for controller in ("memory", "pids"):
+        parent = _v1_parent(controller)
+        probe = parent / f"cobotlab-probe-{os.getpid()}"
+        try:
+            probe.mkdir()
+            probe.rmdir()
+        except OSError as exc:
+            evidence.append(f"cgroup v1 {controller}: cannot create a group in {parent} ({exc})")
+            return None
+    evidence.append(f"cgroup v1: memory group under {_v1_parent('memory')}, pids group under "
+                    f"{_v1_parent('pids')}")
+    return "v1"
+
+
+@lru_cache(maxsize=1)
+def capabilities() -> Capabilities:
+    """Probe once: does bubblewrap run here (and with which identity), is there a cgroup?"""
+    evidence: list[str] = []
+    if os.environ.get("COBOTLAB_SANDBOX") == "rlimits":
+        evidence.append("COBOTLAB_SANDBOX=rlimits: sandbox disabled on request")
+        return Capabilities(False, False, None, tuple(evidence))
+    root = os.geteuid() == 0
+    bwrap = shutil.which("bwrap") is not None
+    if not bwrap:
+        evidence.append("bwrap not found (Debian/Ubuntu: apt-get install bubblewrap)")
+    if bwrap and root and not shutil.which("setpriv"):
+        evidence.append("setpriv not found: cannot drop root inside the sandbox")
+        bwrap = False
+    cgroup = _probe_cgroup(evidence)
+    caps = Capabilities(bwrap, root, cgroup, tuple(evidence))
+    if bwrap:
+        jail = Jail(ro=python_paths(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
+        probe = [sys.executable, "-I", "-c",
+                 "import os,socket; open('/tmp/p','w').write('x'); "
+                 "print(os.getuid(), len(socket.if_nameindex()))"]
+        try:
+            done = subprocess.run(command(probe, jail, caps=caps), capture_output=True,
+                                  text=True, timeout=30, check=False)
+            ok = done.returncode == 0
+            evidence.append(f"bwrap probe: exit {done.returncode}, uid and interfaces "
+                            f"{done.stdout.strip()!r} {done.stderr.strip()[:200]!r}")
+        except (OSError, subprocess.SubprocessError) as exc:
+            ok = False
+            evidence.append(f"bwrap probe failed: {exc}")
+        if not ok:
+            caps = Capabilities(False, False, cgroup, tuple(evidence))
+        else:
+            caps = Capabilities(True, root, cgroup, tuple(evidence))
+    return caps
+
+
+def mode() -> str:
+    """One line for summaries: the isolation this machine gives student code."""
+    return capabilities().mode
+
+
+# --------------------------------------------------------------------------- scratch folders
+
+_SCRATCH_FS = "cobotlab-scratch"
+
+
+class ScratchDir:
+    """A throwaway host folder for one sandboxed run, bound read-write into it.
+
+    As root it is a tmpfs of ``size_mb`` (so the run cannot fill the disk) owned by the
+    sandbox user; otherwise a plain temporary folder (``size_limited`` is then False).
+    """
+
+    def __init__(self, size_mb: int, prefix: str = "cobotlab-scratch-"):
+        import tempfile
+
+        # The owner's pid in the name: a later run removes the folder only once it is dead.
+        self.path = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+        self.size_limited = False
+        caps = capabilities()
+        if os.geteuid() == 0 and shutil.which("mount"):
+            done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={int(size_mb)}m,mode=0755",
+                                   _SCRATCH_FS, str(self.path)], capture_output=True, check=False)
+            self.size_limited = done.returncode == 0
+        if caps.drop_to_uid:
+            os.chown(self.path, SANDBOX_UID, SANDBOX_UID)
+
+    def give(self, path: Path) -> None:
+        """Hand ``path`` (inside the folder) and everything under it to the sandbox user."""
+        if not capabilities().drop_to_uid:
+            return
+        for dirpath, dirnames, filenames in os.walk(path):
+            os.chown(dirpath, SANDBOX_UID, SANDBOX_UID)
+            for name in filenames:
+                os.chown(os.path.join(dirpath, name), SANDBOX_UID, SANDBOX_UID,
+                         follow_symlinks=False)
+
+    def remove(self) -> None:
+        if self.size_limited:
+            subprocess.run(["umount", "-l", str(self.path)], capture_output=True, check=False)
+        shutil.rmtree(self.path, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.remove()
+
+
+def remove_stale_scratch() -> int:
+    """Unmount scratch tmpfs left by an interrupted run (safe to call at any start)."""
+    if os.geteuid() != 0:
+        return 0
+    count = 0
+    try:
+        mounts = Path("/proc/self/mounts").read_text().splitlines()
+    except OSError:
+        return 0
+    for line in mounts:
+        fields = line.split()
+        if len(fields) > 2 and fields[0] == _SCRATCH_FS and fields[2] == "tmpfs":
+            target = fields[1].encode().decode("unicode_escape")
+            owner = Path(target).name.removeprefix("cobotlab-scratch-").split("-")[0]
+            if owner.isdigit() and process_alive(int(owner)):
+                continue
+            if subprocess.run(["umount", "-l", target], capture_output=True,
+                              check=False).returncode == 0:
+                shutil.rmtree(target, ignore_errors=True)
+                count += 1
+    return count
+
+
+def process_alive(pid: int) -> bool:
+    """True while process ``pid`` exists (also when it belongs to another user)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
