@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev,real]'
 	@touch $(STAMP)
 
-# libusb for pyrealsense2; chromium for the real-browser run of a lab.
-SYSTEM_PACKAGES := libusb-1.0-0 chromium
+# libusb for pyrealsense2; chromium for the real-browser run of a lab; bubblewrap for the
+# grader's sandbox around student code.
+SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap
 system-packages:
 	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); \
