@@ -9,10 +9,11 @@ no secret and no ground truth: it receives problem *inputs* only and sends back 
 student's function returned. Everything it sends is re-validated (and size-capped) by the
 grader, so student code that patches this module gains nothing but a zero.
 
-Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s}`` runs one notebook
-cell in the shared namespace under an alarm (an exception or timeout ends that cell only);
-``{"op": "call", "name": f, "args": [...], "timeout": s, "forbidden": [...]}`` calls a
-function by name, with a tripwire on the routines it must not call (reported as
+Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}`` runs one
+notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
+seconds (an exception or timeout ends that cell only);
+``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...]}`` calls
+a function by name, with a tripwire on the routines it must not call (reported as
 ``"forbidden"`` in the reply; the grader's own static scan is the authoritative rule);
 ``{"op": "quit"}``.
 """
@@ -76,12 +77,28 @@ def _where(exc: BaseException) -> str:
     return ""
 
 
-def _run_guarded(fn, timeout_s: float):
-    signal.setitimer(signal.ITIMER_REAL, float(timeout_s))
+def _run_guarded(fn, cpu_s: float, wall_s: float):
+    """``fn()`` stopped by :class:`_Timeout` after ``cpu_s`` seconds of this process's CPU
+    time or ``wall_s`` seconds of wall clock, whichever comes first.
+
+    CPU time is the limit that counts: it does not grow when other graders share the
+    machine, so the same code meets the same limit on a quiet laptop and on a loaded CI
+    runner. The wall clock is the backstop for code that sleeps or blocks.
+    """
+    signal.setitimer(signal.ITIMER_PROF, max(0.001, float(cpu_s)))
+    signal.setitimer(signal.ITIMER_REAL, max(0.001, float(wall_s)))
     try:
         return fn()
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.setitimer(signal.ITIMER_PROF, 0.0)
+
+
+def _limits_of(request: dict) -> tuple[float, float]:
+    cpu = request.get("timeout", 10.0)
+    cpu = float(cpu) if isinstance(cpu, (int, float)) else 10.0
+    wall = request.get("wall", 4 * cpu)
+    return cpu, float(wall) if isinstance(wall, (int, float)) else 4 * cpu
 
 
 def _stub_checks() -> None:
@@ -106,6 +123,7 @@ def main(argv: list[str]) -> int:
     _limit(resource.RLIMIT_FSIZE, file_mb * 1024 * 1024)
     _limit(resource.RLIMIT_CORE, 0)
     signal.signal(signal.SIGALRM, _on_alarm)
+    signal.signal(signal.SIGPROF, _on_alarm)
     # Writing past RLIMIT_FSIZE would kill us with SIGXFSZ; an OSError in the student's cell
     # is the better outcome.
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -124,15 +142,16 @@ def main(argv: list[str]) -> int:
         if op == "quit":
             return 0
         if op == "cell":
-            started = time.monotonic()
+            started, cpu_started = time.monotonic(), time.process_time()
             index = request.get("index", 0)
             try:
                 code = compile(str(request.get("source", "")), f"<cell {index}>", "exec")
-                _run_guarded(lambda: exec(code, namespace), request.get("timeout", 10.0))
+                _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
                 reply = {"ok": True}
             except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
             reply["seconds"] = time.monotonic() - started
+            reply["cpu_seconds"] = time.process_time() - cpu_started
             reply["output_chars"] = out.total
             send(rep_fd, reply)
         elif op == "call":
@@ -143,17 +162,18 @@ def main(argv: list[str]) -> int:
                 continue
             args = request.get("args", [])
             names = [str(n) for n in request.get("forbidden", [])]
-            started = time.monotonic()
             tripwire = forbidden.Tripwire(names)
+            started, cpu_started = time.monotonic(), time.process_time()
             try:
                 with tripwire:
-                    value = _run_guarded(lambda: func(*args), request.get("timeout", 10.0))
+                    value = _run_guarded(lambda: func(*args), *_limits_of(request))
                 reply = {"ok": True, "value": value}
             except BaseException as exc:  # noqa: BLE001
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
             if tripwire.hits:
                 reply["forbidden"] = sorted(tripwire.hits)
             reply["seconds"] = time.monotonic() - started
+            reply["cpu_seconds"] = time.process_time() - cpu_started
             reply["output_chars"] = out.total
             try:
                 send(rep_fd, reply)

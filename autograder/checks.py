@@ -120,13 +120,21 @@ class FunctionSpec:
     forbidden: tuple[str, ...] = ()
 
 
+# A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
+# loaded grading machine); the wall clock only backs it up, at this multiple of the limit,
+# against code that sleeps or blocks.
+WALL_BACKSTOP_FACTOR = 4.0
+
+
 @dataclass
 class TrialOutcome:
-    """What a call returned (``value``) or why it failed (``error``)."""
+    """What a call returned (``value``) or why it failed (``error``); ``seconds`` of wall
+    clock and ``cpu_seconds`` of the student's process it took."""
 
     value: Any = None
     error: str | None = None
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
 
 
 @dataclass
@@ -342,42 +350,52 @@ class StudentCallError(Exception):
 
 
 def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float) -> TrialOutcome:
-    """One trial: a single ``call_once(args, timeout_s) -> TrialOutcome``, or the spec's
-    closed loop of them (``spec.drive``) within ``time_limit_s`` in all."""
+    """One trial: a single ``call_once(args, cpu_limit_s) -> TrialOutcome``, or the spec's
+    closed loop of them (``spec.drive``) within ``time_limit_s`` CPU seconds of the student's
+    code in all (wall clock: :data:`WALL_BACKSTOP_FACTOR` times that)."""
     if spec.drive is None:
         return call_once(trial.args, time_limit_s)
     started = time.perf_counter()
+    cpu_used = 0.0
 
     def call(*args):
-        left = time_limit_s - (time.perf_counter() - started)
-        if left <= 0:
+        nonlocal cpu_used
+        left = time_limit_s - cpu_used
+        if left <= 0 or time.perf_counter() - started > WALL_BACKSTOP_FACTOR * time_limit_s:
             raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s")
         outcome = call_once(args, left)
+        cpu_used += outcome.cpu_seconds
         if outcome.error is not None:
             raise StudentCallError(outcome.error)
         return outcome.value
 
+    def done(**kwargs) -> TrialOutcome:
+        return TrialOutcome(seconds=time.perf_counter() - started, cpu_seconds=cpu_used, **kwargs)
+
     try:
         value = spec.drive(call, trial)
     except StudentCallError as exc:
-        return TrialOutcome(error=str(exc), seconds=time.perf_counter() - started)
+        return done(error=str(exc))
     except OutputError as exc:
-        return TrialOutcome(error=f"returned an unusable value in the loop: {exc}",
-                            seconds=time.perf_counter() - started)
-    return TrialOutcome(value=value, seconds=time.perf_counter() - started)
+        return done(error=f"returned an unusable value in the loop: {exc}")
+    return done(value=value)
 
 
 def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> TrialOutcome:
     def once(args, timeout_s):
         # Fresh copies: a function that writes into its input must not corrupt the next check.
         args = tuple(_copy(a) for a in args)
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
+
+        def outcome(**kwargs) -> TrialOutcome:
+            return TrialOutcome(seconds=time.perf_counter() - started,
+                                cpu_seconds=time.process_time() - cpu_started, **kwargs)
+
         try:
             value = func(*args)
         except Exception as exc:  # noqa: BLE001 - report any error as the student's
-            return TrialOutcome(error=f"{type(exc).__name__}: {exc}",
-                                seconds=time.perf_counter() - started)
-        return TrialOutcome(value=value, seconds=time.perf_counter() - started)
+            return outcome(error=f"{type(exc).__name__}: {exc}")
+        return outcome(value=value)
 
     if spec is None:
         return once(trial.args, math.inf)

@@ -12,7 +12,9 @@ process:
    interpreter and the lab packages, not ``solutions/``, the specs or the course; a
    size-limited /tmp; no network; run as ``nobody``), all of one submission's processes in
    one cgroup (memory and process count), with per-process limits (address space, CPU
-   seconds, file size) and a wall clock with a hard kill. Where bubblewrap cannot run,
+   seconds, file size). Time limits count the CPU seconds of the student's process, so a
+   grade does not depend on how busy the grading machine is; a wall clock several times
+   longer backs each of them up with a hard kill. Where bubblewrap cannot run,
    rlimits alone remain and every row says so (``sandbox:rlimits_only``).
 3. Problems are drawn from the secret seed, a per-run nonce that never reaches the disk
    before the workers are gone, the assignment, the student id and the function name. Only
@@ -29,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
+import math
 import os
 import re
 import secrets
@@ -75,14 +78,27 @@ class Limits:
     # under a cgroup, the resident memory of all the submission's processes together.
     memory_mb: int = 2048
     max_processes: int = 32        # processes and threads of the submission at once (cgroup)
-    cpu_s: int = 120               # CPU seconds over the worker's whole life
     file_mb: int = 16              # largest file the student code may write
     scratch_mb: int = 64           # the sandbox's writable /tmp, all files together
     reply_kb: int = 1024           # largest reply of one call (a pose is about 0.3 KB)
+    # Time limits are CPU seconds of the student's process, so a grade does not depend on how
+    # busy the grading machine is; each has a wall-clock backstop of ``wall_factor`` times it
+    # (for code that sleeps or blocks). The worker's whole life is capped (RLIMIT_CPU) at the
+    # sum of its load and call limits, so a student who disables the timers gains nothing.
     cell_timeout_s: float = 10.0   # each notebook cell while loading
     load_timeout_s: float = 90.0   # loading, restarts after hung cells included
     call_timeout_s: float | None = None   # per call; None: the function spec's own limit
+    wall_factor: float = checks.WALL_BACKSTOP_FACTOR
     deadline_s: float = 600.0      # the whole submission, wall clock: then it is cut off
+
+    def call_limit_s(self, spec: checks.FunctionSpec) -> float:
+        """CPU seconds one trial of ``spec`` may take (a closed loop: all of its calls)."""
+        return self.call_timeout_s or spec.time_limit_s
+
+    def worker_cpu_s(self, specs) -> int:
+        """RLIMIT_CPU of one worker: loading plus every trial of every function at its limit."""
+        calls = sum(spec.n_trials * self.call_limit_s(spec) for spec in specs)
+        return int(math.ceil(self.load_timeout_s + calls)) + 10
 
 
 @dataclass
@@ -266,22 +282,55 @@ class CellHang(WorkerFailure):
         self.index = index
 
 
+@dataclass
+class LoadBudget:
+    """What loading the notebook may still cost, summed over every (re)start of the worker:
+    CPU seconds of the cells, and the wall-clock backstop."""
+
+    cpu_s: float
+    wall_s: float
+
+    @classmethod
+    def of(cls, limits: Limits) -> LoadBudget:
+        return cls(limits.load_timeout_s, limits.wall_factor * limits.load_timeout_s)
+
+    @property
+    def exhausted(self) -> bool:
+        return self.cpu_s <= 0 or self.wall_s <= 0
+
+    def spend(self, cpu_s: float, wall_s: float) -> None:
+        self.cpu_s -= cpu_s
+        self.wall_s -= wall_s
+
+
+def _reported_cpu(reply: dict, wall_s: float) -> float:
+    """The CPU seconds a reply claims, clipped to [0, wall clock x cores]: the worker is
+    untrusted, and a forged figure must not stretch a budget past its wall backstop."""
+    cpu = reply.get("cpu_seconds")
+    if not isinstance(cpu, (int, float)) or not math.isfinite(cpu):
+        return wall_s
+    return min(max(float(cpu), 0.0), wall_s * (os.cpu_count() or 1))
+
+
 class Worker:
     """A student-code worker process, spoken to over two private pipes.
 
-    Loads the notebook one cell at a time, skipping the indices in ``skip``; a cell that
-    hangs past its hard deadline raises :class:`CellHang` so the caller can restart without
-    it. ``load_report`` lists what each cell did.
+    Loads the notebook one cell at a time, skipping the indices in ``skip`` and charging
+    each cell to ``budget``; a cell that hangs past its wall-clock backstop raises
+    :class:`CellHang` so the caller can restart without it. ``load_report`` lists what each
+    cell did. ``cpu_s`` is the worker's lifetime CPU limit (RLIMIT_CPU).
     """
 
     def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
-                 cgroup: sandbox.Cgroup | None = None):
+                 cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
+                 budget: LoadBudget | None = None):
         self.limits = limits
+        budget = budget or LoadBudget.of(limits)
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
         req_r, self._req_w = os.pipe()
         self._rep_r, rep_w = os.pipe()
         python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
-                  str(limits.memory_mb), str(limits.cpu_s), str(limits.file_mb)]
+                  str(limits.memory_mb), str(int(cpu_s)), str(limits.file_mb)]
         if sandbox_available():
             command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
         else:  # rlimits only: the worker still starts in an empty directory with a clean env
@@ -299,12 +348,21 @@ class Worker:
             if index in skip:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
                 continue
+            if budget.exhausted:
+                self.close()
+                raise WorkerFailure(f"the notebook did not load within "
+                                    f"{limits.load_timeout_s:g} s of CPU time")
+            cpu = min(limits.cell_timeout_s, budget.cpu_s)
+            wall = min(limits.wall_factor * cpu, budget.wall_s)
+            started = time.monotonic()
             try:
                 reply = self._request({"op": "cell", "index": index, "source": source,
-                                       "timeout": limits.cell_timeout_s},
-                                      limits.cell_timeout_s + 2.0)
+                                       "timeout": cpu, "wall": wall}, wall + 2.0)
             except WorkerFailure as exc:
+                budget.spend(0.0, time.monotonic() - started)
                 raise CellHang(index, f"cell {index}: {exc}") from None
+            elapsed = time.monotonic() - started
+            budget.spend(_reported_cpu(reply, elapsed), elapsed)
             self.load_report.append(dict(reply, index=index))
 
     def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
@@ -327,26 +385,30 @@ class Worker:
 
     def call(self, name: str, args: tuple, timeout_s: float,
              forbidden_names=()) -> checks.TrialOutcome:
-        """Call ``name(*args)`` in the worker; a hang, death or oversized reply raises
+        """Call ``name(*args)`` in the worker, stopped after ``timeout_s`` CPU seconds (wall
+        clock: ``limits.wall_factor`` times that); a hang, death or oversized reply raises
         WorkerFailure. Calls of ``forbidden_names`` the tripwire saw go to ``tripped``."""
-        # The worker's own alarm fires first; the extra second is for a worker that blocks it.
+        wall = self.limits.wall_factor * timeout_s
+        started = time.monotonic()
+        # The worker's own timers fire first; the extra seconds are for a worker that blocks them.
         reply = self._request({"op": "call", "name": name, "args": list(args),
-                               "timeout": timeout_s, "forbidden": list(forbidden_names)},
-                              timeout_s + 2.0, self.limits.reply_kb * 1024)
+                               "timeout": timeout_s, "wall": wall,
+                               "forbidden": list(forbidden_names)},
+                              wall + 2.0, self.limits.reply_kb * 1024)
+        elapsed = time.monotonic() - started
         tripped = reply.get("forbidden")
         if isinstance(tripped, list):
             self.tripped.update(str(t)[:80] for t in tripped[:8]
                                 if str(t) in set(forbidden_names) | set(ALWAYS_FORBIDDEN))
-        seconds = reply.get("seconds", 0.0)
-        seconds = float(seconds) if isinstance(seconds, (int, float)) else 0.0
+        timing = {"seconds": elapsed, "cpu_seconds": _reported_cpu(reply, elapsed)}
         if reply.get("ok") is True and "value" in reply:
-            return checks.TrialOutcome(value=reply["value"], seconds=seconds)
+            return checks.TrialOutcome(value=reply["value"], **timing)
         error = reply.get("error")
         where = reply.get("where")
         text = str(error)[:400] if error else "the call failed"
         if isinstance(where, str) and where:
             text += f" ({where[:60]})"
-        return checks.TrialOutcome(error=text, seconds=seconds)
+        return checks.TrialOutcome(error=text, **timing)
 
     @property
     def alive(self) -> bool:
@@ -408,7 +470,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
         if caps.bwrap and caps.cgroup else None
     worker: Worker | None = None
     skip: set[int] = set()
-    load_deadline = time.monotonic() + limits.load_timeout_s
+    load_budget = LoadBudget.of(limits)   # over every restart, not since the start: a worker
+    worker_cpu_s = limits.worker_cpu_s(specs)  # that dies late must still be able to reload
     deadline = started + limits.deadline_s
     try:
         for spec in specs:
@@ -430,10 +493,12 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     if worker is None or not worker.alive:
                         if worker is not None:
                             worker.close()
-                        worker = _start_worker(cells, limits, skip, grade, load_deadline, cgroup)
+                        worker = _start_worker(cells, limits, skip, grade, load_budget,
+                                               cgroup, worker_cpu_s)
                         _note_load(grade, worker.load_report)
-                    timeout = limits.call_timeout_s or spec.time_limit_s
-                    timeout = max(0.1, min(timeout, deadline - time.monotonic()))
+                    timeout = limits.call_limit_s(spec)
+                    timeout = max(0.1, min(timeout, (deadline - time.monotonic())
+                                           / limits.wall_factor))
                     outcome = checks.run_trial(
                         spec, trial, lambda args, t, w=worker, s=spec: w.call(
                             s.name, args, t, s.forbidden), timeout)
@@ -471,18 +536,19 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
 
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
-                  load_deadline: float, cgroup: sandbox.Cgroup | None) -> Worker:
+                  budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int) -> Worker:
     """A loaded worker; cells that hang or time out are skipped on every later restart."""
     while True:
-        if time.monotonic() > load_deadline:
-            raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s")
+        if budget.exhausted:
+            raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s "
+                                "of CPU time")
         try:
-            worker = Worker(cells, limits, skip, cgroup)
+            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget)
         except CellHang as exc:
             skip.add(exc.index)
             grade.notes.append(f"  cell error: {exc} (skipped from then on)")
             continue
-        # A cell stopped by its alarm would only cost the same seconds again next restart.
+        # A cell stopped by its timer would only cost the same seconds again next restart.
         skip.update(r["index"] for r in worker.load_report
                     if str(r.get("error", "")).startswith("timed out"))
         return worker

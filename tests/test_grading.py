@@ -303,3 +303,72 @@ def test_check_lets_the_reference_solver_be_itself_but_not_a_student_that_calls_
 
     result = checks.evaluate(student_fit_rigid, "fit_rigid", assignment="lab1_flange")
     assert result.points == 0 and "solutions" in result.errors[0]
+
+
+# --------------------------------------------------------------------------- time limits
+
+BURN = """
+import time
+def burn(cpu_s):
+    start = time.process_time()
+    while time.process_time() - start < cpu_s:
+        pass
+"""
+
+
+def _hogs(n):
+    """n busy processes: the grading machine shared with other graders (stopped by the caller)."""
+    import multiprocessing
+
+    procs = [multiprocessing.Process(target=_spin, daemon=True) for _ in range(n)]
+    for p in procs:
+        p.start()
+    return procs
+
+
+def _spin():
+    while True:
+        pass
+
+
+def test_time_limits_count_cpu_seconds_so_a_busy_machine_grades_the_same():
+    # A cell needing 1.5 s of CPU under a 2 s limit, on a machine whose cores are taken by
+    # four other processes (so over 2 s of wall clock): it must run, as on a quiet laptop.
+    # A busy loop is still stopped at its CPU limit, a sleeper at the wall-clock backstop.
+    limits = grading.Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=30,
+                            wall_factor=3)
+    cells = [BURN, "burn(1.5)", "while True:\n    pass", "time.sleep(1000)", REFERENCE]
+    hogs = _hogs(4)
+    try:
+        import time
+
+        started = time.monotonic()
+        with grading.Worker(cells, limits, cpu_s=60) as worker:
+            report = {r["index"]: r for r in worker.load_report}
+            result = worker.call("invert_pose", (np.eye(4),), 2)
+        elapsed = time.monotonic() - started
+    finally:
+        for p in hogs:
+            p.kill()
+    assert report[1]["ok"], report[1]
+    assert report[1]["seconds"] > 2.0, "the hogs did not load the machine: the test proves nothing"
+    assert report[2]["error"] == "timed out" and report[3]["error"] == "timed out"
+    assert 5.0 < report[3]["seconds"] < 8.0, report[3]   # the 3 x 2 s wall-clock backstop
+    assert np.allclose(result.value, np.eye(4))
+    assert elapsed < 30
+
+
+def test_a_worker_that_dies_late_is_reloaded_for_the_next_function(tmp_path):
+    # The load budget counts the seconds spent loading, not the seconds since grading began:
+    # after invert_pose's trials (about 3 s here) the worker dies in compose_chain, and
+    # pose_from_rotvec still gets a freshly loaded worker within a 2.5 s load budget.
+    slow_invert = REFERENCE.replace("def invert_pose(T):\n",
+                                    "def invert_pose(T):\n    burn(0.5)\n")
+    dies = "\nimport os\ndef compose_chain(poses):\n    os.kill(os.getpid(), 9)\n"
+    limits = grading.Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=2.5)
+    grade = grading.grade_notebook(_notebook(tmp_path, BURN, "burn(0.5)", slow_invert + dies),
+                                   "lab0_frames", "carol", SECRET, "n", limits)
+    points = {f.name: f.points for f in grade.functions}
+    assert points == {"invert_pose": 3.0, "compose_chain": 0.0, "pose_from_rotvec": 4.0}, \
+        (points, grade.notes)
+
