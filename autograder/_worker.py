@@ -12,9 +12,10 @@ grader, so student code that patches this module gains nothing but a zero.
 Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}`` runs one
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only);
-``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...]}`` calls
-a function by name, with a tripwire on the routines it must not call (reported as
-``"forbidden"`` in the reply; the grader's own static scan is the authoritative rule);
+``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
+"substitutes": {name: [[args, value], ...]}}`` calls a function by name, with a tripwire on
+the routines it must not call (reported as ``"forbidden"`` in the reply; the grader's own
+static scan is the authoritative rule) and the stand-ins of :mod:`autograder.standin`;
 ``{"op": "quit"}``.
 """
 
@@ -29,7 +30,7 @@ import time
 import traceback
 import types
 
-from autograder import forbidden, wire
+from autograder import forbidden, standin, wire
 
 OUTPUT_KEEP = 4096
 
@@ -101,6 +102,17 @@ def _limits_of(request: dict) -> tuple[float, float]:
     return cpu, float(wall) if isinstance(wall, (int, float)) else 4 * cpu
 
 
+def _tables(request: dict) -> dict:
+    """The request's stand-in tables, {name: [(args, value), ...]}, malformed entries dropped."""
+    tables = request.get("substitutes")
+    if not isinstance(tables, dict):
+        return {}
+    return {str(name): [(tuple(e[0]), e[1]) for e in entries
+                        if isinstance(e, (list, tuple)) and len(e) == 2
+                        and isinstance(e[0], (list, tuple))]
+            for name, entries in tables.items() if isinstance(entries, list)}
+
+
 def _stub_checks() -> None:
     """A do-nothing ``autograder.checks``: notebooks import ``check`` from it, but the real
     module (and the specs behind it) is not in the sandbox, and practice scores are not
@@ -165,7 +177,7 @@ def main(argv: list[str]) -> int:
             tripwire = forbidden.Tripwire(names)
             started, cpu_started = time.monotonic(), time.process_time()
             try:
-                with tripwire:
+                with standin.substituted(namespace, _tables(request)), tripwire:
                     value = _run_guarded(lambda: func(*args), *_limits_of(request))
                 reply = {"ok": True, "value": value}
             except BaseException as exc:  # noqa: BLE001

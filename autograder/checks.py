@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder import forbidden
+from autograder import forbidden, standin
 from robots import geometry as geo
 
 __all__ = [
@@ -118,6 +118,12 @@ class FunctionSpec:
     # Dotted names of routines this function must not call (the library routine that does
     # what the lab teaches): a use earns zero for the function (autograder.forbidden).
     forbidden: tuple[str, ...] = ()
+    # One bug costs once: ``substitutes(args)`` gives, for one call with ``args``, the true
+    # answers of the other graded functions it relies on, {name: [(their args, value), ...]}.
+    # While the call runs, the notebook's function of that name answers those arguments with
+    # the true value (anything else still goes to the student's own), so a sign error in
+    # interaction_matrix is not charged again in ibvs_velocity. Values only, never code.
+    substitutes: Callable[[tuple], dict[str, list[tuple[tuple, Any]]]] | None = None
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -385,6 +391,7 @@ def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> Tr
     def once(args, timeout_s):
         # Fresh copies: a function that writes into its input must not corrupt the next check.
         args = tuple(_copy(a) for a in args)
+        tables = spec.substitutes(args) if spec is not None and spec.substitutes else None
         started, cpu_started = time.perf_counter(), time.process_time()
 
         def outcome(**kwargs) -> TrialOutcome:
@@ -392,7 +399,8 @@ def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> Tr
                                 cpu_seconds=time.process_time() - cpu_started, **kwargs)
 
         try:
-            value = func(*args)
+            with standin.substituted(getattr(func, "__globals__", {}), tables):
+                value = func(*args)
         except Exception as exc:  # noqa: BLE001 - report any error as the student's
             return outcome(error=f"{type(exc).__name__}: {exc}")
         return outcome(value=value)

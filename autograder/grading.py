@@ -384,16 +384,18 @@ class Worker:
                                 "are enforced)") from None
 
     def call(self, name: str, args: tuple, timeout_s: float,
-             forbidden_names=()) -> checks.TrialOutcome:
+             forbidden_names=(), substitutes: dict | None = None) -> checks.TrialOutcome:
         """Call ``name(*args)`` in the worker, stopped after ``timeout_s`` CPU seconds (wall
         clock: ``limits.wall_factor`` times that); a hang, death or oversized reply raises
-        WorkerFailure. Calls of ``forbidden_names`` the tripwire saw go to ``tripped``."""
+        WorkerFailure. Calls of ``forbidden_names`` the tripwire saw go to ``tripped``;
+        ``substitutes`` are the stand-in tables of :attr:`checks.FunctionSpec.substitutes`."""
         wall = self.limits.wall_factor * timeout_s
         started = time.monotonic()
         # The worker's own timers fire first; the extra seconds are for a worker that blocks them.
         reply = self._request({"op": "call", "name": name, "args": list(args),
                                "timeout": timeout_s, "wall": wall,
-                               "forbidden": list(forbidden_names)},
+                               "forbidden": list(forbidden_names),
+                               "substitutes": substitutes or {}},
                               wall + 2.0, self.limits.reply_kb * 1024)
         elapsed = time.monotonic() - started
         tripped = reply.get("forbidden")
@@ -501,7 +503,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                                            / limits.wall_factor))
                     outcome = checks.run_trial(
                         spec, trial, lambda args, t, w=worker, s=spec: w.call(
-                            s.name, args, t, s.forbidden), timeout)
+                            s.name, args, t, s.forbidden,
+                            s.substitutes(args) if s.substitutes else None), timeout)
                     tripped |= worker.tripped
                     worker.tripped.clear()
                     outcomes.append(outcome)

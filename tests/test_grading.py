@@ -372,3 +372,48 @@ def test_a_worker_that_dies_late_is_reloaded_for_the_next_function(tmp_path):
     assert points == {"invert_pose": 3.0, "compose_chain": 0.0, "pose_from_rotvec": 4.0}, \
         (points, grade.notes)
 
+
+def test_a_stand_in_answers_the_expected_call_and_leaves_the_rest_to_the_student():
+    from autograder import standin
+
+    def own(x, y):
+        return x - y
+
+    namespace = {"f": own}
+    table = [((np.array([1.0, 2.0]), 3.0), np.array([42.0]))]
+    with standin.substituted(namespace, {"f": table, "g": [((1.0,), 7.0)]}):
+        assert namespace["f"](np.array([1.0, 2.0]), 3.0)[0] == 42.0      # the expected call
+        assert namespace["f"]([[1.0, 2.0]], np.float32(3.0))[0] == 42.0  # reshaped, same values
+        assert np.allclose(namespace["f"](np.array([1.0, 2.0]), 4.0), [-3.0, -2.0])  # own
+        assert namespace["g"](1.0) == 7.0
+        with pytest.raises(NameError):
+            namespace["g"](2.0)   # no function of the student's to fall back on
+    assert namespace == {"f": own}
+
+
+def test_one_bug_costs_once_in_the_worker_too(tmp_path):
+    # lab 4: hand_to_eye_from_three_points built on a frame_from_three_points that forgets
+    # the origin (an error that does not cancel in the chain) is scored with the true frames;
+    # the frame itself still loses its translation credit.
+    import course_kit as kit
+
+    names = ("frame_from_three_points", "reproject", "hand_to_eye_from_three_points",
+             "per_axis_rmse")
+    sources = kit.solution_sources("lab4_stereo", names)
+    wrong_frame = sources["frame_from_three_points"].replace("T[:3, 3] = o", "pass")
+    assert wrong_frame != sources["frame_from_three_points"]
+    cells = ["import numpy as np", wrong_frame, sources["hand_to_eye_from_three_points"]]
+    own = {}
+    exec("\n".join(cells), own)  # noqa: S102 - our own test code
+    spec = checks.spec_for("hand_to_eye_from_three_points", "lab4_stereo")
+    trial = checks.public_trials(spec, 3)[-1]
+    alone = spec.measure(own["hand_to_eye_from_three_points"](*trial.args), trial)
+    assert alone["mapping"] > 10 * trial.tol["mapping"]  # without the stand-in it is wrong
+    assert checks.evaluate(own["hand_to_eye_from_three_points"],
+                           "hand_to_eye_from_three_points").fraction == 1.0  # in check() too
+    grade = grading.grade_notebook(_notebook(tmp_path, *cells), "lab4_stereo", "dan", SECRET,
+                                   "n", LIMITS)
+    result = {f.name: f for f in grade.functions}
+    assert result["hand_to_eye_from_three_points"].fraction == 1.0, \
+        result["hand_to_eye_from_three_points"].summary()
+    assert result["frame_from_three_points"].fraction < 1.0

@@ -83,6 +83,11 @@ def test_subtly_wrong_methods_lose_credit():
     result = checks.evaluate(wrong["interaction_matrix"], "interaction_matrix")
     assert result.fraction == 0.5, result.summary()
     assert result.failed_checks == ["rotation"]
+    # one bug costs once: the law that calls the wrong matrix is scored with the true one
+    result = checks.evaluate(wrong["ibvs_velocity"], "ibvs_velocity")
+    assert result.fraction == 1.0, result.summary()
+    assert wrong["interaction_matrix"] is not None  # put back after the check
+    assert checks.evaluate(wrong["interaction_matrix"], "interaction_matrix").fraction == 0.5
 
     def one_pixel(depth, uv, K):  # no window: a depth hole at the pixel gives NaN
         u, v = np.rint(uv).astype(int)
@@ -187,9 +192,9 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     assert float(grades["blank"]["score"]) == 0.0
     # ibvs_velocity (4 of 10) lost: the law diverges from every hidden offset
     assert float(grades["flipped_gain"]["score"]) == pytest.approx(6.0)
-    # interaction_matrix: rotation block wrong (2 of 4 lost); the IBVS built on it loses
-    # at least its first-twist check (1.2) whatever the loop does
-    assert 2.0 <= float(grades["wrong_row"]["score"]) <= MAX_SCORE - 2.0 - 1.2
+    # interaction_matrix: rotation block wrong (2 of 4 lost), and only there: the IBVS
+    # built on it is scored with the true matrix (one bug costs once)
+    assert float(grades["wrong_row"]["score"]) == pytest.approx(MAX_SCORE - 2.0), grades["wrong_row"]
     feedback = (course / "feedback_cobotlab" / "flipped_gain" / ASSIGNMENT /
                 "feedback.html").read_text()
     assert "position" in feedback and " mm" in feedback

@@ -137,12 +137,25 @@ def _features(T_cam, pts_world):
     return P[:, :2] / P[:, 2:], P[:, 2]
 
 
-def _reference_ibvs(s, s_star, Z, gain):
-    x, y = s[:, 0], s[:, 1]
-    L = np.zeros((len(s), 2, 6))
+def _true_interaction(x, y, Z) -> np.ndarray:
+    """The (2n, 6) point-feature interaction matrix, rows x1, y1, x2, ... (normalised image
+    coordinates, depths Z in metres)."""
+    L = np.zeros((len(x), 2, 6))
     L[:, 0] = np.column_stack([-1 / Z, 0 * Z, x / Z, x * y, -(1 + x * x), y])
     L[:, 1] = np.column_stack([0 * Z, -1 / Z, y / Z, 1 + y * y, -x * y, -x])
-    return -gain * np.linalg.pinv(L.reshape(-1, 6)) @ (s - s_star).reshape(-1)
+    return L.reshape(-1, 6)
+
+
+def _reference_ibvs(s, s_star, Z, gain):
+    return -gain * np.linalg.pinv(_true_interaction(s[:, 0], s[:, 1], Z)) @ (s - s_star).reshape(-1)
+
+
+def _ibvs_substitutes(args) -> dict:
+    # ibvs_velocity is scored on its own: its call of interaction_matrix(x, y, Z) gets the
+    # true matrix, so an error in L costs its points once, in interaction_matrix.
+    s, _, Z, _ = args
+    s, Z = np.asarray(s, dtype=float), np.asarray(Z, dtype=float)
+    return {"interaction_matrix": [((s[:, 0], s[:, 1], Z), _true_interaction(s[:, 0], s[:, 1], Z))]}
 
 
 def _trial_ibvs(rng, index: int) -> Trial:
@@ -210,6 +223,7 @@ IBVS_VELOCITY = FunctionSpec(
     ),
     signature="ibvs_velocity(s: (n, 2), s_star: (n, 2), Z: (n,), gain: float) -> v (6,)",
     time_limit_s=20.0,
+    substitutes=_ibvs_substitutes,
 )
 
 

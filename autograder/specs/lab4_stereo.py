@@ -152,6 +152,25 @@ def _trial_hand_to_eye(rng, index: int) -> Trial:
                  tol={"mapping": tol}, label=label)
 
 
+def _three_point_frame(p_origin, p_x, p_xy) -> np.ndarray:
+    """parent_T_frame: origin at p_origin, x towards p_x, z normal to the plane of the three."""
+    x = (p_x - p_origin) / np.linalg.norm(p_x - p_origin)
+    z = np.cross(x, p_xy - p_origin)
+    z /= np.linalg.norm(z)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = p_origin
+    return T
+
+
+def _hand_to_eye_substitutes(args) -> dict:
+    # Scored on its own: its calls of frame_from_three_points on the camera's and the base's
+    # three points get the true frames, so an error there costs its points once.
+    return {"frame_from_three_points": [
+        (tuple(np.asarray(points, dtype=float)), _three_point_frame(*np.asarray(points, float)))
+        for points in args]}
+
+
 def _measure_hand_to_eye(value, trial: Trial) -> dict[str, float]:
     T = as_output_pose(value)
     truth, check_cam = trial.truth
@@ -169,6 +188,7 @@ HAND_TO_EYE = FunctionSpec(
                   "12 board points"),),
     signature="hand_to_eye_from_three_points(cam_points (3, 3), base_points (3, 3)) -> "
               "base_T_cam (4, 4)",
+    substitutes=_hand_to_eye_substitutes,
 )
 
 # --------------------------------------------------------------------------- per-axis RMSE
