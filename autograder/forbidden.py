@@ -21,11 +21,16 @@ from __future__ import annotations
 import ast
 import importlib
 import sys
+import threading
 import types
 
 __all__ = ["ALWAYS_FORBIDDEN", "Tripwire", "is_reference_solver", "matches", "static_hits"]
 
 ALWAYS_FORBIDDEN = ("solutions",)
+# CPython 3.11 builds AST objects with interpreter-wide recursion bookkeeping: two threads
+# parsing at once (grade_course grades submissions in threads) can raise "SystemError: AST
+# constructor recursion depth mismatch" (python/cpython#106905). One parse at a time.
+_AST_LOCK = threading.Lock()
 _DYNAMIC = {"getattr", "__import__", "import_module", "eval", "exec", "compile",
             "find_spec", "spec_from_file_location"}
 
@@ -82,7 +87,8 @@ class _Notebook:
         self.imported: set[str] = set()
         for source in cells:
             try:
-                tree = ast.parse(source)
+                with _AST_LOCK:
+                    tree = ast.parse(source)
             except (SyntaxError, ValueError, RecursionError, MemoryError):
                 continue
             for node in ast.walk(tree):  # imports anywhere count (inside functions too)

@@ -27,10 +27,13 @@ from autograder import record, sandbox
 
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
+# The worker-only attacks (reply_flood, geometry_invert, fork_memory_bomb, ...) have their
+# own, faster tests in test_grading_sandbox.py and test_grading.py; import_solutions stays
+# here because it also shows the answer key is out of reach of nbgrader's kernel.
 SLICE = ("gradebook_overwrite", "config_injection", "copy_source", "overwrite_classmate",
          "neutralise_hidden_tests", "env_and_localhost", "grades_csv_symlink", "write_outside",
          "symlink_notebook", "symlink_folder", "fifo_notebook", "newline_student_id",
-         "reply_flood", "import_solutions", "geometry_invert")
+         "import_solutions")
 TOKEN = "instructor-token-5f1e"
 SERVICE_PORT = 47613
 ROOT = Path(__file__).resolve().parent.parent
