@@ -35,6 +35,7 @@ cam2base = ``base_T_cam`` (= X here). This module takes ``base_T_flange`` as is 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -52,6 +53,8 @@ __all__ = [
     "MOUNTS",
     "NOISE_MODELS",
     "OUTLIER_CHI2",
+    "POSE_CANDIDATES",
+    "ROBOT_WEIGHT_FRACTIONS",
     "CornerNoiseChoice",
     "HandEyeRefinement",
     "calibrate_from_corners",
@@ -1130,24 +1133,43 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
 #: that trusts that estimate (best on textbook synthetic data, where the noise model is
 #: exactly Gaussian robot and pixel noise), 0.1 in between (best on the far KUKA views).
 ROBOT_WEIGHT_FRACTIONS = (0.0, 0.1, 1.0)
+#: Pose-based candidates of ``calibrate_from_corners``: X and Y from the solvePnP poses alone,
+#: the pixels used only to score them. ``"pose_mle"`` is ``refine_hand_eye`` (noise weights by
+#: REML); ``"shah"`` and ``"li"`` are the AX = YB closed forms, which weight every view alike
+#: and so hold up when the robot's error dominates (views far from the camera).
+POSE_CANDIDATES = ("pose_mle", "shah", "li")
 #: Views per inner fold are every k-th view, so views captured in runs stay spread over folds.
 _CV_FOLDS = 3
 
 
 @dataclass(frozen=True)
 class CornerNoiseChoice:
-    """One candidate noise model of ``calibrate_from_corners`` and its held-out score.
+    """One candidate model of ``calibrate_from_corners`` and its held-out score.
 
-    ``robot_sigma``: (rotation rad, translation m) of the per-view robot error prior (0, 0 for
-    the pixel-only fit); ``fit_board_scale``: whether the board's scale was a parameter;
+    ``method``: ``"reprojection"`` (``refine_reprojection`` on the corners) or one of
+    ``POSE_CANDIDATES`` (a fit to the solvePnP poses). For ``"reprojection"``:
+    ``robot_weight`` the fraction of the pose-based robot-noise estimate used as prior,
+    ``robot_sigma`` that prior as (rotation rad, translation m) ((0, 0): pixel-only) and
+    ``fit_board_scale`` whether the board's scale was a parameter; a pose-based candidate has
+    ``robot_weight`` NaN, ``robot_sigma`` None and ``fit_board_scale`` False.
     ``held_out_px``: geometric mean over the views of the RMS pixel error of each view's
-    corners predicted by a fit that did not see it (inner K-fold cross-validation).
+    corners predicted by a fit that did not see it (inner K-fold cross-validation; inf when
+    the candidate could not be fitted on some fold).
     """
 
     robot_weight: float
-    robot_sigma: tuple[float, float]
+    robot_sigma: tuple[float, float] | None
     fit_board_scale: bool
     held_out_px: float
+    method: str = "reprojection"
+
+    @property
+    def label(self) -> str:
+        """Short name, e.g. ``reprojection robot 0.1 x, board scale free`` or ``pose shah``."""
+        if self.method != "reprojection":
+            return f"pose {self.method}"
+        scale = ", board scale free" if self.fit_board_scale else ""
+        return f"reprojection robot {self.robot_weight:g} x{scale}"
 
 
 def _project_view(board_points, K, dist, cam_T_target):
@@ -1186,30 +1208,56 @@ def _pnp_poses(board_points, pixels, K, dist) -> np.ndarray:
     return np.array(poses)
 
 
+def _pose_candidate(method: str, A, C, mount: str) -> HandEyeRefinement:
+    """X and Y from the poses alone by one of ``POSE_CANDIDATES``."""
+    if method == "pose_mle":
+        return refine_hand_eye(A, C, mount)
+    solve = closed_forms.shah_closed_form if method == "shah" else closed_forms.li_closed_form
+    if mount == "eye_in_hand":
+        X, Y = solve(A, geo.invert(C))
+    else:
+        Y, X = solve(A, C)
+    return HandEyeRefinement(X=_clean(X), Y=_clean(Y), mount=mount, rotation_sigma_rad=0.0,
+                             translation_sigma_m=0.0, weights=np.ones(len(A)),
+                             outlier_indices=(), cost=float("nan"), n_iterations=0,
+                             converged=True)
+
+
+def _fit_choice(choice: CornerNoiseChoice, P, px, K, dist, A, C, mount, start):
+    if choice.method != "reprojection":
+        return _pose_candidate(choice.method, A, C, mount)
+    return refine_reprojection(P, px, K, dist, A, mount, X0=start.X, Y0=start.Y,
+                               robot_sigma=choice.robot_sigma,
+                               fit_board_scale=choice.fit_board_scale)
+
+
 def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
                            mount: str = "eye_in_hand", cam_T_target=None, *,
                            robot_weights=ROBOT_WEIGHT_FRACTIONS, fit_board_scale=(False, True),
-                           folds: int = _CV_FOLDS):
-    """Hand-eye calibration from raw corners with the noise model chosen by held-out views.
+                           pose_candidates=POSE_CANDIDATES, folds: int = _CV_FOLDS):
+    """Hand-eye calibration from raw corners with the model chosen by held-out views.
 
     The default for a capture with corners. Real captures carry robot pose error comparable to
     the camera's, errors that repeat per view, and boards printed slightly off their stated
-    size; which of the pixel-only fit, the fit with a robot-error prior (and how strong) or
-    the fit with the board's scale free predicts best differs from capture to capture. So
-    every candidate of ``robot_weights`` x ``fit_board_scale`` is scored by K-fold
-    cross-validation over the views (``folds``; view i is in fold i % folds): fit
-    ``refine_reprojection`` on the other views, predict the left-out views' corners through
-    the robot poses, and take the geometric mean of their per-view RMS pixel error (the
-    held-out Gaussian log-likelihood with one scale per view). The best candidate is then
-    fitted on all views. Nothing is tuned by hand per capture.
+    size; which fit predicts best differs from capture to capture: the pixel-only fit, the fit
+    with a robot-error prior (and how strong), the fit with the board's scale free, or, when
+    the robot's error dominates the pixels' (views far from the camera), a fit to the solvePnP
+    poses alone. So every candidate, ``robot_weights`` x ``fit_board_scale`` reprojection fits
+    and the pose-based ``pose_candidates``, is scored by K-fold cross-validation over the
+    views (``folds``; view i is in fold i % folds): fit it on the other views, predict the
+    left-out views' corners through the robot poses, and take the geometric mean of their
+    per-view RMS pixel error (the held-out Gaussian log-likelihood with one scale per view).
+    The best candidate is then fitted on all views. Nothing is tuned by hand per capture.
 
     ``robot_weights`` are fractions of the robot noise that ``refine_hand_eye`` estimates
     on all views (rotation, and the translation noise it cannot tell from the camera's;
-    0 = pixel-only). Inputs as for ``refine_reprojection``;
-    ``cam_T_target`` (solvePnP poses) is found from the corners when not given.
+    0 = pixel-only); ``pose_candidates`` a subset of ``POSE_CANDIDATES`` (``()`` for corner
+    fits only). Inputs as for ``refine_reprojection``; ``cam_T_target`` (solvePnP poses) is
+    found from the corners when not given.
 
     Returns ``(result, choices)``: the ``HandEyeRefinement`` of the chosen model (its
-    ``board_scale`` is the fitted scale, 1 when not fitted) and the list of
+    ``board_scale`` is the fitted scale, 1 when not fitted or pose-based; its
+    ``reprojection_rms_px`` the RMS over all views' corners) and the list of
     ``CornerNoiseChoice`` scores, best first.
     """
     _check_mount(mount)
@@ -1219,31 +1267,47 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
         raise ValueError(f"folds must be between 2 and the number of views ({len(A)}), got {folds}")
     weights = tuple(float(w) for w in robot_weights)
     scales = tuple(bool(b) for b in fit_board_scale)
-    if not weights or not scales or any(not np.isfinite(w) or w < 0 for w in weights):
-        raise ValueError("robot_weights must be non-empty fractions >= 0 and fit_board_scale a "
+    if any(not np.isfinite(w) or w < 0 for w in weights) or (weights and not scales):
+        raise ValueError("robot_weights must be fractions >= 0 and fit_board_scale a "
                          "non-empty tuple of booleans")
+    pose_methods = tuple(pose_candidates)
+    unknown = [m for m in pose_methods if m not in POSE_CANDIDATES]
+    if unknown:
+        raise ValueError(f"unknown pose candidates {unknown}; choose from {POSE_CANDIDATES}")
+    if not weights and not pose_methods:
+        raise ValueError("no candidates: give robot_weights or pose_candidates")
     C = _pnp_poses(P, px, K, dist) if cam_T_target is None else geo.as_poses(cam_T_target,
                                                                               "cam_T_target")
     start = refine_hand_eye(A, C, mount)
     # The pose-based fit's REML noise split (camera translation and robot translation share one
     # term there) sets the robot prior's scale; the candidates rescale it.
     robot_sigma = np.array([start.robot_rotation_sigma_rad, start.translation_sigma_m])
+    candidates = [CornerNoiseChoice(w, tuple(float(v) for v in w * robot_sigma), scale, np.nan)
+                  for w in weights for scale in scales]
+    candidates += [CornerNoiseChoice(np.nan, None, False, np.nan, method=m) for m in pose_methods]
     fold_of = np.arange(len(A)) % folds
 
     choices = []
-    for w in weights:
-        sigma = tuple(float(v) for v in w * robot_sigma)
-        for scale in scales:
-            rms = np.zeros(len(A))
+    for cand in candidates:
+        rms = np.zeros(len(A))
+        try:
             for k in range(folds):
                 out, keep = fold_of == k, fold_of != k
-                fit = refine_reprojection(P, px[keep], K, dist, A[keep], mount, X0=start.X,
-                                          Y0=start.Y, robot_sigma=sigma, fit_board_scale=scale)
+                fit = _fit_choice(cand, P, px[keep], K, dist, A[keep], C[keep], mount, start)
                 rms[out] = view_rms_px(predicted_corners(fit, P, K, dist, A[out]), px[out])
             score = float(np.exp(np.mean(np.log(np.maximum(rms, 1e-12)))))
-            choices.append(CornerNoiseChoice(w, sigma, scale, score))
+        except ValueError:
+            # A fold too degenerate for this candidate (e.g. the closed forms' checks): it
+            # cannot be trusted on this capture.
+            score = float("inf")
+        choices.append(dataclasses.replace(cand, held_out_px=score))
     choices.sort(key=lambda c: c.held_out_px)
-    best = choices[0]
-    result = refine_reprojection(P, px, K, dist, A, mount, X0=start.X, Y0=start.Y,
-                                 robot_sigma=best.robot_sigma, fit_board_scale=best.fit_board_scale)
+    if not np.isfinite(choices[0].held_out_px):
+        raise ValueError("no candidate model could be fitted on every cross-validation fold; "
+                         "capture more views with varied orientations")
+    result = _fit_choice(choices[0], P, px, K, dist, A, C, mount, start)
+    if choices[0].method != "reprojection":
+        # A pose-based fit has no corner residual of its own; report the one it leaves.
+        rms = view_rms_px(predicted_corners(result, P, K, dist, A), px)
+        result = dataclasses.replace(result, reprojection_rms_px=float(np.sqrt(np.nanmean(rms**2))))
     return result, choices

@@ -96,9 +96,9 @@ def test_the_noise_model_is_chosen_by_held_out_views_and_finds_a_misprinted_boar
     board = p.board.object_points()
     result, choices = mle.calibrate_from_corners(board, p.pixels, p.camera.K, p.camera.dist,
                                                  p.base_T_flange, cam_T_target=p.cam_T_target)
-    assert len(choices) == 6
+    assert len(choices) == 6 + len(mle.POSE_CANDIDATES)
     assert [c.held_out_px for c in choices] == sorted(c.held_out_px for c in choices)
-    assert choices[0].fit_board_scale
+    assert choices[0].method == "reprojection" and choices[0].fit_board_scale
     assert result.board_scale == pytest.approx(0.95, abs=0.002)
     start = mle.refine_hand_eye(p.base_T_flange, p.cam_T_target)
     fixed = mle.refine_reprojection(board, p.pixels, p.camera.K, p.camera.dist, p.base_T_flange,
@@ -108,6 +108,42 @@ def test_the_noise_model_is_chosen_by_held_out_views_and_finds_a_misprinted_boar
     assert chosen_mm < 2.0
 
 
+@pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
+@pytest.mark.parametrize("method", ["pose_mle", "shah", "li"])
+def test_pose_based_candidates_predict_exact_corners_for_both_mounts(mount, method):
+    """A pose-based candidate's X and Y must mean what predicted_corners reads for the mount
+    (eye-to-hand swaps the closed forms' X and Y): on exact data its prediction is exact."""
+    from autograder.synthetic import NoiseModel, make_hand_eye
+    p = make_hand_eye(4, mount, n_poses=8, noise=NoiseModel(pixel_px=1e-9))
+    board = p.board.object_points()
+    result, choices = mle.calibrate_from_corners(board, p.pixels, p.camera.K, p.camera.dist,
+                                                 p.base_T_flange, mount, p.cam_T_target,
+                                                 robot_weights=(), pose_candidates=(method,))
+    assert [c.method for c in choices] == [method]
+    assert choices[0].held_out_px < 1e-3
+    assert geo.rotation_error_deg(result.X, p.X_true) < 1e-4
+    predicted = mle.predicted_corners(result, board, p.camera.K, p.camera.dist, p.base_T_flange)
+    assert mle.view_rms_px(predicted, p.pixels).max() < 1e-3
+    assert result.reprojection_rms_px < 1e-3
+
+
+def test_the_data_picks_a_pose_based_fit_when_the_pixels_are_biased_per_view():
+    """Each view's corners shifted as a whole by several pixels (a per-view systematic error
+    the corner fit cannot tell from the geometry) while the solvePnP poses are exact: a fit to
+    the poses predicts held-out views better, and the cross-validation must find that."""
+    p = make_real_like_hand_eye(5, n_poses=15, robot_rot_deg=0.0, robot_trans_mm=0.0,
+                                robot_gain=0.0, board_scale=1.0, pixel_px=0.05)
+    rng = np.random.default_rng(0)
+    biased = p.pixels + rng.normal(0.0, 3.0, size=(len(p.pixels), 1, 2))
+    board = p.board.object_points()
+    result, choices = mle.calibrate_from_corners(board, biased, p.camera.K, p.camera.dist,
+                                                 p.base_T_flange, cam_T_target=p.cam_T_target)
+    assert choices[0].method in mle.POSE_CANDIDATES
+    corner_only = min(c.held_out_px for c in choices if c.method == "reprojection")
+    assert choices[0].held_out_px < corner_only
+    assert geo.rotation_error_deg(result.X, p.X_true) < 0.05
+
+
 def test_calibrate_from_corners_refuses_bad_settings():
     p = make_real_like_hand_eye(1, n_poses=5, pixel_px=0.1)
     args = (p.board.object_points(), p.pixels, p.camera.K, p.camera.dist, p.base_T_flange)
@@ -115,6 +151,10 @@ def test_calibrate_from_corners_refuses_bad_settings():
         mle.calibrate_from_corners(*args, folds=1)
     with pytest.raises(ValueError, match="robot_weights"):
         mle.calibrate_from_corners(*args, robot_weights=(-1.0,))
+    with pytest.raises(ValueError, match="pose candidates"):
+        mle.calibrate_from_corners(*args, pose_candidates=("tsai",))
+    with pytest.raises(ValueError, match="no candidates"):
+        mle.calibrate_from_corners(*args, robot_weights=(), pose_candidates=())
 
 
 def _solutions_imports() -> dict[str, set[str]]:
