@@ -2,6 +2,11 @@
 
 Run:  .venv/bin/python benchmarks/handeye_real.py [--sequences kuka_1,kuka_2,kuka_3]
                                                   [--workers 2] [--output docs/benchmarks/handeye_real.md]
+                                                  [--stride 1] [--cache results.json]
+
+``--cache`` keeps every fold's result in a file, so a long run can be split into bounded
+pieces (one sequence at a time) and the last invocation prints all tables; cached folds are
+reused only while the solver (``solutions``, ``robots``) and benchmark sources are unchanged.
 
 A real capture has no ground truth, so each method is judged by how well its result predicts a
 view it has not seen (leave one view out). For each view i of a sequence:
@@ -24,6 +29,8 @@ or better, and on kuka_2 its median is at least 20 % better.
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import sys
 import time
@@ -266,6 +273,41 @@ def compare_rankings(pooled: dict, synthetic: dict, file):
               f"{labels[int(np.argmin(synth))]}", file=file)
 
 
+def source_fingerprint() -> str:
+    """SHA-256 over this script and the solvers' sources it runs (every loaded ``solutions.*``
+    and ``robots.*`` module): a cached fold is valid only for the same code."""
+    paths = sorted({m.__file__ for name, m in list(sys.modules.items())
+                    if name.split(".")[0] in ("solutions", "robots") and getattr(m, "__file__", None)})
+    digest = hashlib.sha256()
+    for path in paths + [os.path.abspath(__file__)]:
+        with open(path, "rb") as f:
+            digest.update(f.read())
+    return digest.hexdigest()
+
+
+def load_cache(path: str, fingerprint: str) -> dict:
+    """{(sequence, view): {label: (error px, ms)}} from ``path`` if it was written by the same
+    sources, else {}."""
+    if not path or not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        data = json.load(f)
+    if data.get("fingerprint") != fingerprint:
+        print(f"{path}: written by other sources; recomputing every fold", file=sys.stderr)
+        return {}
+    return {(s, int(i)): {lab: tuple(v) for lab, v in out.items()}
+            for s, folds in data["folds"].items() for i, out in folds.items()}
+
+
+def save_cache(path: str, fingerprint: str, cache: dict) -> None:
+    folds: dict[str, dict] = {}
+    for (s, i), out in cache.items():
+        folds.setdefault(s, {})[str(i)] = {lab: [None if np.isnan(e) else e, ms]
+                                          for lab, (e, ms) in out.items()}
+    with open(path, "w") as f:
+        json.dump({"fingerprint": fingerprint, "folds": folds}, f)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sequences", default=",".join(RWHE_KUKA_SEQUENCES))
@@ -277,6 +319,9 @@ def main(argv=None) -> int:
                         help="also synthetic captures, e.g. real-like:0,real-like:1,pixel-noise:0; "
                              "the last table says whether their ranking predicts the real one")
     parser.add_argument("--output", default="", help="also write the tables to this file")
+    parser.add_argument("--cache", default="",
+                        help="JSON file of per-fold results: folds found there (from the same "
+                             "sources) are not recomputed, new ones are added")
     args = parser.parse_args(argv)
     sequences = [s for s in args.sequences.split(",") if s]
     synthetic = [s for s in args.synthetic.split(",") if s]
@@ -286,13 +331,24 @@ def main(argv=None) -> int:
         jobs += [(s, i) for i in range(0, n, args.stride)]
 
     started = time.perf_counter()
+    fingerprint = source_fingerprint() if args.cache else ""
+    cache = load_cache(args.cache, fingerprint)
     results: dict[str, dict[int, dict]] = {s: {} for s in sequences + synthetic}
+    todo = [job for job in jobs if job not in cache]
+    for s, i in jobs:
+        if (s, i) in cache:
+            results[s][i] = {lab: (np.nan if e is None else e, ms)
+                             for lab, (e, ms) in cache[(s, i)].items()}
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for k, (s, i, out) in enumerate(pool.map(run_fold, jobs), 1):
+        for k, (s, i, out) in enumerate(pool.map(run_fold, todo), 1):
             results[s][i] = out
-            print(f"\r{k}/{len(jobs)} folds", end="", file=sys.stderr, flush=True)
+            cache[(s, i)] = out
+            if args.cache:  # after every fold, so an interrupted run keeps what it did
+                save_cache(args.cache, fingerprint, cache)
+            print(f"\r{k}/{len(todo)} folds", end="", file=sys.stderr, flush=True)
     print("", file=sys.stderr)
     wall = time.perf_counter() - started
+    reused = len(jobs) - len(todo)
 
     class Tee:
         def __init__(self, *files):
@@ -312,7 +368,8 @@ def main(argv=None) -> int:
           file=file)
     print(f"\n`.venv/bin/python benchmarks/handeye_real.py --sequences {','.join(sequences)} "
           f"--stride {args.stride}`: "
-          f"{len(jobs)} folds in {wall:.0f} s with {args.workers} workers. Pixel errors are the RMS "
+          f"{len(jobs)} folds in {wall:.0f} s with {args.workers} workers"
+          f"{f' ({reused} of them from the cache)' if reused else ''}. Pixel errors are the RMS "
           "over one held-out view's corners; intervals are bootstrap 95 % over views.", file=file)
     lines = []
     pooled: dict[str, list] = {}

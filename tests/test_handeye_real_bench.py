@@ -59,3 +59,17 @@ def test_the_oracle_knows_the_true_noise_and_only_runs_where_that_is_the_whole_m
     pixels = acc.Scenario("pixel-noise 0.5 px", "eye_in_hand", 10, "careful",
                           NoiseModel(pixel_px=0.5, robot_rot_deg=0.02, robot_trans_mm=0.1))
     assert acc.oracle_fit(pixels, pixels.problem(0)) is None
+
+
+def test_the_fold_cache_round_trips_and_is_ignored_for_other_sources(tmp_path, capsys):
+    """--cache lets a long run be split into bounded pieces; a fold written by other solver
+    sources must never be reused (its numbers would describe other code)."""
+    path = str(tmp_path / "folds.json")
+    folds = {("kuka_2", 3): {"tsai": (1.5, 7.0), "opencv RW LI": (np.nan, 2.0)}}
+    real.save_cache(path, "abc", folds)
+    back = real.load_cache(path, "abc")
+    assert back[("kuka_2", 3)]["tsai"] == (1.5, 7.0)
+    assert back[("kuka_2", 3)]["opencv RW LI"][0] is None  # a failed method stays a failure
+    assert real.load_cache(path, "other") == {}
+    assert "written by other sources" in capsys.readouterr().err
+    assert real.source_fingerprint() == real.source_fingerprint()
