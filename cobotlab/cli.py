@@ -65,7 +65,11 @@ def _build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--mount", default="eye_in_hand",
                      help="eye_in_hand (camera on the flange, default) or eye_to_hand")
     cal.add_argument("--method", default="nonlinear",
-                     help="nonlinear (default, robust), tsai, park, daniilidis or axes_ls")
+                     help="nonlinear (default, robust), tsai, park, daniilidis, axes_ls, or "
+                          "corners: fit the detected corners themselves, the model (pixel-only, "
+                          "a robot-error prior, the board's scale, or a pose-based fit) chosen "
+                          "by held-out views (solutions.mle.calibrate_from_corners; best on the "
+                          "real captures of benchmarks/handeye_real.py)")
     cal.add_argument("--out", default=None,
                      help="result YAML (default CAPTURE_DIR/flange_T_cam.yaml or base_T_cam.yaml)")
 
@@ -253,8 +257,9 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
 
     if mount not in handeye.MOUNTS:
         raise ValueError(f"--mount must be eye_in_hand or eye_to_hand, got {mount!r}")
-    if method not in handeye.METHODS:
-        raise ValueError(f"unknown --method {method!r}; choose one of {', '.join(handeye.METHODS)}")
+    if method not in handeye.METHODS + (CORNERS_METHOD,):
+        raise ValueError(f"unknown --method {method!r}; choose one of "
+                         f"{', '.join(handeye.METHODS + (CORNERS_METHOD,))}")
     capture = load_capture(capture_dir)
     has_pose = np.all(np.isfinite(capture.cam_T_target), axis=(1, 2))
     F, C = capture.pose_pairs()
@@ -265,7 +270,14 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     mount_note = _mount_check(F, C, mount)
     solve = (handeye.calibrate_eye_in_hand_report if mount == "eye_in_hand"
              else handeye.calibrate_eye_to_hand_report)
-    result = solve(F, C, method=method)
+    kept = np.flatnonzero(has_pose)
+    if method == CORNERS_METHOD:
+        result, held_out_solve = _corner_calibration(capture, kept, F, C, mount)
+    else:
+        result = solve(F, C, method=method)
+
+        def held_out_solve(f, c, rest):
+            return solve(f, c, method=method).X, None, 1.0
     X = result.X
     parent = "flange" if mount == "eye_in_hand" else "base"
     rot, trans = per_pose_residuals(F, C, X, mount)
@@ -289,13 +301,18 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
             "  <- large" if t > worst else "")
         print(f"  view {int(views[k]):3d}: {t * 1000:8.3f} mm {r:8.4f} deg{mark}")
     print(f"flagged views: {flagged or 'none'}")
-    kept = np.flatnonzero(has_pose)
+    if method == CORNERS_METHOD:
+        print(f"corner fit: {result.choice.label} chosen by held-out views "
+              f"({result.choice.held_out_px:.3f} px; next best: "
+              + ", ".join(f"{c.label} {c.held_out_px:.3f} px" for c in result.choices[1:3])
+              + f"); corner RMS {result.reprojection_rms_px:.3f} px, board scale "
+              f"{result.board_scale:.4f}")
     if len(F) >= 4 and all(len(capture.corners_px[i]) >= 4 for i in kept):
         held_out = _held_out_px(F, C, [capture.corners_px[i] for i in kept],
                                 [capture.object_points[i] for i in kept], capture.intrinsics.K,
-                                capture.intrinsics.dist, mount,
-                                lambda f, c: solve(f, c, method=method))
-        print(f"held-out error (each view's corners predicted by a calibration without it, "
+                                capture.intrinsics.dist, mount, held_out_solve)
+        fixed = ", the chosen model kept" if method == CORNERS_METHOD else ""
+        print(f"held-out error (each view's corners predicted by a calibration without it{fixed}, "
               f"through the robot pose): median {np.median(held_out):.2f} px, "
               f"p95 {np.percentile(held_out, 95):.2f} px, worst view "
               f"{int(views[int(np.argmax(held_out))])} at {held_out.max():.2f} px")
@@ -308,6 +325,59 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
                       "per_pose_rotation_deg": rot, "per_pose_translation_m": trans},
                      robot_id=capture.robot_name, camera_id=capture.camera_name)
     print(f"saved {out}")
+
+
+CORNERS_METHOD = "corners"
+
+
+def _corner_calibration(capture, kept, F, C, mount: str):
+    """``--method corners``: ``solutions.mle.calibrate_from_corners`` on the capture's corners.
+
+    Returns (a result with X, outlier_pose_indices, rotation/translation_residual on the
+    motions, and the chosen model and its rivals; a ``solve(F_rest, C_rest, rest)`` -> (X, Y,
+    board scale) that refits the chosen model on a subset of the views, for the held-out error).
+    """
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from solutions import handeye, mle
+
+    corners = [np.asarray(capture.corners_px[i], dtype=float) for i in kept]
+    objects = [np.asarray(capture.object_points[i], dtype=float) for i in kept]
+    if any(len(c) < 4 for c in corners):
+        raise ValueError("--method corners needs at least 4 detected corners in every view with "
+                         "a board pose; use another --method or drop those views")
+    # One board for all views (each view may see a different subset of a ChArUco board's
+    # corners): the distinct object points, and each view's pixels at their index (NaN unseen).
+    board, index = np.unique(np.round(np.concatenate(objects), 9), axis=0, return_inverse=True)
+    pixels = np.full((len(kept), len(board), 2), np.nan)
+    start = 0
+    for k, c in enumerate(corners):
+        pixels[k, index.ravel()[start:start + len(c)]] = c
+        start += len(c)
+    K, dist = capture.intrinsics.K, capture.intrinsics.dist
+    fit, choices = mle.calibrate_from_corners(board, pixels, K, dist, F, mount, C)
+    A, B, _ = handeye.hand_eye_motions(F, C, mount)
+    result = SimpleNamespace(X=fit.X, outlier_pose_indices=fit.outlier_indices,
+                             rotation_residual=handeye.rotation_residual(A, B, fit.X),
+                             translation_residual=handeye.translation_residual(A, B, fit.X),
+                             choice=choices[0], choices=choices, board_scale=fit.board_scale,
+                             reprojection_rms_px=fit.reprojection_rms_px)
+    best = choices[0]
+
+    def refit(f, c, rest):
+        if best.method == "reprojection":
+            r = mle.refine_reprojection(board, pixels[rest], K, dist, f, mount, X0=fit.X,
+                                        Y0=fit.Y, robot_sigma=best.robot_sigma,
+                                        fit_board_scale=best.fit_board_scale)
+        else:  # a pose-based fit: only that candidate, its cross-validation is cheap
+            r, _ = mle.calibrate_from_corners(board, pixels[rest], K, dist, f, mount, c,
+                                              robot_weights=(), pose_candidates=(best.method,),
+                                              folds=2)
+        return r.X, r.Y, r.board_scale
+
+    return result, refit
 
 
 def _mount_check(F, C, mount: str) -> str:
@@ -421,9 +491,10 @@ def _data_import(args) -> None:
 def _held_out_px(F, C, corners, objects, K, dist, mount: str, solve):
     """RMS pixel error of each view's corners predicted by a calibration without that view.
 
-    For view k: X from ``solve`` on the other views, the board pose Y as the chordal mean of
-    what those views imply, then the corners projected through ``inv(X) @ H_k @ Y`` with
-    H_k = inv(base_T_flange_k) (eye-in-hand) or base_T_flange_k (eye-to-hand)."""
+    For view k: ``solve(F_rest, C_rest, rest)`` -> (X, Y or None, board scale) on the other
+    views (``rest`` their mask), Y when None as the chordal mean of what those views imply,
+    then the corners (object points times the scale) projected through ``inv(X) @ H_k @ Y``
+    with H_k = inv(base_T_flange_k) (eye-in-hand) or base_T_flange_k (eye-to-hand)."""
     import warnings
 
     import cv2
@@ -436,12 +507,14 @@ def _held_out_px(F, C, corners, objects, K, dist, mount: str, solve):
         rest = np.arange(len(F)) != k
         with warnings.catch_warnings():  # the full fit has already warned about these views
             warnings.simplefilter("ignore", UserWarning)
-            X = solve(F[rest], C[rest]).X
+            X, Y, board_scale = solve(F[rest], C[rest], rest)
         H = geo.invert(F) if mount == "eye_in_hand" else F
-        implied = geo.invert(H[rest]) @ X @ C[rest]
-        Y = geo.make_pose(geo.chordal_mean_rotation(implied), implied[:, :3, 3].mean(axis=0))
+        if Y is None:
+            implied = geo.invert(H[rest]) @ X @ C[rest]
+            Y = geo.make_pose(geo.chordal_mean_rotation(implied), implied[:, :3, 3].mean(axis=0))
         pose = geo.invert(X) @ H[k] @ Y
-        proj, _ = cv2.projectPoints(objects[k], cv2.Rodrigues(pose[:3, :3])[0], pose[:3, 3], K, dist)
+        proj, _ = cv2.projectPoints(board_scale * objects[k], cv2.Rodrigues(pose[:3, :3])[0],
+                                    pose[:3, 3], K, dist)
         errors.append(float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - corners[k]) ** 2, axis=1)))))
     return np.array(errors)
 
