@@ -96,6 +96,10 @@ class Trial:
     # Edge cases earn credit only when the whole answer is right, so a trivial output (the
     # identity for a zero rotation) cannot collect partial credit on them.
     all_or_nothing: bool = False
+    # A degenerate problem (collinear points, too few of them): the right answer is raising
+    # this exception (by class name, e.g. "ValueError"), which earns full credit; a returned
+    # value earns none, whatever it is.
+    raises: str | None = None
 
 
 @dataclass(frozen=True)
@@ -104,7 +108,7 @@ class FunctionSpec:
 
     name: str
     points: float
-    n_trials: int
+    n_trials: int   # hidden problems per student
     make_trial: Callable[[np.random.Generator, int], Trial]
     measure: Callable[[Any, Trial], dict[str, float]]
     checks: tuple[Check, ...]
@@ -124,6 +128,10 @@ class FunctionSpec:
     # the true value (anything else still goes to the student's own), so a sign error in
     # interaction_matrix is not charged again in ibvs_velocity. Values only, never code.
     substitutes: Callable[[tuple], dict[str, list[tuple[tuple, Any]]]] | None = None
+    # Practice problems per public seed (None: n_trials). check() shows len(PUBLIC_SEEDS)
+    # seeds' worth, and the hidden grade must draw at least as many, so that a bug check()
+    # reveals cannot pass the grader by luck.
+    practice_trials: int | None = None
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -165,6 +173,12 @@ class FunctionResult:
     max_points: float
     checks: list[CheckResult] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    # For feedback: problems run and problems not fully right, how many problems each
+    # distinct error (problem label left out) happened on, and the forbidden routines used.
+    n_problems: int = 0
+    n_failed: int = 0
+    error_counts: dict[str, int] = field(default_factory=dict)
+    forbidden: tuple[str, ...] = ()
 
     @property
     def fraction(self) -> float:
@@ -297,14 +311,15 @@ def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
 # --------------------------------------------------------------------------- scoring
 
 
-def make_trials(spec: FunctionSpec, rng: np.random.Generator) -> list[Trial]:
-    """``spec.n_trials`` problems drawn from ``rng``."""
-    return [spec.make_trial(rng, i) for i in range(spec.n_trials)]
+def make_trials(spec: FunctionSpec, rng: np.random.Generator, n: int | None = None) -> list[Trial]:
+    """``n`` (default ``spec.n_trials``) problems drawn from ``rng``."""
+    return [spec.make_trial(rng, i) for i in range(spec.n_trials if n is None else n)]
 
 
 def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
     """The practice problems of a public seed (the same generator as the hidden ones)."""
-    return make_trials(spec, np.random.default_rng([20240917, int(seed)]))
+    return make_trials(spec, np.random.default_rng([20240917, int(seed)]),
+                       spec.practice_trials or spec.n_trials)
 
 
 def score_function(spec: FunctionSpec, trials: list[Trial],
@@ -314,23 +329,34 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     per_check = {c.name: [] for c in spec.checks}
     errors: list[str] = []
+    counts: dict[str, int] = {}
+    n_failed = 0
     for trial, outcome in zip(trials, outcomes):
         measured = None
-        if outcome.error is None:
+        message = outcome.error
+        if trial.raises is not None:
+            raised = message is not None and message.split(":", 1)[0] == trial.raises
+            measured = {c.name: 0.0 for c in spec.checks} if raised else None
+            message = None if raised else (f"expected {trial.raises} on this degenerate input, "
+                                           f"got {message or 'a return value'}")
+        elif outcome.error is None:
             try:
                 measured = spec.measure(outcome.value, trial)
             except OutputError as exc:
-                problem = f"on a {trial.label} problem: {exc}"
-                if problem not in errors:
-                    errors.append(problem)
-        elif f"on a {trial.label} problem: {outcome.error}" not in errors:
-            errors.append(f"on a {trial.label} problem: {outcome.error}")
+                message = str(exc)
+        if message is not None:
+            if f"on a {trial.label} problem: {message}" not in errors:
+                errors.append(f"on a {trial.label} problem: {message}")
+            # capped: a submission can make every message distinct
+            if message in counts or len(counts) < 20:
+                counts[message] = counts.get(message, 0) + 1
         rows = {}
         for c in spec.checks:
             err = math.inf if measured is None else float(measured[c.name])
             rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]))
         if trial.all_or_nothing and min(r[2] for r in rows.values()) < 1.0:
             rows = {k: (r[0], r[1], 0.0) for k, r in rows.items()}
+        n_failed += bool(rows) and min(r[2] for r in rows.values()) < 1.0
         for name, row in rows.items():
             per_check[name].append(row)
     results, total = [], 0.0
@@ -348,7 +374,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe))
         total += c.weight * credit
     points = round(spec.points * total / weight_sum, 2)
-    return FunctionResult(spec.name, points, spec.points, results, errors[:5])
+    return FunctionResult(spec.name, points, spec.points, results, errors[:5],
+                          n_problems=len(trials), n_failed=n_failed, error_counts=counts)
 
 
 class StudentCallError(Exception):
@@ -423,7 +450,7 @@ def forbidden_result(spec: FunctionSpec, names) -> FunctionResult:
     listed = ", ".join(sorted(names))
     return FunctionResult(spec.name, 0.0, spec.points, [], [
         f"uses {listed}, which {spec.name} must not call: this lab asks you to write that "
-        "computation yourself (score 0 for this function)"])
+        "computation yourself (score 0 for this function)"], forbidden=tuple(sorted(names)))
 
 
 def _static_forbidden(func, spec: FunctionSpec, always=forbidden.ALWAYS_FORBIDDEN) -> list[str]:

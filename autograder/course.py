@@ -6,24 +6,25 @@
 (:mod:`autograder.freeze`), execute untrusted code in throwaway sandboxes (nbgrader's
 autograde in :mod:`autograder.scratch`, the isolated grader in :mod:`autograder.grading`),
 and record from the trusted process (:mod:`autograder.record`), writing ``DIR/grades.csv``
-and per-student feedback HTML.
+and per-student feedback HTML (:mod:`autograder.feedback`).
 """
 
 from __future__ import annotations
 
-import html
 import json
 import os
+import re
 import secrets
 import shutil
 import stat
 import tempfile
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
-from autograder import checks, freeze, grading, record, sandbox, scratch
+from autograder import checks, feedback, freeze, grading, record, sandbox, scratch
 from autograder.freeze import printable
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
@@ -35,23 +36,40 @@ GRADE_COLUMNS = ["assignment", "duedate", "timestamp", "student_id", "last_name"
 _CONFIG = '''\
 # nbgrader configuration written by cobotlab (autograder.course.init_course).
 c = get_config()  # noqa: F821
-c.CourseDirectory.course_id = "cobotlab"
+c.CourseDirectory.course_id = {course_id!r}
 c.CourseDirectory.root = {root!r}
+# Where release_assignment / fetch_assignment / submit / collect meet (and formgrader looks):
+# made by `cobotlab course init`; students' servers must see the same folder at this path.
+c.Exchange.root = {exchange!r}
 # Each cell gets this long in nbgrader's kernel; the authoritative grade comes from
 # `cobotlab grade`, which runs the code again in an isolated, limited worker.
 c.Execute.timeout = 30
 c.Execute.interrupt_on_timeout = True
 c.ClearSolutions.code_stub = {{"python": "# YOUR CODE HERE\\nraise NotImplementedError()"}}
+# `cobotlab grade` keeps grades.csv (every assignment, with flags); `nbgrader export`, whose
+# default is the same name, writes its own file (`--to` still chooses another).
+c.ExportPlugin.to = "nbgrader_grades.csv"
+# nbgrader's feedback (generate_feedback, formgrader's buttons) reads the autograded
+# notebooks, which hold the hidden tests: they and their outputs are cut out first.
+c.GenerateFeedback.preprocessors = [
+    "nbgrader.preprocessors.GetGrades",
+    "autograder.nbgrader_hooks.HideHiddenTests",
+    "nbconvert.preprocessors.CSSHTMLHeaderPreprocessor",
+]
 '''
 
 
-def init_course(course_dir, labs_dir=None) -> Path:
+def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobotlab") -> Path:
     """Lay out an nbgrader course in ``course_dir`` with every lab in ``labs/``.
 
-    Writes ``nbgrader_config.py``, copies each ``labs/<name>/`` (notebook and data, no
-    saved outputs) to ``source/<name>/``, and creates the grading secret in
-    ``.cobotlab/secret`` (mode 0600; not copied into any assignment). Existing sources and
-    the secret are kept, so running it again after adding a lab is safe. Returns the path.
+    Writes ``nbgrader_config.py`` (``course_id``, the course root, and nbgrader's exchange:
+    ``exchange``, default ``course_dir/exchange``, created world-writable as nbgrader
+    requires), copies each ``labs/<name>/`` (notebook and data, no saved outputs) to
+    ``source/<name>/``, creates an empty ``gradebook.db`` (so nbgrader run from the virtual
+    environment without activating it never needs ``alembic`` on ``$PATH``), and the
+    grading secret in ``.cobotlab/secret`` (mode 0600; not copied into any assignment).
+    Existing config, sources, gradebook and secret are kept, so running it again after
+    adding a lab is safe. Returns the path.
     """
     root = Path(course_dir).resolve()
     labs = Path(labs_dir) if labs_dir else LABS_DIR
@@ -60,7 +78,17 @@ def init_course(course_dir, labs_dir=None) -> Path:
     root.mkdir(parents=True, exist_ok=True)
     config = root / "nbgrader_config.py"
     if not config.exists():
-        config.write_text(_CONFIG.format(root=str(root)))
+        exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
+        exchange_dir.mkdir(parents=True, exist_ok=True)
+        os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets other modes)
+        config.write_text(_CONFIG.format(root=str(root), exchange=str(exchange_dir),
+                                         course_id=course_id))
+    if not (root / "gradebook.db").exists():
+        from nbgrader.api import Gradebook
+
+        scratch.put_interpreter_on_path()   # a new gradebook runs `alembic`
+        with Gradebook(f"sqlite:///{root / 'gradebook.db'}", course_id=course_id):
+            pass
     for lab in sorted(p for p in labs.iterdir() if p.is_dir() and any(p.glob("*.ipynb"))):
         target = root / "source" / lab.name
         if not target.exists():
@@ -108,7 +136,8 @@ def run_nbgrader_autograde(course_dir, assignment: str, student_id,
 
 
 def _nbgrader_results(root: Path, assignment: str, students: list[str]) -> dict:
-    """{student: {"cells": {grade_id: (score, max)}, "student": {...}, "timestamp", ...}}."""
+    """{student: {"cells": {grade_id: (auto score, max)}, "student": {...}, "timestamp",
+    "penalty", "duedate"}} as the gradebook holds them now."""
     db = root / "gradebook.db"
     out: dict = {}
     if not db.exists():
@@ -136,23 +165,49 @@ def _nbgrader_results(root: Path, assignment: str, students: list[str]) -> dict:
             entry["penalty"] = float(sub.late_submission_penalty or 0.0)
             for nb in sub.notebooks:
                 for g in nb.grades:
-                    entry["cells"][g.name] = (float(g.score or 0.0), float(g.max_score or 0.0))
+                    entry["cells"][g.name] = (float(g.auto_score or 0.0),
+                                              float(g.max_score or 0.0))
             out[sid] = entry
     return out
 
 
-def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
-    """grade_id of each hidden-test cell in the source notebooks -> graded function name."""
-    names = [s.name for s in checks.SPECS.get(assignment, ())]
-    mapping = {}
+def _source_cells(root: Path, assignment: str):
+    """(grade id, nbgrader metadata, source) of every cell of the source notebooks."""
     for path in sorted((root / "source" / assignment).glob("*.ipynb")):
         for cell in json.loads(path.read_text()).get("cells", []):
             meta = cell.get("metadata", {}).get("nbgrader", {})
-            source = "".join(cell.get("source", ""))
-            if meta.get("grade") and grading.HIDDEN_MARK in source:
-                for name in names:
-                    if f"({name}" in source or f" {name}" in source:
-                        mapping[meta.get("grade_id", "")] = name
+            yield meta.get("grade_id", ""), meta, "".join(cell.get("source", ""))
+
+
+def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
+    """grade_id of each hidden-test cell in the source notebooks -> graded function name.
+
+    The labs name a function's test cell ``test_<function>``; a cell named otherwise goes to
+    the last graded function it calls.
+    """
+    names = [s.name for s in checks.SPECS.get(assignment, ())]
+    mapping = {}
+    for grade_id, meta, source in _source_cells(root, assignment):
+        if not (meta.get("grade") and grading.HIDDEN_MARK in source):
+            continue
+        called = [n for n in names if re.search(rf"\b{re.escape(n)}\s*\(", source)]
+        by_name = [n for n in names if grade_id == f"test_{n}"]
+        if by_name or called:
+            mapping[grade_id] = (by_name or called)[-1]
+    return mapping
+
+
+def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
+    """graded function name -> grade_id of the solution cell that defines it (where
+    formgrader shows a comment box)."""
+    mapping = {}
+    for grade_id, meta, source in _source_cells(root, assignment):
+        if not meta.get("solution"):
+            continue
+        for spec in checks.SPECS.get(assignment, ()):
+            if grade_id == spec.name or (spec.name not in mapping and re.search(
+                    rf"^def {re.escape(spec.name)}\s*\(", source, re.MULTILINE)):
+                mapping[spec.name] = grade_id
     return mapping
 
 
@@ -172,44 +227,6 @@ def _cross_check(grade: grading.SubmissionGrade, nb: dict, cell_map: dict[str, s
             grade.flags.append(f"nbgrader_passed_but_grader_failed:{function}")
 
 
-# --------------------------------------------------------------------------- feedback
-
-
-def _feedback_html(grade: grading.SubmissionGrade) -> str:
-    """Feedback naming failed checks and errors in physical units; no test code or data."""
-    esc = html.escape
-    parts = [f"<html><head><meta charset='utf-8'><title>{esc(grade.assignment)} feedback"
-             "</title></head><body>",
-             f"<h1>{esc(grade.assignment)}: {esc(grade.student_id)}</h1>",
-             f"<p><b>Score: {grade.score:g} / {grade.max_score:g}</b></p>",
-             "<p>Each function was run on fresh problems from the same generator as "
-             "<code>check(...)</code> in your notebook; errors are measured against the "
-             "true answer.</p>"]
-    for f in grade.functions:
-        parts.append(f"<h2>{esc(f.name)}: {f.points:g} / {f.max_points:g}</h2><ul>")
-        for c in f.checks:
-            unit = f" {c.unit}" if c.unit else ""
-            status = "passed" if c.credit >= 1 else ("partly passed" if c.credit > 0 else
-                                                     "FAILED")
-            worst = (f"{c.worst_error:.3g}{unit}" if c.worst_error != float("inf")
-                     else "no usable answer on some problems")
-            parts.append(f"<li>{esc(c.name)}: {status}, {c.n_full}/{c.n_trials} problems within "
-                         f"{c.tolerance:.3g}{esc(unit)}; worst error {esc(worst)}"
-                         + (f" &mdash; {esc(c.describe)}" if c.credit < 1 and c.describe else "")
-                         + "</li>")
-        parts.append("</ul>")
-        if f.errors:
-            parts.append("<p>Problems your code had:</p><ul>"
-                         + "".join(f"<li><code>{esc(e)}</code></li>" for e in f.errors)
-                         + "</ul>")
-    notes = [n for n in grade.notes if "cell error" in n or "unreadable" in n or "no code" in n]
-    if notes:
-        parts.append("<h2>While running your notebook</h2><ul>"
-                     + "".join(f"<li><code>{esc(n.strip())}</code></li>" for n in notes) + "</ul>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
-
-
 # --------------------------------------------------------------------------- grading
 
 
@@ -218,7 +235,8 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                  nbgrader_timeout_s: float = 300,
                  limits: grading.Limits = grading.Limits(),
                  caps: freeze.Caps = freeze.Caps(),
-                 nonce: str | None = None, quiet: bool = False) -> list[dict]:
+                 fresh: bool = False, nonce: str | None = None, quiet: bool = False,
+                 students=None, progress=None) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
     Three stages, so that no submission can damage or fool the grade:
@@ -242,9 +260,17 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         nbgrader_timeout_s: wall clock of one student's nbgrader run.
         limits: the isolated grader's per-submission limits (``deadline_s``: wall clock).
         caps: what one submission may hold (sizes, file and cell counts).
-        nonce: replay a previous run's problems (its nonce is in ``.cobotlab/runs.jsonl``);
-            by default a fresh one, never on disk while student code runs.
+        fresh: draw new hidden problems for this run (a random nonce, written to
+            ``.cobotlab/runs.jsonl`` only after every worker is gone). By default each
+            student gets the course's fixed problems (from the secret, the assignment, the
+            student and the function), so a regrade reproduces every score.
+        nonce: replay a fresh run's problems (its ``nonce`` in ``.cobotlab/runs.jsonl``).
         quiet: do not print the summary.
+        students: grade only these student ids (a shard of the class); default: everyone.
+        progress: called as ``progress(done, total, student_id)`` once with ``done=0``
+            before any student code runs and after each submission is graded (e.g. a tqdm
+            bar; the CLI's). Ctrl-C (KeyboardInterrupt) at any point stops every sandbox
+            (nbgrader, its kernels, the workers) before it propagates.
 
     Returns the gradebook rows (dicts with :data:`GRADE_COLUMNS` keys, ``flags`` a
     ``;``-separated string), also written to ``course_dir/grades.csv``, one per submission
@@ -258,22 +284,30 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
                          f"known assignments: {sorted(checks.SPECS)}")
     secret = grading.load_secret(root)
-    nonce = nonce or secrets.token_hex(16)
+    if fresh and nonce:
+        raise ValueError("fresh=True draws new problems; nonce= replays a fresh run's: pass "
+                         "one of them")
+    if nonce is not None and not re.fullmatch(r"[0-9a-f]{16,64}", nonce):
+        raise ValueError(f"nonce {printable(nonce, 80)!r} is not one `cobotlab grade --fresh` "
+                         "draws (16-64 hex digits): copy it from .cobotlab/runs.jsonl")
+    problems = "fresh" if fresh else ("replay" if nonce else "fixed")
+    nonce = secrets.token_hex(16) if fresh else nonce
     private = _private_dir(root)
     started = time.monotonic()
     run_notes = _begin_run(root, private)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         # 1. freeze
-        frozen = _freeze(root, assignment, Path(store), caps)
+        frozen = _freeze(root, assignment, Path(store), caps, students)
         # 2. execute untrusted code, each submission in its own throwaway world
         nb_runs, grades = _execute(root, assignment, frozen, Path(store), workers, secret,
                                    nonce, limits, run_nbgrader, nbgrader_timeout_s,
-                                   nbgrader_cell_timeout_s, run_notes)
+                                   nbgrader_cell_timeout_s, run_notes, progress)
     # 3. record from the trusted side
     rows = _record(root, assignment, frozen, nb_runs, grades, private, run_notes)
-    _end_run(root, private, assignment, nonce, rows, grades, nb_runs, run_notes)
+    _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs, run_notes)
     if not quiet:
-        _print_summary(grades, assignment, time.monotonic() - started, workers, run_notes)
+        _print_summary(grades, assignment, time.monotonic() - started, workers, run_notes,
+                       nb_runs)
     return rows
 
 
@@ -288,7 +322,8 @@ def _private_dir(root: Path) -> Path:
     return private
 
 
-def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps) -> list[freeze.Frozen]:
+def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
+            students=None) -> list[freeze.Frozen]:
     submitted = root / "submitted"
     expected = {p.name for p in (root / "source" / assignment).glob("*.ipynb")}
     (store / "submissions").mkdir(mode=0o700)
@@ -297,6 +332,13 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps) -> list
     if not frozen:
         raise ValueError(f"no submissions for {assignment!r} in {submitted}; collect them "
                          "first (nbgrader collect / zip_collect) or check the assignment name")
+    if students is not None:
+        wanted = list(dict.fromkeys(students))
+        missing = sorted(set(wanted) - {f.student_id for f in frozen})
+        if missing:
+            raise ValueError(f"no submission of {assignment!r} by {', '.join(missing)} in "
+                             f"{submitted}; check the --students list")
+        frozen = [f for f in frozen if f.student_id in set(wanted)]
     return frozen
 
 
@@ -304,7 +346,8 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps) -> list
 
 
 def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limits,
-             run_nbgrader, nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes):
+             run_nbgrader, nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
+             progress=None):
     """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
     a refused one gets an empty grade here (zero, with its flags)."""
     template = known = None
@@ -337,10 +380,26 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
                                 [f"grader error: {type(exc).__name__}: {printable(exc)}"])
         grade.flags[:0] = sub.flags
         grade.notes[:0] = sub.notes
+        if progress is not None:
+            with lock:
+                finished.append(sub.student_id)
+                progress(len(finished), len(frozen), sub.student_id)
         return sub.student_id, nb, grade
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    lock, finished = threading.Lock(), []
+    if progress is not None:
+        progress(0, len(frozen), "")
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
         done = list(pool.map(one, frozen))
+    except BaseException:
+        # Ctrl-C reaches only this process (each sandbox has a session of its own): end
+        # nbgrader, its kernels and the workers now, not when their runs time out.
+        sandbox.stop_all()
+        pool.shutdown(wait=True, cancel_futures=True)
+        sandbox.allow_starts()
+        raise
+    pool.shutdown()
     return {sid: nb for sid, nb, _ in done if nb is not None}, [g for _, _, g in done]
 
 
@@ -383,7 +442,6 @@ def _record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
 
 
 def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> list[dict]:
-    damaged = None
     for sub in frozen:
         result = nb_runs.get(sub.student_id)
         if result is None:
@@ -392,26 +450,33 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
             _record_nbgrader(root, assignment, sub, result)
         except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
             result.notes.append(f"could not record nbgrader's result: {printable(exc)}")
-    problem = record.gradebook_problem(root / "gradebook.db")
-    backup = private / "gradebook.backup.db"
-    if problem:
-        damaged = f"gradebook.db failed its check after grading ({problem})"
-        if backup.is_file():
-            record.restore_gradebook(root, backup)
-            damaged += "; restored from the copy made before this run"
-        run_notes.append(damaged)
+    damaged = _check_gradebook(root, private, run_notes)
 
-    ids = [g.student_id for g, sub in zip(grades, frozen) if sub.accepted]
-    nb_results = _nbgrader_results(root, assignment, ids) if not problem else {}
+    accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted]
+    ledger = _load_ledger(private)
+    nb_own = {} if damaged else _nbgrader_own(
+        _nbgrader_results(root, assignment, [g.student_id for g, _ in accepted]),
+        ledger.get(assignment, {}), {sub.student_id: sub.timestamp for _, sub in accepted},
+        set(nb_runs))
     cell_map = _cell_to_function(root, assignment)
+    for grade, sub in accepted:
+        if nb_runs.get(grade.student_id) is not None:
+            grade.notes += nb_runs[grade.student_id].notes
+            grade.flags += nb_runs[grade.student_id].flags
+        grade.flags += _timeout_flags(grade)
+        if sub.notebooks:
+            _cross_check(grade, nb_own.get(grade.student_id, {}), cell_map)
+    if not damaged:
+        _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
+                         run_notes)
+        damaged = _check_gradebook(root, private, run_notes)
+    # names, timestamps and late penalties as the gradebook has them now, our scores in it
+    nb_results = {} if damaged else _nbgrader_results(
+        root, assignment, [g.student_id for g, _ in accepted])
+
     rows = []
     for grade, sub in zip(grades, frozen):
         nb = nb_results.get(grade.student_id, {}) if sub.accepted else {}
-        if sub.accepted and nb_runs.get(grade.student_id) is not None:
-            grade.notes += nb_runs[grade.student_id].notes
-            grade.flags += nb_runs[grade.student_id].flags
-        if sub.accepted and sub.notebooks:
-            _cross_check(grade, nb, cell_map)
         if damaged:
             grade.flags.append("gradebook_restored")
         penalty = nb.get("penalty", 0.0)
@@ -428,11 +493,143 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
         if sub.accepted:
             try:
                 record.write_file(root, f"feedback_cobotlab/{grade.student_id}/{assignment}/"
-                                  "feedback.html", _feedback_html(grade).encode("utf-8"))
+                                  "feedback.html", feedback.feedback_html(grade).encode("utf-8"))
             except (OSError, ValueError) as exc:
                 grade.notes.append(f"feedback not written: {printable(exc)}")
-    record.write_csv(root, "grades.csv", GRADE_COLUMNS, rows)
+    # every assignment graded so far, one row per student and assignment (this run's replace)
+    record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     return rows
+
+
+def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | None:
+    """None if gradebook.db passes its check; else restore the copy made before this run and
+    say so (in ``run_notes`` too)."""
+    problem = record.gradebook_problem(root / "gradebook.db")
+    if not problem:
+        return None
+    damaged = f"gradebook.db failed its check after grading ({problem})"
+    backup = private / "gradebook.backup.db"
+    if backup.is_file():
+        record.restore_gradebook(root, backup)
+        damaged += "; restored from the copy made before this run"
+    run_notes.append(damaged)
+    return damaged
+
+
+# What the isolated grader's messages start with when time ran out: a call or closed loop
+# past its CPU limit, the problems skipped after it, the worker's own CPU limit, a notebook
+# that never finished loading, and the submission's wall-clock deadline.
+_TIMEOUT_MESSAGES = ("timed out", "skipped: an earlier problem timed out",
+                     "the worker process stopped (CPU time limit", "the notebook did not load",
+                     "not run: the submission's")
+
+
+def _timeout_flags(grade: grading.SubmissionGrade) -> list[str]:
+    """``timed_out:<function>`` for each function that lost problems to a time limit (a hang
+    would otherwise show only as failed checks)."""
+    flags = []
+    for f in grade.functions:
+        messages = list(f.error_counts) + [e.split(": ", 1)[-1] for e in f.errors]
+        if any(m.startswith(_TIMEOUT_MESSAGES) for m in messages):
+            flags.append(f"timed_out:{f.name}")
+    return flags
+
+
+# ----------------------------------------------------------------- cobotlab's score in nbgrader
+
+GRADES_CSV = "grades.csv"
+# nbgrader's own value of each cell cobotlab overwrote, so the cross-check still has it on
+# the next run: {assignment: {student: {"timestamp", "cells": {grade_id: [ours, nbgrader's]}}}}
+_LEDGER = "nbgrader_cells.json"
+
+
+def _load_ledger(private: Path) -> dict:
+    path = private / _LEDGER
+    try:
+        data = json.loads(path.read_text()) if path.is_file() and not path.is_symlink() else {}
+    except (OSError, ValueError):
+        data = {}
+    return data if isinstance(data, dict) else {}
+
+
+def _nbgrader_own(nb_results: dict, ledger: dict, timestamps: dict, just_run: set) -> dict:
+    """nbgrader's own cell results: the gradebook's, except in cells that still hold the
+    score cobotlab wrote there for the same submission, where it is the value cobotlab
+    replaced (a cell nbgrader never graded is left out)."""
+    for sid, entry in nb_results.items():
+        mine = ledger.get(sid)
+        if sid in just_run or not isinstance(mine, dict) or \
+                mine.get("timestamp") != timestamps.get(sid):
+            continue  # nbgrader's fresh result, or nothing of ours in the gradebook
+        wrote = mine.get("cells") if isinstance(mine.get("cells"), dict) else {}
+        cells = {}
+        for grade_id, (score, max_score) in entry.get("cells", {}).items():
+            ours = wrote.get(grade_id)
+            if isinstance(ours, list) and len(ours) == 2 and isinstance(ours[0], (int, float)) \
+                    and abs(score - ours[0]) < 1e-6:
+                if not isinstance(ours[1], (int, float)):
+                    continue
+                score = float(ours[1])
+            cells[grade_id] = (score, max_score)
+        entry["cells"] = cells
+    return nb_results
+
+
+def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
+                     run_notes) -> None:
+    """Each function's score into its autograder cell(s) of gradebook.db, the findings
+    into the comment of the solution cell that defines it; nbgrader's own values into the
+    ledger for the next run's cross-check."""
+    solution_of = _solution_cells(root, assignment)
+    mapped = set(cell_map.values())
+    unmapped = [s.name for s in checks.SPECS[assignment] if s.name not in mapped]
+    if unmapped:
+        run_notes.append(f"no autograder cell in the source notebook for {unmapped}: their "
+                         "scores are in grades.csv only")
+    mine = ledger.setdefault(assignment, {})
+    for grade, sub in accepted:
+        by_function = {f.name: f for f in grade.functions}
+        fractions = {gid: by_function[name].fraction for gid, name in cell_map.items()
+                     if name in by_function}
+        theirs = nb_own.get(grade.student_id, {}).get("cells", {})
+        comments = {solution_of[f.name]: _comment(grade, f, i == 0, [
+            theirs[g] for g, name in cell_map.items() if name == f.name and g in theirs])
+            for i, f in enumerate(grade.functions) if f.name in solution_of}
+        try:
+            written = record.record_cobotlab(root, assignment, grade.student_id, sub.timestamp,
+                                             fractions, comments)
+        except Exception as exc:  # noqa: BLE001 - grades.csv still gets the score
+            note = f"cobotlab's scores not written to gradebook.db: {printable(exc, 200)}"
+            if note not in run_notes:
+                run_notes.append(note)
+            continue
+        mine[grade.student_id] = {"timestamp": sub.timestamp, "cells": {
+            gid: [score, theirs[gid][0] if gid in theirs else None]
+            for gid, (_, score) in written.items()}}
+    record.write_file(private, _LEDGER, json.dumps(ledger).encode("utf-8"))
+
+
+def _comment(grade: grading.SubmissionGrade, f: checks.FunctionResult, first: bool,
+             nbgrader_cells: list[tuple[float, float]]) -> str:
+    """The auto comment formgrader shows under the function's solution cell (nbgrader's
+    feedback shows it to the student: no test code or data in it)."""
+    lines = [f"cobotlab: {f.points:g} / {f.max_points:g} points on {f.n_problems} hidden "
+             "problems" + (f", {f.n_failed} not fully right" if f.n_failed else "") + "."]
+    if f.failed_checks:
+        lines.append("Failed checks: " + ", ".join(f.failed_checks) + ".")
+    if nbgrader_cells:
+        lines.append("nbgrader's own hidden-test cell: " + ", ".join(
+            f"{s:g} / {m:g}" for s, m in nbgrader_cells) + " (cross-check; the score above "
+            "is the grade).")
+    names = {g.name for g in grade.functions}
+    own = [x for x in grade.flags if x.rsplit(":", 1)[-1] == f.name]
+    whole = [x for x in grade.flags if x.rsplit(":", 1)[-1] not in names]
+    if own:
+        lines.append("Flags: " + "; ".join(printable(x, 120) for x in own) + ".")
+    if first and whole:
+        lines.append("Flags on the whole submission: "
+                     + "; ".join(printable(x, 120) for x in whole) + ".")
+    return "\n".join(lines)
 
 
 def _begin_run(root: Path, private: Path) -> list[str]:
@@ -469,11 +666,12 @@ def _begin_run(root: Path, private: Path) -> list[str]:
     return notes
 
 
-def _end_run(root, private, assignment, nonce, rows, grades, nb_runs, run_notes) -> None:
-    # The nonce reaches the disk only now that every worker is gone (replays use it).
+def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
+             run_notes) -> None:
+    # A fresh run's nonce reaches the disk only now that every worker is gone (replays use it).
     runs = private / "runs.jsonl"
     previous = runs.read_bytes() if runs.is_file() and not runs.is_symlink() else b""
-    entry = {"assignment": assignment, "nonce": nonce, "when":
+    entry = {"assignment": assignment, "problems": problems, "nonce": nonce, "when":
              datetime.now(timezone.utc).isoformat(), "students": len(rows),
              "sandbox": sandbox.mode(), "notes": run_notes}
     record.write_file(private, "runs.jsonl", previous + (json.dumps(entry) + "\n").encode())
@@ -487,12 +685,18 @@ def _end_run(root, private, assignment, nonce, rows, grades, nb_runs, run_notes)
     (private / record.RUN_MARKER).unlink(missing_ok=True)
 
 
-def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes) -> None:
+def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes,
+                   nb_runs=None) -> None:
     mode = sandbox.mode()
     warn = "   WARNING: no sandbox, student code ran with rlimits only" \
         if mode == "rlimits only" else ""
-    print(f"{assignment}: graded {len(grades)} submissions in {elapsed:.1f} s with {workers} "
-          f"worker(s); sandbox: {mode}{warn}")
+    # elapsed is the whole run (freeze, nbgrader's template and autograde, the grader,
+    # recording); the shares are summed over submissions, so with workers they overlap.
+    nb_s = sum(r.seconds for r in (nb_runs or {}).values())
+    ours = sum(getattr(g, "seconds", 0.0) for g in grades)
+    print(f"{assignment}: graded {len(grades)} submissions in {elapsed:.1f} s wall clock with "
+          f"{workers} worker(s) (nbgrader's autograde {nb_s:.1f} s + isolated grader "
+          f"{ours:.1f} s, summed over submissions); sandbox: {mode}{warn}")
     for note in run_notes:
         print(f"  note: {printable(note)}")
     names = [printable(g.student_id, 60) for g in grades]

@@ -16,10 +16,12 @@ process:
    grade does not depend on how busy the grading machine is; a wall clock several times
    longer backs each of them up with a hard kill. Where bubblewrap cannot run,
    rlimits alone remain and every row says so (``sandbox:rlimits_only``).
-3. Problems are drawn from the secret seed, a per-run nonce that never reaches the disk
-   before the workers are gone, the assignment, the student id and the function name. Only
-   the inputs go to the worker; its replies are decoded defensively (no pickle) and scored
-   here, against truth that stays here.
+3. Problems are drawn from the secret seed, the assignment, the student id and the function
+   name only, so a regrade gives the same submission the same problems and the same score.
+   A run that asks for fresh problems mixes in a random nonce, which reaches the disk (the
+   run log, for replays) only after the workers are gone. Only the inputs go to the worker;
+   its replies are decoded defensively (no pickle) and scored here, against truth that
+   stays here.
 
 A crash, hang, NaN or exception costs the student the problems it touched, nothing else; a
 worker that dies is restarted for the next function. A function whose code reaches one of
@@ -54,6 +56,7 @@ __all__ = [
     "PRIVATE_DIR",
     "Limits",
     "SubmissionGrade",
+    "CellOrigin",
     "load_secret",
     "create_secret",
     "problem_rng",
@@ -111,6 +114,9 @@ class SubmissionGrade:
     flags: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    # Where each code cell the worker ran ("cell N" in errors: its index here) sits in the
+    # notebook, so feedback can number cells as the student sees them.
+    cell_origins: list[CellOrigin] = field(default_factory=list)
 
     @property
     def score(self) -> float:
@@ -152,15 +158,16 @@ def load_secret(course_dir=None) -> str:
     return value
 
 
-def problem_rng(secret: str, nonce: str, assignment: str, student_id: str,
+def problem_rng(secret: str, nonce: str | None, assignment: str, student_id: str,
                 function: str) -> np.random.Generator:
     """The generator for one student's hidden problems of one function.
 
-    HMAC-SHA256 keyed by the secret over the run nonce and the names, so students get
-    different problems, a student cannot predict theirs, and a replay with the same nonce
-    reproduces them.
+    HMAC-SHA256 keyed by the secret over the names, so students get different problems and
+    a student cannot predict theirs. ``nonce`` None (or empty): the course's fixed problems,
+    the same on every regrade; a nonce (fresh problems, on request) gives other problems,
+    the same again whenever that nonce is replayed.
     """
-    message = "\x1f".join([nonce, assignment, student_id, function]).encode()
+    message = "\x1f".join([nonce or "", assignment, student_id, function]).encode()
     digest = hmac.new(secret.encode(), message, hashlib.sha256).digest()
     return np.random.default_rng(int.from_bytes(digest, "big"))
 
@@ -183,15 +190,27 @@ def _strip_magics(source: str) -> str | None:
                      for line in source.splitlines())
 
 
-def extract_code(notebook_paths) -> tuple[list[str], list[str]]:
-    """(code cells in order, notes) from one or more notebooks, hidden-test cells left out.
+@dataclass(frozen=True)
+class CellOrigin:
+    """Where an extracted code cell sits in the student's notebook: ``position`` counts every
+    cell from 1 (markdown too); ``prompt`` is its ``In [n]`` after Restart and Run All (code
+    cells with code in them, counted from 1; an empty cell does not advance the counter)."""
+
+    notebook: str
+    position: int
+    prompt: int
+
+
+def extract_code(notebook_paths, with_origins: bool = False):
+    """(code cells in order, notes) from one or more notebooks, hidden-test cells left out;
+    with ``with_origins``, (cells, origins, notes), a :class:`CellOrigin` per kept cell.
 
     Reads raw JSON and tolerates missing metadata, deleted, duplicated or reordered cells:
     graded functions are found later by name, not by cell id.
     """
     if isinstance(notebook_paths, (str, Path)):
         notebook_paths = [notebook_paths]
-    cells, notes = [], []
+    cells, origins, notes = [], [], []
     for path in notebook_paths:
         try:
             nb = json.loads(Path(path).read_text(encoding="utf-8", errors="replace"))
@@ -199,16 +218,19 @@ def extract_code(notebook_paths) -> tuple[list[str], list[str]]:
         except (OSError, ValueError) as exc:
             notes.append(f"{Path(path).name}: unreadable notebook ({type(exc).__name__})")
             continue
-        for cell in raw_cells if isinstance(raw_cells, list) else []:
+        prompt = 0
+        for position, cell in enumerate(raw_cells if isinstance(raw_cells, list) else [], 1):
             if not isinstance(cell, dict) or cell.get("cell_type") != "code":
                 continue
             source = _cell_source(cell)
+            prompt += bool(source.strip())
             if HIDDEN_MARK in source:
                 continue
             source = _strip_magics(source)
             if source and source.strip():
                 cells.append(source)
-    return cells, notes
+                origins.append(CellOrigin(Path(path).name, position, prompt))
+    return (cells, origins, notes) if with_origins else (cells, notes)
 
 
 # Patterns that have no business in a lab answer; a match is flagged for the instructor
@@ -445,8 +467,8 @@ class Worker:
 # --------------------------------------------------------------------------- one submission
 
 
-def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str, nonce: str,
-                   limits: Limits = Limits()) -> SubmissionGrade:
+def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str,
+                   nonce: str | None, limits: Limits = Limits()) -> SubmissionGrade:
     """Grade one submission (its frozen notebook file or files) on its own hidden problems.
 
     The code runs in the sandboxed worker, all of its processes in one cgroup when the
@@ -461,7 +483,7 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
                          f"known assignments: {sorted(checks.SPECS)}")
     grade = SubmissionGrade(student_id=student_id, assignment=assignment)
-    cells, grade.notes = extract_code(notebook_paths)
+    cells, grade.cell_origins, grade.notes = extract_code(notebook_paths, with_origins=True)
     grade.flags += scan_for_tampering(cells)
     if not cells:
         grade.notes.append("no code cells found")
@@ -511,8 +533,10 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     if outcome.error and outcome.error.startswith("timed out"):
                         failure = f"skipped: an earlier problem timed out after {timeout:g} s"
                 except WorkerFailure as exc:
-                    failure = str(exc)
-                    outcomes.append(checks.TrialOutcome(error=failure))
+                    # The problem that stopped the worker says why; the rest say they were
+                    # not run (so feedback counts one time-out, not one per problem).
+                    outcomes.append(checks.TrialOutcome(error=str(exc)))
+                    failure = f"skipped: an earlier problem stopped the worker ({exc})"
                     if worker is not None:
                         worker.close()
                     worker = None

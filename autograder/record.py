@@ -6,8 +6,12 @@
   next run sees and acts on.
 * :func:`record_nbgrader` puts validated cell scores into the real gradebook through
   nbgrader's API; the penalty is computed here, from the course's own late-submission rule.
+* :func:`record_cobotlab` puts cobotlab's per-function scores in the same cells (scaled to
+  each cell's points), and its findings in the auto comments formgrader shows; an
+  instructor's manual score or comment is never touched, so it wins on every regrade.
 * :func:`write_file` writes atomically (temp file + rename in the same folder) and never
-  follows a symlink on the way; :func:`write_csv` escapes cells a spreadsheet would run.
+  follows a symlink on the way; :func:`write_csv` escapes cells a spreadsheet would run,
+  :func:`update_csv` replaces only the rows of this run and keeps the others.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from pathlib import Path
 from autograder.freeze import printable
 
 __all__ = ["backup_gradebook", "gradebook_problem", "restore_gradebook", "record_nbgrader",
-           "write_file", "write_csv", "csv_cell", "RUN_MARKER"]
+           "record_cobotlab", "write_file", "write_csv", "update_csv", "csv_cell", "RUN_MARKER"]
 
 RUN_MARKER = "grading-in-progress"
 
@@ -96,12 +100,48 @@ def csv_cell(value):
 
 
 def write_csv(root: Path, relative: str, columns: list[str], rows: list[dict]) -> Path:
+    """Write ``rows`` (dicts; missing keys empty) as ``root/relative``, atomically, every cell
+    through :func:`csv_cell`."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: csv_cell(row.get(k, "")) for k in columns})
     return write_file(root, relative, buffer.getvalue().encode("utf-8"))
+
+
+def update_csv(root: Path, relative: str, columns: list[str], rows: list[dict],
+               key: tuple[str, ...]) -> list[dict]:
+    """Merge ``rows`` into the CSV at ``root/relative`` and write it back atomically.
+
+    A row already there with the same ``key`` columns is replaced; every other row is kept
+    as it was (columns it lacks stay empty, columns not in ``columns`` are dropped). Rows are
+    sorted by ``key``. Anything but a regular file there (a symlink, say) is not read, and
+    replaced as :func:`write_file` does; a regular file that is not readable CSV is moved
+    aside to ``<name>.unreadable-<time>`` rather than lost. Returns every row written.
+    """
+    path = Path(root) / relative
+
+    def ident(row: dict) -> tuple:  # compared as written: old rows were escaped already
+        return tuple(str(csv_cell(row.get(k, ""))) for k in key)
+
+    kept: dict[tuple, dict] = {}
+    if os.path.lexists(path) and stat.S_ISREG(os.lstat(path).st_mode):
+        try:
+            with open(path, newline="", encoding="utf-8") as f:
+                reader = csv.DictReader(f)
+                if reader.fieldnames is not None and not set(key) <= set(reader.fieldnames):
+                    raise ValueError(f"no {'/'.join(key)} columns")  # None: an empty file
+                for row in reader:
+                    kept[ident(row)] = {k: row.get(k) or "" for k in columns}
+        except (OSError, ValueError, UnicodeDecodeError, csv.Error):
+            os.rename(path, f"{path}.unreadable-{int(time.time())}")
+            kept = {}
+    for row in rows:
+        kept[ident(row)] = row
+    merged = [kept[k] for k in sorted(kept)]
+    write_csv(root, relative, columns, merged)
+    return merged
 
 
 # --------------------------------------------------------------------------- the gradebook
@@ -168,6 +208,25 @@ def _late_penalty(root: Path, student: str, score: float, seconds_late: float) -
     return max(0.0, min(float(penalty or 0.0), score))
 
 
+def _submission(gb, assignment: str, student: str, timestamp: str):
+    """The gradebook's submission of ``student`` (made, with the student, if missing)."""
+    from nbgrader.utils import parse_utc
+
+    gb.update_or_create_student(student)
+    try:
+        stamp = parse_utc(timestamp) if timestamp else None
+    except (ValueError, OverflowError, TypeError):
+        stamp = None
+    return (gb.update_or_create_submission(assignment, student, timestamp=stamp)
+            if stamp is not None else gb.update_or_create_submission(assignment, student))
+
+
+def _open_gradebook(root: Path):
+    from nbgrader.api import Gradebook
+
+    return Gradebook(f"sqlite:///{root / 'gradebook.db'}", "cobotlab")
+
+
 def record_nbgrader(root: Path, assignment: str, student: str, timestamp: str,
                     cells, notebooks_present: set[str]) -> None:
     """Put one student's validated cell scores (``scratch.CellScore``) in the real gradebook.
@@ -175,23 +234,13 @@ def record_nbgrader(root: Path, assignment: str, student: str, timestamp: str,
     Only numbers are imported: the student id is the validated folder name, no name or
     email comes from the run, and the late penalty is computed here.
     """
-    from nbgrader.api import Gradebook
-    from nbgrader.utils import parse_utc
     from sqlalchemy.exc import SAWarning
 
     by_key = {(c.notebook, c.cell): c for c in cells}
-    with warnings.catch_warnings(), \
-            Gradebook(f"sqlite:///{root / 'gradebook.db'}", "cobotlab") as gb:
+    with warnings.catch_warnings(), _open_gradebook(root) as gb:
         # nbgrader's own autograde raises the same SQLAlchemy autoflush warnings: noise here
         warnings.simplefilter("ignore", SAWarning)
-        gb.update_or_create_student(student)
-        try:
-            stamp = parse_utc(timestamp) if timestamp else None
-        except (ValueError, OverflowError, TypeError):
-            stamp = None
-        submission = (gb.update_or_create_submission(assignment, student, timestamp=stamp)
-                      if stamp is not None else
-                      gb.update_or_create_submission(assignment, student))
+        submission = _submission(gb, assignment, student, timestamp)
         for notebook in submission.notebooks:
             total = 0.0
             for grade in notebook.grades:
@@ -204,3 +253,55 @@ def record_nbgrader(root: Path, assignment: str, student: str, timestamp: str,
             notebook.late_submission_penalty = _late_penalty(
                 root, student, total, float(submission.total_seconds_late or 0.0)) or None
         gb.db.commit()
+
+
+def record_cobotlab(root: Path, assignment: str, student: str, timestamp: str,
+                    fractions: dict[str, float],
+                    comments: dict[str, str]) -> dict[str, tuple[float | None, float]]:
+    """Put cobotlab's scores of one student in the gradebook, where formgrader and
+    ``nbgrader export`` read them.
+
+    ``fractions`` maps the grade id of an autograder cell to the fraction (0..1) of its
+    function's points the isolated grader gave; the cell's ``auto_score`` becomes that
+    fraction of the cell's own points. ``comments`` maps the grade id of a solution cell to
+    the text of its ``auto_comment``. ``manual_score`` and ``manual_comment`` are left alone
+    (nbgrader shows them instead, so an instructor's override survives every regrade); a
+    cell with a manual score is marked for review when its automatic score changes. The
+    late penalty is computed again from the course's rule. Returns ``(previous, written)``
+    ``auto_score`` of each written cell (previous: the gradebook's, e.g. nbgrader's own, or
+    None). Raises ValueError on a
+    fraction outside [0, 1] (nothing is written then) and nbgrader's MissingEntry when the
+    assignment is not in the gradebook (``nbgrader generate_assignment`` makes it).
+    """
+    from sqlalchemy.exc import SAWarning
+
+    for grade_id, fraction in fractions.items():
+        if not isinstance(fraction, (int, float)) or not 0.0 <= fraction <= 1.0:
+            raise ValueError(f"refusing to record {fraction!r} as the score fraction of cell "
+                             f"{printable(grade_id)!r}: it must be a number in [0, 1]")
+    written: dict[str, tuple[float | None, float]] = {}
+    with warnings.catch_warnings(), _open_gradebook(root) as gb:
+        warnings.simplefilter("ignore", SAWarning)
+        gb.find_assignment(assignment)  # MissingEntry before a student or submission is made
+        submission = _submission(gb, assignment, student, timestamp)
+        for notebook in submission.notebooks:
+            total = 0.0
+            for grade in notebook.grades:
+                if grade.name in fractions:
+                    points = float(grade.max_score or 0.0)
+                    score = min(max(round(fractions[grade.name] * points, 4), 0.0), points)
+                    before = None if grade.auto_score is None else float(grade.auto_score)
+                    written[grade.name] = (before, score)
+                    changed = before is None or abs(before - score) > 1e-9
+                    grade.auto_score = score
+                    grade.needs_manual_grade = (grade.manual_score is not None
+                                                and (changed or bool(grade.needs_manual_grade)))
+                value = grade.manual_score if grade.manual_score is not None else grade.auto_score
+                total += float(value or 0.0)
+            for comment in notebook.comments:
+                if comment.name in comments:
+                    comment.auto_comment = comments[comment.name]
+            notebook.late_submission_penalty = _late_penalty(
+                root, student, total, float(submission.total_seconds_late or 0.0)) or None
+        gb.db.commit()
+    return written

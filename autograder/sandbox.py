@@ -28,6 +28,7 @@ import signal
 import subprocess
 import sys
 import sysconfig
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -35,7 +36,8 @@ from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
-           "SANDBOX_UID", "python_paths", "remove_stale_scratch"]
+           "SANDBOX_UID", "python_paths", "remove_stale_scratch", "Interrupted", "stop_all",
+           "stopping", "allow_starts"]
 
 # The unprivileged user student code runs as when the grader itself is root.
 SANDBOX_UID = 65534
@@ -117,6 +119,8 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     ``argv`` and the paths are those inside the sandbox; the environment is ``jail.env``
     and nothing else. Requires :func:`capabilities` ``.bwrap``.
     """
+    if _STOPPING.is_set():
+        raise Interrupted("grading was interrupted: no new sandbox is started")
     caps = caps or capabilities()
     inside = [p for p in jail.ro] + [dst for _, dst in jail.ro_at + jail.rw_at]
     args = ["bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
@@ -191,6 +195,8 @@ class Cgroup:
             _write(mem / "memory.memsw.limit_in_bytes", str(memory_mb * 1024 * 1024),
                    missing_ok=True)
             _write(pids / "pids.max", str(max_processes))
+        with _LIVE_LOCK:
+            _LIVE_CGROUPS.add(self)
 
     @property
     def procs_files(self) -> list[Path]:
@@ -240,6 +246,8 @@ class Cgroup:
         return killed
 
     def remove(self) -> None:
+        with _LIVE_LOCK:
+            _LIVE_CGROUPS.discard(self)
         self.kill_all()
         for d in self.dirs:
             for _ in range(50):
@@ -256,6 +264,71 @@ class Cgroup:
 
     def __exit__(self, *exc):
         self.remove()
+
+
+# --------------------------------------------------------------------------- interrupting
+
+# Ctrl-C reaches only the grader: every sandbox runs in a session of its own, so the
+# terminal's SIGINT never gets to nbgrader, its kernel or a worker. stop_all() ends them.
+_STOPPING = threading.Event()
+_LIVE_LOCK = threading.Lock()
+_LIVE_CGROUPS: set[Cgroup] = set()
+
+
+class Interrupted(KeyboardInterrupt):
+    """Raised by :func:`command` after :func:`stop_all`: grading is being interrupted."""
+
+
+def _children(pid: int) -> list[int]:
+    """The direct children of ``pid`` (from /proc; empty where there is none)."""
+    found = []
+    for entry in os.listdir("/proc") if os.path.isdir("/proc") else ():
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if len(fields) > 1 and int(fields[1]) == pid:
+            found.append(int(entry))
+    return found
+
+
+def stop_all() -> int:
+    """Refuse new sandboxes, then SIGKILL every process this grader started in one.
+
+    Kills every live :class:`Cgroup` (nbgrader, its kernels, workers and their children)
+    and the process group of each direct child (bubblewrap: its PID namespace dies with
+    it). Call :func:`allow_starts` once the interrupted work has unwound. Returns how many
+    processes were signalled.
+    """
+    _STOPPING.set()
+    killed = 0
+    for pid in _children(os.getpid()):
+        try:
+            os.killpg(pid, signal.SIGKILL)   # each sandbox leads a session of its own
+        except (ProcessLookupError, PermissionError):
+            try:   # not a group leader: a plain subprocess (nbgrader making the template)
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                continue
+        killed += 1
+    with _LIVE_LOCK:
+        live = list(_LIVE_CGROUPS)
+    for group in live:
+        killed += group.kill_all(timeout_s=2.0)
+    return killed
+
+
+def stopping() -> bool:
+    """True between :func:`stop_all` and :func:`allow_starts`."""
+    return _STOPPING.is_set()
+
+
+def allow_starts() -> None:
+    """Undo :func:`stop_all`'s refusal (the next grading run in this process may start)."""
+    _STOPPING.clear()
 
 
 def _write(path: Path, value: str, missing_ok: bool = False) -> None:

@@ -24,7 +24,8 @@ from pathlib import Path
 from autograder import sandbox
 from autograder.freeze import Frozen, printable
 
-__all__ = ["CellScore", "ScratchResult", "make_template", "autograde_one"]
+__all__ = ["CellScore", "ScratchResult", "make_template", "autograde_one",
+           "put_interpreter_on_path"]
 
 _PKG = Path(__file__).resolve().parent
 _ROOT = _PKG.parent
@@ -51,6 +52,20 @@ class ScratchResult:
     notes: list[str] = field(default_factory=list)
     flags: list[str] = field(default_factory=list)
     log: str = ""
+    seconds: float = 0.0   # wall clock of the nbgrader run itself
+
+
+def put_interpreter_on_path() -> None:
+    """Put this interpreter's ``bin`` folder first on ``$PATH`` (once).
+
+    nbgrader runs ``alembic`` from ``$PATH`` whenever it creates a gradebook, so
+    ``.venv/bin/cobotlab`` or ``.venv/bin/nbgrader`` without an activated virtual
+    environment would fail with ``FileNotFoundError: 'alembic'``.
+    """
+    bin_dir = os.path.dirname(sys.executable)
+    path = os.environ.get("PATH", "")
+    if bin_dir not in path.split(os.pathsep):
+        os.environ["PATH"] = bin_dir + (os.pathsep + path if path else "")
 
 
 def _env(home: str) -> dict[str, str]:
@@ -66,6 +81,8 @@ def make_template(root: Path, assignment: str, work: Path, duedate=None) -> Path
     Runs ``nbgrader generate_assignment`` on a copy of the source in ``work`` (instructor
     material only: no student code runs here). Returns the gradebook's path.
     """
+    if sandbox.stopping():
+        raise sandbox.Interrupted("grading was interrupted")
     course = work / "template"
     (course / "source").mkdir(parents=True)
     shutil.copytree(root / "source" / assignment, course / "source" / assignment, symlinks=False,
@@ -152,6 +169,8 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
     the run (cgroup, PID namespace); whatever it did, the result holds validated cell scores
     only (missing ones are 0) and the autograded notebooks if they are well-formed JSON.
     """
+    if sandbox.stopping():
+        raise sandbox.Interrupted("grading was interrupted")
     result = ScratchResult()
     caps = sandbox.capabilities()
     with sandbox.ScratchDir(scratch_mb) as scratch:
@@ -217,7 +236,10 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
                     result.notes.append("nbgrader's run hit its memory limit "
                                         f"({memory_mb} MB for all its processes)")
                 cgroup.remove()
-        result.notes.append(f"nbgrader autograde: {time.monotonic() - started:.1f} s")
+        result.seconds = time.monotonic() - started
+        result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s")
+        if sandbox.stopping():   # killed by stop_all(): what it left is not a result
+            raise sandbox.Interrupted("grading was interrupted")
         db = course / "gradebook.db"
         info = os.lstat(db) if os.path.lexists(db) else None
         if info is None or not os.path.isfile(db) or os.path.islink(db):

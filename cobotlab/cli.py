@@ -139,6 +139,9 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     init.add_argument("dir", metavar="DIR", help="course directory (created if needed)")
+    init.add_argument("--exchange", default=None, metavar="PATH",
+                      help="nbgrader's exchange folder (default DIR/exchange; created). On a "
+                           "JupyterHub, a folder every student's server mounts at this path")
 
     grade = sub.add_parser(
         "grade",
@@ -147,7 +150,8 @@ def _build_parser() -> argparse.ArgumentParser:
             "Grade every submission in COURSE/submitted/*/ASSIGNMENT in three stages: freeze "
             "the submissions (regular files only, copied before any student code runs); run "
             "each student's nbgrader autograde in a throwaway sandboxed course and the "
-            "isolated grader on fresh hidden problems from the course secret (bubblewrap, "
+            "isolated grader on hidden problems drawn from the course secret, the assignment, "
+            "the student and the function, the same on every regrade (bubblewrap, "
             "one cgroup per submission, no network, the course and the answer key out of "
             "sight); record validated numbers into gradebook.db (backed up and checked). "
             "Writes COURSE/grades.csv (nbgrader's export columns plus flags) and per-student "
@@ -161,6 +165,17 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="skip nbgrader's autograde; use the results gradebook.db already has")
     grade.add_argument("--nbgrader-timeout", type=float, default=300, metavar="S",
                        help="wall clock of one student's nbgrader run (default 300 s)")
+    grade.add_argument("--students", default=None, metavar="IDS",
+                       help="grade only these students: a,b,c or @FILE (one id a line); a "
+                            "shard of the class, e.g. one job of many")
+    grade.add_argument("--no-progress", action="store_true",
+                       help="no progress bar on stderr")
+    redraw = grade.add_mutually_exclusive_group()
+    redraw.add_argument("--fresh", action="store_true",
+                        help="draw new hidden problems for this run (its nonce goes to "
+                             "COURSE/.cobotlab/runs.jsonl); default: the course's fixed ones")
+    redraw.add_argument("--replay", default=None, metavar="NONCE",
+                        help="the problems of an earlier --fresh run (its nonce in runs.jsonl)")
 
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
@@ -526,6 +541,55 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _student_ids(spec: str | None) -> list[str] | None:
+    """``a,b,c`` or ``@FILE`` (one id a line, ``#`` comments) -> ids; None: everyone."""
+    if spec is None:
+        return None
+    if spec.startswith("@"):
+        from pathlib import Path
+
+        lines = Path(spec[1:]).expanduser().read_text().splitlines()
+        ids = [line.split("#", 1)[0].strip() for line in lines]
+    else:
+        ids = [part.strip() for part in spec.split(",")]
+    ids = [i for i in ids if i]
+    if not ids:
+        raise ValueError(f"--students {spec!r} names no student")
+    return ids
+
+
+def _grade(args) -> None:
+    from autograder.course import grade_course
+    from autograder.scratch import put_interpreter_on_path
+
+    put_interpreter_on_path()   # nbgrader finds `alembic` without an activated venv
+    bar = None
+
+    def progress(done: int, total: int, student: str) -> None:
+        nonlocal bar
+        if bar is None:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, unit="submission", desc=f"grading {args.assignment}",
+                       file=sys.stderr, dynamic_ncols=True)
+        if done:
+            bar.set_postfix_str(student[:40], refresh=False)
+            bar.update(done - bar.n)
+        if done == total:   # before the summary is printed below it
+            bar.close()
+
+    try:
+        grade_course(args.course_dir, args.assignment, workers=args.workers,
+                     run_nbgrader=not args.no_nbgrader,
+                     nbgrader_timeout_s=args.nbgrader_timeout,
+                     students=_student_ids(args.students),
+                     progress=None if args.no_progress else progress,
+                     fresh=args.fresh, nonce=args.replay)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -551,13 +615,9 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "course" and args.course_command == "init":
             from autograder.course import init_course
 
-            print(f"course laid out in {init_course(args.dir)}")
+            print(f"course laid out in {init_course(args.dir, exchange=args.exchange)}")
         elif args.command == "grade":
-            from autograder.course import grade_course
-
-            grade_course(args.course_dir, args.assignment, workers=args.workers,
-                         run_nbgrader=not args.no_nbgrader,
-                         nbgrader_timeout_s=args.nbgrader_timeout)
+            _grade(args)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:

@@ -1,0 +1,318 @@
+"""The student's feedback page for one graded submission (``feedback_cobotlab/.../feedback.html``).
+
+Written from the trusted side after grading (:func:`autograder.course.grade_course`), from the
+numbers in a :class:`~autograder.grading.SubmissionGrade` only: per function its points and
+a coloured verdict, per check how many problems were within tolerance and the worst error
+against that tolerance in its unit, and each distinct error once with the number of problems
+it happened on. Cells are numbered as the student sees them (``In [n]`` after Restart and
+Run All), not as the grader counted them.
+
+What the page never holds: the secret, hidden-test code, problem inputs or true answers
+(only error magnitudes), or anything from the submission that is not escaped and capped:
+error messages and notes come from student code and are treated as hostile text.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import re
+from collections import Counter
+
+from autograder.checks import CheckResult, FunctionResult
+from autograder.freeze import printable
+from autograder.grading import CellOrigin, SubmissionGrade
+
+__all__ = ["feedback_html", "function_verdict", "error_lines"]
+
+MAX_TEXT = 300            # characters of one error or note shown
+MAX_LINES = 8             # distinct errors shown per function, and notes per page
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; max-width: 62em; margin: 2em auto; color: #222; }
+h1 { margin-bottom: 0.2em; }
+.score { font-size: 1.3em; font-weight: bold; }
+table { border-collapse: collapse; margin: 0.6em 0; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: left; vertical-align: top; }
+th { background: #f3f3f3; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.badge { display: inline-block; padding: 0.05em 0.5em; border-radius: 0.6em; color: #fff;
+         font-weight: bold; font-size: 0.9em; }
+.passed { background: #2e7d32; } .partial { background: #e08a00; }
+.failed { background: #c62828; } .missing { background: #6d6d6d; }
+.forbidden { background: #6a1b9a; } .timed-out { background: #ad1457; }
+tr.row-passed td:first-child { border-left: 6px solid #2e7d32; }
+tr.row-partial td:first-child { border-left: 6px solid #e08a00; }
+tr.row-failed td:first-child { border-left: 6px solid #c62828; }
+section.function { border-top: 2px solid #ddd; margin-top: 1.5em; }
+code { background: #f6f6f6; padding: 0 0.2em; word-break: break-word; }
+"""
+
+# verdict -> (css class, label)
+_VERDICTS = {
+    "passed": ("passed", "passed"),
+    "partial": ("partial", "partly passed"),
+    "failed": ("failed", "failed"),
+    "not_implemented": ("missing", "not implemented"),
+    "not_found": ("missing", "not found"),
+    "forbidden": ("forbidden", "forbidden routine"),
+    "timed_out": ("timed-out", "timed out"),
+    "not_graded": ("missing", "not graded"),
+}
+
+_NOT_FOUND = re.compile(r"^no function named \S+ is defined")
+_TIMEOUT = re.compile(r"^(timed out|skipped: an earlier problem timed out)")
+_CPU_LIMIT = re.compile(r"(?:earlier problem timed out after|closed loop took over) "
+                        r"([0-9.]+(?:e[+-]?\d+)?) s")
+_WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
+_HUNG_CELL = re.compile(r"^cell (\d+): ")
+
+
+def _esc(text, limit: int = MAX_TEXT) -> str:
+    return html.escape(printable(text, limit))
+
+
+def _cell_name(index: int, origins: list[CellOrigin]) -> str:
+    """The grader's cell index as the student's ``In [n]`` (plus the notebook when several)."""
+    if not 0 <= index < len(origins):
+        return f"cell {index}"
+    origin = origins[index]
+    several = len({o.notebook for o in origins}) > 1
+    return (f"{origin.notebook} " if several else "") + f"cell In [{origin.prompt}]"
+
+
+def student_location(text: str, origins: list[CellOrigin]) -> str:
+    """``text`` with the grader's "cell N" references renumbered as the student's cells."""
+    text = _WHERE.sub(lambda m: f"({_cell_name(int(m[1]), origins)}, line {m[2]})", text)
+    return _HUNG_CELL.sub(lambda m: f"{_cell_name(int(m[1]), origins)}: ", text)
+
+
+def _problem_label(error: str, message: str) -> str:
+    """The problem kind (the spec's label, e.g. "zero rotation") of ``error``, an entry of
+    :attr:`FunctionResult.errors`, when it reports ``message``; else ""."""
+    for article in ("a", "an"):
+        head = f"on {article} "
+        tail = f" problem: {message}"
+        if error.startswith(head) and error.endswith(tail):
+            return error[len(head):len(error) - len(tail)]
+    return ""
+
+
+def _is_not_implemented(message: str) -> bool:
+    return message.startswith("NotImplementedError")
+
+
+def _problem_counts(f: FunctionResult) -> Counter:
+    """{error message: problems it happened on}; from ``errors`` (uncounted, label prefix
+    dropped) when the result carries no counts."""
+    if f.error_counts:
+        return Counter(f.error_counts)
+    return Counter({re.sub(r"^on an? .*? problem: ", "", e): 0 for e in f.errors})
+
+
+def function_verdict(f: FunctionResult) -> str:
+    """One word for a function's result: a key of the verdict table (passed, partial, failed,
+    not_implemented, not_found, forbidden, timed_out, not_graded)."""
+    if f.forbidden:
+        return "forbidden"
+    counts = _problem_counts(f)
+    if f.n_problems and counts:
+        if sum(n for m, n in counts.items() if _is_not_implemented(m)) >= f.n_problems:
+            return "not_implemented"
+        if sum(n for m, n in counts.items() if _NOT_FOUND.match(m)) >= f.n_problems:
+            return "not_found"
+    if f.max_points and f.points >= f.max_points:
+        return "passed"
+    if any(_TIMEOUT.match(m) for m in counts):
+        return "timed_out"
+    if not f.n_problems and not any(c.n_trials for c in f.checks):
+        return "not_graded"
+    return "partial" if f.points > 0 else "failed"
+
+
+def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
+    """Plain-text lines, one per distinct error of ``f`` with the number of problems it
+    happened on; a time-out is said in words (what stopped, and what was therefore not run).
+    Text from student code is capped but not yet HTML-escaped."""
+    counts = _problem_counts(f)
+    of = f" of {f.n_problems}" if f.n_problems else ""
+    lines = []
+    timed = sum(n for m, n in counts.items() if m.startswith("timed out"))
+    skipped = sum(n for m, n in counts.items() if m.startswith("skipped: an earlier problem"))
+    if timed or skipped:
+        limits = {m2[1] for m in counts if (m2 := _CPU_LIMIT.search(m))}
+        limit = f" of {min(limits, key=float)} s of CPU time" if limits else ""
+        stopped = next((w[0] for m in counts if m.startswith("timed out")
+                        and (w := _WHERE.search(m))), "")
+        line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
+                f"{timed or 1}{of} problem(s)"
+                + (f" (stopped at {student_location(stopped, origins)[1:-1]})" if stopped else ""))
+        if skipped:
+            line += (f"; the other {skipped} problem(s) were then not run, and count as "
+                     "failed. Look for a loop that never ends or work that grows too fast")
+        lines.append(line + ".")
+    merged: Counter = Counter()
+    kinds: dict[str, list[str]] = {}
+    for message, n in counts.items():
+        if _TIMEOUT.match(message):
+            continue
+        shown = student_location(printable(message, MAX_TEXT), origins)
+        merged[shown] += n
+        labels = kinds.setdefault(shown, [])
+        for error in f.errors:
+            label = _problem_label(error, message)
+            if label and label not in labels:
+                labels.append(label)
+    for message, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]:
+        which = f": {', '.join(kinds[message][:3])}" if kinds.get(message) else ""
+        lines.append(f"{message} (on {n}{of} problems{which})" if n else message)
+    if len(merged) > MAX_LINES:
+        lines.append(f"... and {len(merged) - MAX_LINES} other distinct errors")
+    return lines
+
+
+def _number(value: float, unit: str) -> str:
+    if not math.isfinite(value):
+        return "no usable answer"
+    return f"{value:.3g}" + (f" {unit}" if unit else "")
+
+
+def _check_status(c: CheckResult) -> tuple[str, str]:
+    if c.credit >= 1.0:
+        return "passed", "passed"
+    return ("partial", "partly passed") if c.credit > 0 else ("failed", "FAILED")
+
+
+def _check_table(f: FunctionResult) -> str:
+    rows = ["<table><tr><th>check</th><th>result</th><th>problems within tolerance</th>"
+            "<th>worst error</th><th>tolerance</th></tr>"]
+    for c in f.checks:
+        css, label = _check_status(c)
+        rows.append(f"<tr class='row-{css}'><td>{_esc(c.name)}</td>"
+                    f"<td><span class='badge {css}'>{label}</span></td>"
+                    f"<td class='num'>{c.n_full} / {c.n_trials}</td>"
+                    f"<td class='num'>{_esc(_number(c.worst_error, c.unit))}</td>"
+                    f"<td class='num'>{_esc(_number(c.tolerance, c.unit))}</td></tr>")
+    rows.append("</table>")
+    return "".join(rows)
+
+
+def _check_sentence(c: CheckResult) -> str:
+    _, label = _check_status(c)
+    unit = f" {c.unit}" if c.unit else ""
+    worst = (f"worst error {c.worst_error:.3g}{unit} against a tolerance of "
+             f"{c.tolerance:.3g}{unit}" if math.isfinite(c.worst_error)
+             else "no usable answer on some problems")
+    text = (f"{c.name}: {label}, outside the tolerance on {c.n_trials - c.n_full} of "
+            f"{c.n_trials} problems; {worst}"
+            + (f"; this check measures {c.describe}" if c.describe else ""))
+    return _esc(text, 600)
+
+
+def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
+    verdict = function_verdict(f)
+    css, label = _VERDICTS[verdict]
+    parts = [f"<section class='function'><h2>{_esc(f.name)}: {f.points:g} / "
+             f"{f.max_points:g} <span class='badge {css}'>{label}</span></h2>"]
+    if verdict == "not_implemented":
+        where = next((_esc(w[1], 120) for m in f.error_counts
+                      if (w := re.search(r"\((cell In \[\d+\], line \d+)\)$",
+                                         student_location(m, origins)))), "")
+        parts.append(f"<p>Not implemented yet: <code>{_esc(f.name)}</code> still raises "
+                     "<code>NotImplementedError</code> (the placeholder of the released "
+                     f"notebook{', ' + where if where else ''}) on every problem. Replace "
+                     "that line with your code and run "
+                     f"<code>check({_esc(f.name)})</code> in your notebook.</p></section>")
+        return "".join(parts)
+    if verdict == "not_found":
+        parts.append(f"<p>Not found: your notebook defines no function named "
+                     f"<code>{_esc(f.name)}</code>, or its cell raised before defining it. "
+                     "Keep the name and signature of the released notebook.</p></section>")
+        return "".join(parts)
+    if verdict == "forbidden":
+        routines = ", ".join(f"<code>{_esc(r, 80)}</code>" for r in f.forbidden[:8])
+        reference = any(r == "solutions" or r.startswith("solutions.") for r in f.forbidden)
+        what = ("the course's reference solutions, which are not yours to call" if reference
+                else "a routine that does the computation this exercise asks you to write "
+                     "yourself")
+        parts.append(f"<p>Score 0: <code>{_esc(f.name)}</code> calls {routines}: {what}. "
+                     "Write it yourself from basic numpy operations and it is graded as "
+                     "usual; <code>check(...)</code> in your notebook applies the same rule."
+                     "</p></section>")
+        return "".join(parts)
+    if verdict == "not_graded":
+        parts.append("<p>Not graded: there was no notebook code to run.</p></section>")
+        return "".join(parts)
+    if f.n_problems:
+        parts.append(f"<p>Failed on {f.n_failed} of {f.n_problems} problems.</p>" if f.n_failed
+                     else f"<p>All {f.n_problems} problems right.</p>")
+    if f.checks:
+        parts.append(_check_table(f))
+    # When every problem raised, the errors are the story; what a check measures is not.
+    crashed = f.n_problems and sum(_problem_counts(f).values()) >= f.n_problems
+    failing = [] if crashed else [c for c in f.checks if c.credit < 1.0]
+    errors = error_lines(f, origins)
+    if failing or errors:
+        parts.append("<p>What went wrong:</p><ul>"
+                     + "".join(f"<li>{_check_sentence(c)}</li>" for c in failing)
+                     + "".join(f"<li><code>{_esc(e, 2 * MAX_TEXT)}</code></li>"
+                               for e in errors)
+                     + "</ul>")
+    parts.append("</section>")
+    return "".join(parts)
+
+
+def _notebook_notes(grade: SubmissionGrade) -> list[str]:
+    """The notes about running the student's notebook, each distinct one once with a count."""
+    merged: Counter = Counter()
+    for note in grade.notes:
+        note = str(note).strip()
+        if note.startswith("nbgrader") or not any(
+                key in note for key in ("cell error", "unreadable", "no code cells",
+                                        "memory limit")):
+            continue  # nbgrader's cross-check is the instructor's business
+        note = re.sub(r"^cell error: (.*?)(?: \(\))?$", r"\1", note)
+        merged[student_location(printable(note, MAX_TEXT), grade.cell_origins)] += 1
+    lines = [f"{note} (in {n} cells)" if n > 1 else note
+             for note, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]]
+    if len(merged) > MAX_LINES:
+        lines.append(f"... and {len(merged) - MAX_LINES} other distinct notes")
+    return lines
+
+
+def feedback_html(grade: SubmissionGrade) -> str:
+    """The feedback page of one submission: a summary table of its functions, then per
+    function the checks (error against tolerance, with units) and each distinct error once.
+    Every text from the submission is escaped and capped; no test code or true answers."""
+    title = f"{_esc(grade.assignment, 80)} feedback"
+    failing = [f for f in grade.functions if f.points < f.max_points]
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title>"
+             f"<style>{_STYLE}</style></head><body>",
+             f"<h1>{_esc(grade.assignment, 80)}: {_esc(grade.student_id, 80)}</h1>",
+             f"<p class='score'>Score: {grade.score:g} / {grade.max_score:g}</p>",
+             "<p>Each function was run on hidden problems from the same generator as "
+             "<code>check(...)</code> in your notebook; errors are measured against the true "
+             "answer. Cells are named by the <code>In [n]</code> number they get after "
+             "<i>Kernel &rarr; Restart Kernel and Run All Cells</i>.</p>",
+             "<table><tr><th>function</th><th>points</th><th>result</th><th>problems</th></tr>"]
+    for f in grade.functions:
+        css, label = _VERDICTS[function_verdict(f)]
+        problems = (f"failed on {f.n_failed} of {f.n_problems}" if f.n_failed
+                    else f"all {f.n_problems} right") if f.n_problems else ""
+        row = css if css in ("passed", "partial") else "failed"
+        parts.append(f"<tr class='row-{row}'>"
+                     f"<td><a href='#{_esc(f.name, 80)}'>{_esc(f.name, 80)}</a></td>"
+                     f"<td class='num'>{f.points:g} / {f.max_points:g}</td>"
+                     f"<td><span class='badge {css}'>{label}</span></td><td>{problems}</td></tr>")
+    parts.append("</table>")
+    if failing:
+        parts.append(f"<p>{len(failing)} of {len(grade.functions)} functions lost points.</p>")
+    for f in grade.functions:
+        parts.append(f"<a id='{_esc(f.name, 80)}'></a>" + _function_section(f, grade.cell_origins))
+    notes = _notebook_notes(grade)
+    if notes:
+        parts.append("<section class='function'><h2>While running your notebook</h2><ul>"
+                     + "".join(f"<li><code>{_esc(n, 2 * MAX_TEXT)}</code></li>" for n in notes)
+                     + "</ul></section>")
+    parts.append("</body></html>")
+    return "\n".join(parts)

@@ -1,0 +1,137 @@
+"""`cobotlab grade` as an instructor runs it: Ctrl-C, progress, a shard of the class.
+
+The Ctrl-C test is the real thing: the CLI in its own process, nbgrader's autograde of a
+notebook whose cell sleeps (so its kernel is busy inside bubblewrap), SIGINT sent to the CLI
+alone as a terminal would, and then no process the CLI started may be left.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import course_kit as kit
+import pytest
+
+from autograder import record, sandbox
+from autograder.course import grade_course
+from cobotlab.cli import _student_ids
+
+pytestmark = pytest.mark.slow
+ASSIGNMENT = "lab0_frames"
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def released(tmp_path_factory) -> Path:
+    return kit.released_course(tmp_path_factory.mktemp("released"), ASSIGNMENT)
+
+
+def _stat(pid: int) -> tuple[int, str, str] | None:
+    """(parent pid, state, start time) of a live process, or None."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[1]), fields[0].decode(), fields[19].decode()
+
+
+def _descendants(root: int) -> dict[int, str]:
+    """{pid: start time} of every process below ``root``."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit() and (info := _stat(int(entry))) is not None:
+            parents[int(entry)] = info
+    found, frontier = {}, [root]
+    while frontier:
+        parent = frontier.pop()
+        for pid, (ppid, _, start) in parents.items():
+            if ppid == parent and pid not in found:
+                found[pid] = start
+                frontier.append(pid)
+    return found
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _still_running(seen: dict[int, str]) -> list[str]:
+    left = []
+    for pid, start in seen.items():
+        info = _stat(pid)
+        if info is not None and info[2] == start and info[1] != "Z":
+            left.append(f"{pid} {_cmdline(pid)[:120]}")
+    return left
+
+
+@pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="needs bubblewrap")
+@pytest.mark.timeout(300)
+def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path):
+    course = kit.fresh_course(released, tmp_path)
+    kit.submit(course, ASSIGNMENT, "sleeper", extra="import time\ntime.sleep(600)")
+    env = {k: v for k, v in os.environ.items() if k != "COBOTLAB_GRADING_SECRET"}
+    cli = subprocess.Popen([sys.executable, "-m", "cobotlab.cli", "grade", str(course),
+                            ASSIGNMENT, "--no-progress"], cwd=REPO, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    seen: dict[int, str] = {}
+    try:
+        deadline = time.monotonic() + 180
+        kernel = None
+        while kernel is None and time.monotonic() < deadline and cli.poll() is None:
+            seen.update(_descendants(cli.pid))
+            kernel = next((p for p in seen if "ipykernel" in _cmdline(p)), None)
+            time.sleep(0.3)
+        assert kernel is not None, ("nbgrader's kernel never started",
+                                    cli.poll(), cli.stderr.read() if cli.poll() else "")
+        time.sleep(2.0)   # the kernel is now inside time.sleep(600)
+        seen.update(_descendants(cli.pid))
+        assert _still_running(seen), "nothing to interrupt"
+        cli.send_signal(signal.SIGINT)   # the CLI alone, as a terminal's Ctrl-C reaches it
+        _, err = cli.communicate(timeout=20)
+    finally:
+        if cli.poll() is None:
+            cli.kill()
+            cli.communicate()
+    assert cli.returncode == 130, err.decode()[-2000:]
+    assert "interrupted" in err.decode()
+    stop = time.monotonic() + 5
+    while _still_running(seen) and time.monotonic() < stop:
+        time.sleep(0.2)
+    assert _still_running(seen) == []
+    assert record.gradebook_problem(course / "gradebook.db") is None
+    assert not (course / "grades.csv").exists()   # nothing half-recorded
+    assert not sandbox.stopping()
+
+
+def test_a_shard_grades_only_its_students_with_progress(released, tmp_path):
+    course = kit.fresh_course(released, tmp_path)
+    for student in ("ada", "bo", "cy"):
+        kit.submit(course, ASSIGNMENT, student)
+    calls = []
+    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
+                        progress=lambda done, total, sid: calls.append((done, total, sid)))
+    assert sorted(r["student_id"] for r in rows) == ["ada", "cy"]
+    assert calls[0] == (0, 2, "")
+    assert sorted(calls[1:]) == [(1, 2, calls[1][2]), (2, 2, calls[2][2])]
+    assert {calls[1][2], calls[2][2]} == {"ada", "cy"}
+    with pytest.raises(ValueError, match="no submission .* by dee"):
+        grade_course(course, ASSIGNMENT, quiet=True, students=["ada", "dee"])
+
+
+def test_student_list_from_the_command_line_or_a_file(tmp_path):
+    assert _student_ids(None) is None
+    assert _student_ids("a, b,,c") == ["a", "b", "c"]
+    listing = tmp_path / "shard.txt"
+    listing.write_text("# shard 1 of 3\nada\n  bo  # late\n\n")
+    assert _student_ids(f"@{listing}") == ["ada", "bo"]
+    with pytest.raises(ValueError, match="names no student"):
+        _student_ids(" , ")

@@ -1,0 +1,84 @@
+"""docs/instructors.md, followed literally on a fresh machine.
+
+Every ```bash block of the page runs, in order, in one bash shell (so a `cd` carries over as
+it does for a reader) with a fresh, empty HOME, the repository's virtual environment
+activated as the page's install block says, and a minimal environment: no course next to the
+checkout, nothing in ~/.jupyter, real nbgrader. ```sh blocks (installing, grading a whole
+class, a cluster) are not run. Lab 0 only, to stay fast.
+"""
+
+from __future__ import annotations
+
+import csv
+import getpass
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from autograder import sandbox
+
+pytestmark = pytest.mark.slow
+REPO = Path(__file__).resolve().parent.parent
+DOC = REPO / "docs" / "instructors.md"
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
+
+
+def _blocks(kind: str) -> list[str]:
+    return [body for lang, body in FENCE.findall(DOC.read_text()) if lang == kind]
+
+
+def test_the_page_names_no_checkout_relative_path():
+    runnable = "\n".join(_blocks("bash"))
+    assert runnable, "no ```bash block in docs/instructors.md"
+    assert "../" not in runnable and ".venv" not in runnable
+    install = "\n".join(_blocks("sh"))
+    assert "source .venv/bin/activate" in install
+
+
+@pytest.mark.timeout(600)
+def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    script = "\n".join(["set -euo pipefail", f"source {REPO / '.venv/bin/activate'}",
+                        f"cd {home}", *_blocks("bash")])
+    env = {"HOME": str(home), "PATH": "/usr/bin:/bin", "LANG": "C.UTF-8",
+           "USER": getpass.getuser(), "TMPDIR": str(tmp_path)}
+    done = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=580, check=False)
+    log = done.stdout[-3000:] + done.stderr[-3000:]
+    assert done.returncode == 0, log
+    assert "alembic" not in done.stderr and "Traceback" not in done.stderr, log
+
+    course = home / "course"
+    config = (course / "nbgrader_config.py").read_text()
+    assert f"c.Exchange.root = {str(course / 'exchange')!r}" in config
+    assert (course / "exchange" / "cobotlab" / "outbound" / "lab0_frames").is_dir()
+    assert not Path("/usr/local/share/nbgrader/exchange/cobotlab/outbound/lab0_frames"
+                    ).resolve().is_relative_to(home)
+    rows = list(csv.DictReader((course / "grades.csv").open()))
+    mine = [r for r in rows if r["student_id"] == getpass.getuser()]
+    assert len(mine) == 1 and mine[0]["assignment"] == "lab0_frames", rows
+    assert float(mine[0]["score"]) == 0.0 and float(mine[0]["max_score"]) > 0
+    assert (course / "feedback_cobotlab" / getpass.getuser() / "lab0_frames"
+            / "feedback.html").is_file()
+    assert "graded 1 submissions in" in done.stdout and "wall clock" in done.stdout, log
+    if sandbox.capabilities().bwrap:
+        assert "sandbox:rlimits_only" not in mine[0]["flags"]
+
+
+def test_nbgrader_from_the_venv_works_without_activating_it(tmp_path):
+    """`<checkout>/.venv/bin/nbgrader` on a course made by `course init`, PATH without it."""
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {"HOME": str(home), "PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"}
+    bin_dir = REPO / ".venv" / "bin"
+    subprocess.run([str(bin_dir / "cobotlab"), "course", "init", str(home / "course")],
+                   env=env, check=True, capture_output=True, timeout=120)
+    done = subprocess.run([str(bin_dir / "nbgrader"), "db", "student", "list"],
+                          cwd=home / "course", env=env, capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0 and "alembic" not in done.stderr, done.stderr[-2000:]
+    assert os.stat(home / "course" / "exchange").st_mode & 0o777 == 0o777
