@@ -117,7 +117,9 @@ def test_noise_derived_tolerance_passes_reference_and_fails_wrong_methods():
 
     wrong = checks.score_function(spec, trials, [checks._call_in_process(no_centroid, t)
                                                  for t in trials])
-    assert wrong.fraction == 0.0, wrong.summary()
+    # full credit on none of the 108 problems; within the half-credit band (2 x tol) on a
+    # rare one at most
+    assert wrong.checks[0].n_full == 0 and wrong.fraction < 0.01, wrong.summary()
 
 
 def test_check_prints_the_score(capsys):
@@ -327,6 +329,9 @@ def _hogs(n):
 
 
 def _spin():
+    # A session of its own: with the kernel's autogroup scheduling each session gets a fair
+    # share, so hogs in the test's own session would barely slow the worker (its own session).
+    os.setsid()
     while True:
         pass
 

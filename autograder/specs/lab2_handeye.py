@@ -6,16 +6,31 @@ X = flange_T_cam): for poses i < j,
 ``A = inv(base_T_flange[i]) @ base_T_flange[j]`` and ``B = cam_T_target[i] @ inv(cam_T_target[j])``,
 so that ``A @ X == X @ B``.
 
-Tolerances of the solvers come from the noise level. A motion's rotation axis is known to about
-sigma_R / theta (sigma_R: the combined rotation noise of one robot and one camera pose, theta:
-the motion's angle, radians), and n poses carry about n independent measurements, so R_X is
-known to ``rot_scale = sigma_R / (theta_rms sqrt(n))``. t_X is known to
-``trans_scale = sigma_t / (theta_rms sqrt(n)) + d_max * rot_scale``: its own noise, amplified
-the same way, plus the rotation error swung over the lever arm d_max (the farthest board
-distance). Over 800 problems the reference Tsai-Lenz and axes-LS solvers stay below 13 x
-rot_scale and 7 x trans_scale (median 3 and 2.3); an inverted X or swapped A / B is off by
-hundreds of these units (the smallest seen: 2 on rotation when R_X is near the identity, but
-then 24 on translation). Full credit: within 25 x rot_scale and 12 x trans_scale.
+Tolerances of the solvers come from the noise level and the motions' geometry. A motion's
+rotation vector alpha = theta a is measured to about sigma_R (the combined rotation noise of
+one robot and one camera pose, radians) on each axis, and alpha_A = R_X alpha_B ties R_X down
+only across each axis a: a small rotation delta of R_X moves alpha_A by theta |delta x a|. The
+n - 1 consecutive motions are the independent ones (every other pair is a product of them),
+so their information matrix is ``H = sum_k theta_k^2 (I - a_k a_k^T)`` and R_X is known to
+``rot_scale = sigma_R / sqrt(lambda_min(H))`` about its worst direction. t_X solves
+``(R_A - I) t_X = R_X t_B - t_A``, whose right side carries sigma_t (the combined
+translation noise) plus the rotation error swung over the lever arm d_max (the farthest
+board distance), so with ``G = sum_k (R_Ak - I)^T (R_Ak - I)``:
+``trans_scale = (sigma_t + d_max rot_scale) / sqrt(lambda_min(G))``. Unlike the older
+1 / (theta_rms sqrt(n)) scale, this sees a capture whose axes are nearly parallel.
+
+Measured over 400 problems (6-15 poses) in these units: the reference Tsai-Lenz reached 13
+on rotation and 5.5 on translation, axes-LS 4.9 and 3.3, Park-Martin 3.4 and 3.0, while an
+inverted X or swapped A / B was within (40, 15) on 1 % of problems (median 500 on rotation)
+and a transposed R_X on 2.5 %: all six problems of a draw within on ~1e-12 and ~2e-10 of
+draws. Full credit: within 40 x rot_scale and 15 x trans_scale, three times the worst
+reference error seen. (On the older 1 / (theta_rms sqrt(n)) scale the reference Tsai
+reached 33 x against a 25 x tolerance.)
+
+Not covered: a Tsai that keeps only the consecutive motions of those it is given is
+heavy-tailed (median 2, but 54 and 20 on the worst of the 400 problems): it fails 1 problem
+in 400 here. A tolerance wide enough for it (120 x, 40 x) let a solver fed inverted motions
+keep 31 % of the credit on the translation check, so the tolerance stays where it is.
 """
 
 from __future__ import annotations
@@ -28,8 +43,8 @@ from autograder import synthetic
 from autograder.checks import Check, FunctionSpec, OutputError, Trial, measure_pose
 from robots import geometry as geo
 
-ROT_K = 25.0
-TRANS_K = 12.0
+ROT_K = 40.0
+TRANS_K = 15.0
 SOLVER_BANDS = ((1.0, 1.0), (2.0, 0.5))
 # Motions and residuals are exact arithmetic on the inputs: any correct float64 formula lands
 # within ~1e-15 of the truth; 1e-9 leaves room for any summation order.
@@ -60,14 +75,25 @@ def motion_pairs_truth(base_T_flange, cam_T_target, strategy: str):
 
 
 def solver_tolerances(problem: synthetic.HandEyeProblem, A: np.ndarray) -> dict[str, float]:
-    """Full-credit thresholds (deg, mm) for X on ``problem`` solved from motions ``A``."""
-    nm, n = problem.noise, problem.n_poses
+    """Full-credit thresholds (deg, mm) for X on ``problem`` (see the module docstring).
+
+    ``A`` (the motions the solver gets) is unused: the information comes from the n - 1
+    consecutive motions, whatever pairs the solver is given.
+    """
+    nm = problem.noise
     sigma_R = math.radians(math.hypot(nm.robot_rot_deg, nm.cam_rot_deg))
     sigma_t_mm = math.hypot(nm.robot_trans_mm, nm.cam_trans_mm)
-    theta_rms = float(np.sqrt(np.mean(np.radians(geo.rotation_angle_deg(A[:, :3, :3])) ** 2)))
-    rot_scale = sigma_R / (theta_rms * math.sqrt(n))  # radians
+    F = problem.base_T_flange
+    H, G = np.zeros((3, 3)), np.zeros((3, 3))
+    for i in range(len(F) - 1):
+        motion = geo.invert(F[i]) @ F[i + 1]
+        R, alpha = motion[:3, :3], geo.rotvec_from_pose(motion)[0]
+        H += float(alpha @ alpha) * np.eye(3) - np.outer(alpha, alpha)
+        G += (R - np.eye(3)).T @ (R - np.eye(3))
+    rot_scale = sigma_R / math.sqrt(max(float(np.linalg.eigvalsh(H)[0]), 1e-12))  # radians
     d_max_mm = 1000.0 * float(np.max(np.linalg.norm(problem.cam_T_target[:, :3, 3], axis=1)))
-    trans_scale = sigma_t_mm / (theta_rms * math.sqrt(n)) + d_max_mm * rot_scale
+    trans_scale = (sigma_t_mm + d_max_mm * rot_scale) / math.sqrt(
+        max(float(np.linalg.eigvalsh(G)[0]), 1e-12))
     return {"rotation": max(ROT_K * math.degrees(rot_scale), FLOOR),
             "translation": max(TRANS_K * trans_scale, FLOOR)}
 
@@ -170,7 +196,7 @@ _SOLVERS_FORBIDDEN = ("cv2.calibrateHandEye", "cv2.calibrateRobotWorldHandEye")
 
 
 MOTIONS = FunctionSpec(
-    name="motions", points=3.0, n_trials=6, make_trial=_trial_motions, measure=_measure_motions,
+    name="motions", points=3.0, n_trials=6, practice_trials=2, make_trial=_trial_motions, measure=_measure_motions,
     checks=(
         Check("A", "", 0.5, EXACT_BANDS,
               "A = inv(base_T_flange[i]) @ base_T_flange[j] for the strategy's pairs i < j"),
@@ -181,26 +207,27 @@ MOTIONS = FunctionSpec(
               "'consecutive') -> (A (M, 4, 4), B (M, 4, 4))",
 )
 TSAI_LENZ = FunctionSpec(
-    name="tsai_lenz", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
+    name="tsai_lenz", points=4.0, n_trials=6, practice_trials=2, make_trial=_trial_solver, measure=measure_pose,
     checks=_solver_checks("Tsai-Lenz"),
     signature="tsai_lenz(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
     forbidden=_SOLVERS_FORBIDDEN,
 )
 AXES_LS = FunctionSpec(
-    name="axes_ls", points=4.0, n_trials=6, make_trial=_trial_solver, measure=measure_pose,
+    name="axes_ls", points=4.0, n_trials=6, practice_trials=2, make_trial=_trial_solver, measure=measure_pose,
     checks=_solver_checks("least squares on the rotation axes, projected onto SO(3)"),
     signature="axes_ls(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
     forbidden=_SOLVERS_FORBIDDEN,
 )
 ROTATION_RESIDUAL = FunctionSpec(
-    name="rotation_residual", points=2.0, n_trials=4, make_trial=_trial_residual(0),
+    name="rotation_residual", points=2.0, n_trials=6, practice_trials=2, make_trial=_trial_residual(0),
     measure=_measure_scalar,
     checks=(Check("value", "relative", 1.0, EXACT_BANDS,
                   "(1/n) sum ||R_A R_X - R_X R_B||_F^2: squared Frobenius norm, mean over n"),),
     signature="rotation_residual(A (M, 4, 4), B (M, 4, 4), X (4, 4)) -> float",
 )
 TRANSLATION_RESIDUAL = FunctionSpec(
-    name="translation_residual", points=2.0, n_trials=4, make_trial=_trial_residual(1),
+    name="translation_residual", points=2.0, n_trials=6, practice_trials=2,
+    make_trial=_trial_residual(1),
     measure=_measure_scalar,
     checks=(Check("value", "relative", 1.0, EXACT_BANDS,
                   "(1/n) sum ||R_A t_X + t_A - R_X t_B - t_X||^2 in m^2, mean over n"),),

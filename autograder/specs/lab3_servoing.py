@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from autograder.checks import Check, FunctionSpec, OutputError, Trial
@@ -93,8 +92,8 @@ def _trial_interaction(rng, index: int) -> Trial:
         e = np.zeros(6)
         e[k] = 1.0
         # The camera moves with body twist e, the points stay: they move by exp(-h e^) in it.
-        plus = (expm(_hat(-h * e)) @ np.c_[P, np.ones(n)].T).T[:, :3]
-        minus = (expm(_hat(h * e)) @ np.c_[P, np.ones(n)].T).T[:, :3]
+        plus = (_move(np.eye(4), -h * e, 1.0) @ np.c_[P, np.ones(n)].T).T[:, :3]
+        minus = (_move(np.eye(4), h * e, 1.0) @ np.c_[P, np.ones(n)].T).T[:, :3]
         d = (plus[:, :2] / plus[:, 2:] - minus[:, :2] / minus[:, 2:]) / (2 * h)
         L[:, k] = d.reshape(-1)
     # Central differences with h = 1e-6 are good to about 1e-9 of the entries' scale.
@@ -111,7 +110,7 @@ def _measure_interaction(value, trial: Trial) -> dict[str, float]:
 
 
 INTERACTION_MATRIX = FunctionSpec(
-    name="interaction_matrix", points=4.0, n_trials=6, make_trial=_trial_interaction,
+    name="interaction_matrix", points=4.0, n_trials=18, practice_trials=6, make_trial=_trial_interaction,
     measure=_measure_interaction,
     checks=(
         Check("translation", "", 0.5, ((1.0, 1.0), (100.0, 0.5)),
@@ -210,7 +209,7 @@ def _measure_ibvs(value, trial: Trial) -> dict[str, float]:
 
 
 IBVS_VELOCITY = FunctionSpec(
-    name="ibvs_velocity", points=4.0, n_trials=6, make_trial=_trial_ibvs,
+    name="ibvs_velocity", points=4.0, n_trials=6, practice_trials=2, make_trial=_trial_ibvs,
     measure=_measure_ibvs, drive=_drive_ibvs,
     checks=(
         Check("position", "mm", 0.35, ((1.0, 1.0), (10.0, 0.5)),
@@ -281,7 +280,7 @@ def _measure_piece(value, trial: Trial) -> dict[str, float]:
 
 
 PIECE_POSITION = FunctionSpec(
-    name="piece_position", points=2.0, n_trials=6, make_trial=_trial_piece,
+    name="piece_position", points=2.0, n_trials=6, practice_trials=2, make_trial=_trial_piece,
     measure=_measure_piece,
     checks=(
         Check("position", "mm", 1.0, ((1.0, 1.0), (3.0, 0.5)),

@@ -1,0 +1,116 @@
+"""Fair hidden grades: correct code never loses credit, classic mistakes always do.
+
+A fast slice of benchmarks/grading_fairness.py (which runs >= 10,000 draws per function):
+a few dozen hidden draws, drawn as the grader draws them, of the functions whose problems
+or weights were fixed for fairness; plus the degenerate-input problems of ``fit_rigid``, the
+number of hidden problems against ``check()``'s, and the weights of the checks.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autograder import checks
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+import grading_fairness as fairness  # noqa: E402
+
+
+@pytest.mark.parametrize("assignment,function,draws", [
+    ("lab0_frames", "pose_from_rotvec", 10),
+    ("lab1_flange", "fit_rigid", 12),
+    ("lab4_stereo", "frame_from_three_points", 10),
+    ("lab4_stereo", "reproject", 30),
+])
+def test_correct_code_keeps_full_credit_and_each_mistake_loses_some(assignment, function, draws):
+    result = fairness.run_function((assignment, function, 0, draws))
+    for name, correct, lost, margin in zip(result["variants"], result["correct"],
+                                           result["lost"], result["margin"]):
+        if correct:
+            assert lost == 0, f"correct {function} ({name}) lost credit on {lost}/{draws} draws"
+            assert margin < 1.0, (name, margin)
+        else:
+            assert lost == draws, f"{function} mistake {name!r} kept full credit on " \
+                                  f"{draws - lost}/{draws} draws"
+
+
+def test_hidden_problems_are_at_least_as_many_as_checks():
+    for lab, specs in checks.SPECS.items():
+        for spec in specs:
+            shown = len(checks.PUBLIC_SEEDS) * (spec.practice_trials or spec.n_trials)
+            assert spec.n_trials >= shown, f"{lab}.{spec.name}: {spec.n_trials} hidden < {shown}"
+            assert len(checks.public_trials(spec, 0)) == (spec.practice_trials or spec.n_trials)
+
+
+def _fit_rigid_trials(seed: int = 3):
+    spec = checks.spec_for("fit_rigid", "lab1_flange")
+    return spec, checks.make_trials(spec, np.random.default_rng(seed))
+
+
+def test_fit_rigid_hidden_problems_include_collinear_and_too_few_points():
+    spec, trials = _fit_rigid_trials()
+    degenerate = [t for t in trials if t.raises]
+    assert {t.raises for t in degenerate} == {"ValueError"}
+    assert any("collinear" in t.label for t in degenerate)
+    assert any(len(t.args[0]) < 3 for t in degenerate)
+    for t in degenerate:
+        if len(t.args[0]) >= 3:  # collinear, to rounding: rank 1 once centred
+            centred = t.args[0] - t.args[0].mean(axis=0)
+            s = np.linalg.svd(centred, compute_uv=False)
+            assert s[1] < 1e-12 * s[0]
+    planar = [t for t in trials if t.label.startswith("planar")]
+    assert len(planar) >= 9
+
+
+def test_degenerate_problems_score_the_exception_and_only_there():
+    spec, trials = _fit_rigid_trials()
+    table = {v.name: v.func for v in fairness.variants("lab1_flange")["fit_rigid"]}
+
+    def score(func):
+        return checks.score_function(spec, trials,
+                                     [checks._call_in_process(func, t, spec) for t in trials])
+
+    assert score(table["notebook solution"]).points == spec.points
+    unchecked = score(table["no degenerate-input check"])
+    share = sum(1 for t in trials if t.raises) / len(trials)
+    assert unchecked.points == pytest.approx(spec.points * (1 - share), abs=0.01)
+    assert any("expected ValueError" in e for e in unchecked.errors)
+
+    def always_raises(src, dst):
+        raise ValueError("no")
+
+    assert score(always_raises).points == pytest.approx(spec.points * share, abs=0.01)
+
+    def wrong_exception(src, dst):
+        if len(src) < 3 or np.linalg.matrix_rank(np.asarray(src) - np.mean(src, 0)) < 2:
+            raise RuntimeError("degenerate")
+        return table["notebook solution"](src, dst)
+
+    assert score(wrong_exception).points == pytest.approx(spec.points * (1 - share), abs=0.01)
+
+
+def test_pose_checks_weigh_what_the_function_teaches():
+    """Copying the given translation earns a tenth, not half, of the credit."""
+    def identity_rotation(rvec, t):
+        T = np.eye(4)
+        T[:3, 3] = t
+        return T
+
+    def frame_origin_only(p_origin, p_x, p_xy):
+        T = np.eye(4)
+        T[:3, 3] = p_origin
+        return T
+
+    spec = checks.spec_for("pose_from_rotvec", "lab0_frames")
+    trials = [t for s in checks.PUBLIC_SEEDS for t in checks.public_trials(spec, s)]
+    # the identity is the right rotation for a zero and a tiny rotation vector
+    right = sum(t.label in ("zero rotation", "tiny rotation") for t in trials) / len(trials)
+    rotvec = checks.evaluate(identity_rotation, "pose_from_rotvec", assignment="lab0_frames")
+    assert rotvec.fraction <= 0.1 + 0.9 * right + 1e-9, rotvec.summary()
+    frame = checks.evaluate(frame_origin_only, "frame_from_three_points",
+                            assignment="lab4_stereo")
+    assert frame.fraction <= 0.1 + 1e-9, frame.summary()
