@@ -34,7 +34,9 @@ CORRECT_ANSWERS_ONLY = {"mangled"}
 # Short limits skip the lab's simulator cells (they need the blanks anyway) and make the
 # hangs cheap (about 85 s for both labs on 2 cores, against 130 s with 3 s / 2 s limits);
 # no score here depends on them, every one must be the blank's zero.
-LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60)
+# Sleepers are cut at 2x their limit: the attack is tested here, not the clock.
+LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
+                        wall_factor=2)
 
 
 def _retarget(case: dict, functions: tuple[str, ...]) -> dict[str, str]:
