@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder import forbidden, standin
+from autograder import forbidden, mistakes, standin
 from robots import geometry as geo
 
 __all__ = [
@@ -162,6 +162,9 @@ class CheckResult:
     median_error: float
     tolerance: float            # the full-credit threshold on the worst problem, in ``unit``
     describe: str = ""
+    # Problems this check passed but which count as failed because another check failed on
+    # an all-or-nothing edge case (so "worst error 0 mm" beside a failure is no contradiction).
+    n_voided: int = 0
 
 
 @dataclass
@@ -195,9 +198,12 @@ class FunctionResult:
             unit = f" {c.unit}" if c.unit else ""
             worst = ("none (no usable answer on some problems)" if not math.isfinite(c.worst_error)
                      else f"{c.worst_error:.3g}{unit}")
+            voided = (f"; {c.n_voided} more within it but counted as failed: another check "
+                      "failed on that edge case" if c.n_voided else "")
             lines.append(f"  [{status}] {c.name}: {c.n_full}/{c.n_trials} problems within "
-                         f"{c.tolerance:.3g}{unit}; worst error {worst}"
-                         + (f"  ({c.describe})" if c.describe and c.credit < 1 else ""))
+                         f"{c.tolerance:.3g}{unit}; worst error {worst}{voided}"
+                         + (f"  ({c.describe})" if c.describe and c.credit < 1 and not voided
+                            else ""))
         for e in self.errors:
             lines.append(f"  ! {e}")
         return "\n".join(lines)
@@ -353,10 +359,19 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         rows = {}
         for c in spec.checks:
             err = math.inf if measured is None else float(measured[c.name])
-            rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]))
+            rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]), False)
         if trial.all_or_nothing and min(r[2] for r in rows.values()) < 1.0:
-            rows = {k: (r[0], r[1], 0.0) for k, r in rows.items()}
-        n_failed += bool(rows) and min(r[2] for r in rows.values()) < 1.0
+            rows = {k: (r[0], r[1], 0.0, r[2] >= 1.0) for k, r in rows.items()}
+        failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
+        n_failed += failed
+        hint = _mistake_hint(outcome.value, trial.truth) if failed and measured is not None \
+            and trial.raises is None else None
+        if hint is not None:
+            message = f"this answer looks like a classic mistake: {hint}"
+            if f"on a {trial.label} problem: {message}" not in errors:
+                errors.insert(0, f"on a {trial.label} problem: {message}")
+            if message in counts or len(counts) < 20:
+                counts[message] = counts.get(message, 0) + 1
         for name, row in rows.items():
             per_check[name].append(row)
     results, total = [], 0.0
@@ -365,17 +380,31 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         rows = per_check[c.name]
         errs = np.array([r[0] for r in rows])
         credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
-        worst = int(np.argmax(np.where(np.isfinite(errs), errs, np.inf))) if rows else 0
+        # The worst problem is the one furthest past its own tolerance (tolerances differ per
+        # problem), so the tolerance printed is the one that problem failed.
+        ratios = np.array([r[0] / r[1] if r[1] > 0 else (0.0 if r[0] == 0 else math.inf)
+                           for r in rows])
+        worst = int(np.argmax(np.nan_to_num(ratios, nan=math.inf))) if rows else 0
         results.append(CheckResult(
             name=c.name, unit=c.unit, credit=credit,
             n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
-            worst_error=float(errs.max()) if rows else math.inf,
+            worst_error=float(errs[worst]) if rows else math.inf,
             median_error=float(np.median(errs)) if rows else math.inf,
-            tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe))
+            tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe,
+            n_voided=sum(1 for r in rows if r[3])))
         total += c.weight * credit
     points = round(spec.points * total / weight_sum, 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts)
+
+
+def _mistake_hint(value, truth) -> str | None:
+    """:func:`autograder.mistakes.diagnose` on an answer, or on the first parts of a pair."""
+    hint = mistakes.diagnose(value, truth)
+    if hint is None and isinstance(value, (tuple, list)) and isinstance(truth, (tuple, list)) \
+            and value and truth:
+        hint = mistakes.diagnose(value[0], truth[0])
+    return hint
 
 
 class StudentCallError(Exception):
@@ -497,8 +526,9 @@ def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,
 
 
 def check(func, name: str | None = None, seeds=PUBLIC_SEEDS,
-          assignment: str | None = None) -> FunctionResult:
-    """Score your function on practice problems and print the score it would get, and why.
+          assignment: str | None = None) -> None:
+    """Score your function on practice problems and show the score it would get, and why
+    (a table in Jupyter, text elsewhere; ``evaluate`` returns the result instead).
 
     The hidden grade uses the same problem generator and the same scoring on fresh problems,
     so a function that gets full marks here for the right reasons gets them there.
@@ -510,8 +540,47 @@ def check(func, name: str | None = None, seeds=PUBLIC_SEEDS,
         assignment: the lab, e.g. "lab1_flange"; found from the notebook's folder otherwise.
     """
     result = evaluate(func, name, seeds, assignment)
-    print(result.summary())
-    return result
+    _show(result)
+
+
+def _html_report(result: FunctionResult) -> str:
+    import html
+
+    esc = html.escape
+    colour = "#1a7f37" if result.fraction >= 1 else ("#9a6700" if result.points > 0 else "#cf222e")
+    rows = []
+    for c in result.checks:
+        unit = f" {c.unit}" if c.unit else ""
+        verdict = "passed" if c.credit >= 1 else ("partly" if c.credit > 0 else "failed")
+        worst = f"{c.worst_error:.3g}{unit}" if math.isfinite(c.worst_error) else "no answer"
+        hint = c.describe if c.credit < 1 else ""
+        rows.append(f"<tr><td>{esc(c.name)}</td><td>{verdict}</td>"
+                    f"<td>{c.n_full}/{c.n_trials}</td><td>{esc(worst)}</td>"
+                    f"<td>{c.tolerance:.3g}{esc(unit)}</td><td>{esc(hint)}</td></tr>")
+    problems = "".join(f"<li>{esc(e)}</li>" for e in result.errors)
+    return (f"<div><b style='color:{colour}'>{esc(result.name)}: {result.points:g} / "
+            f"{result.max_points:g} points</b>"
+            "<table><tr><th>check</th><th>result</th><th>problems within</th>"
+            "<th>worst error</th><th>tolerance</th><th>hint</th></tr>" + "".join(rows)
+            + "</table>" + (f"<ul>{problems}</ul>" if problems else "") + "</div>")
+
+
+def _show(result: FunctionResult) -> None:
+    """The report as a table under a Jupyter kernel (with the text as its plain form), and
+    printed text anywhere else."""
+    shell = None
+    try:
+        from IPython import get_ipython
+
+        shell = get_ipython()
+    except ImportError:
+        pass
+    if shell is not None and getattr(shell, "kernel", None) is not None:
+        from IPython.display import display
+
+        display({"text/plain": result.summary(), "text/html": _html_report(result)}, raw=True)
+    else:
+        print(result.summary())
 
 
 def hidden_test(func, name: str | None = None, assignment: str | None = None) -> None:

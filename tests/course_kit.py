@@ -144,9 +144,15 @@ def assert_release_clean(course: Path, assignment: str, n_functions: int,
 
 
 def output_text(nb, sep: str = "") -> str:
-    """All text printed by the code cells of an executed notebook."""
-    return sep.join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
-                    for o in c.outputs)
+    """All text the code cells of an executed notebook printed or displayed (check()'s report
+    is a display with a plain-text form)."""
+    return sep.join(_text_of(o) for c in nb.cells if c.cell_type == "code" for o in c.outputs)
+
+
+def _text_of(output) -> str:
+    text = output.get("text", "")
+    data = output.get("data", {})
+    return text + (data.get("text/plain", "") if isinstance(data, dict) else "")
 
 
 # The adversarial corpus: one student submission per item of the threat model (README there).

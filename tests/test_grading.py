@@ -422,3 +422,52 @@ def test_one_bug_costs_once_in_the_worker_too(tmp_path):
     assert result["hand_to_eye_from_three_points"].fraction == 1.0, \
         result["hand_to_eye_from_three_points"].summary()
     assert result["frame_from_three_points"].fraction < 1.0
+
+
+# --------------------------------------------------------------------------- check()'s words
+
+
+def test_check_names_the_classic_mistake_behind_a_wrong_answer(capsys):
+    checks.check(lambda T: T.copy(), "invert_pose")   # a_T_b back where b_T_a was asked
+    assert "inverse of the expected pose" in capsys.readouterr().out
+    checks.check(_reference("invert_pose"), "invert_pose")   # right: no hint
+    assert "classic mistake" not in capsys.readouterr().out
+    rotvec = _reference("pose_from_rotvec")
+
+    def millimetres(r, t):
+        T = rotvec(r, t)
+        T[:3, 3] *= 1000.0
+        return T
+
+    checks.check(millimetres, "pose_from_rotvec")
+    assert "millimetres where metres were asked" in capsys.readouterr().out
+
+    def inverse(r, t):
+        return np.linalg.inv(rotvec(r, t))
+
+    checks.check(inverse, "pose_from_rotvec")
+    assert "inverse of the expected pose" in capsys.readouterr().out
+
+
+def test_a_check_voided_by_an_edge_case_says_so_instead_of_reading_as_a_contradiction():
+    spec = checks.spec_for("pose_from_rotvec", "lab0_frames")
+    trials = [t for s in checks.PUBLIC_SEEDS for t in checks.public_trials(spec, s)
+              if t.all_or_nothing]
+    assert trials, "lab 0 has all-or-nothing edge cases (zero rotations)"
+
+    def wrong_translation(trial):
+        T = np.array(trial.truth, dtype=float)
+        T[:3, 3] += 0.5
+        return checks.TrialOutcome(value=T)
+
+    result = checks.score_function(spec, trials, [wrong_translation(t) for t in trials])
+    rotation = next(c for c in result.checks if c.name == "rotation")
+    assert rotation.n_voided == len(trials) and rotation.worst_error < 1e-9
+    assert "counted as failed: another check failed on that edge case" in result.summary()
+
+
+def test_check_shows_a_table_in_jupyter_and_returns_nothing():
+    result = checks.evaluate(_reference("invert_pose"), "invert_pose")
+    page = checks._html_report(result)
+    assert "<table>" in page and "invert_pose: 3 / 3 points" in page
+    assert checks.check(_reference("invert_pose"), "invert_pose") is None

@@ -76,7 +76,7 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests():
     nb = kit.execute_source(ASSIGNMENT, timeout_s=180)
     hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
     assert len(hidden) == len(FUNCTIONS)
-    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
+    text = kit.output_text(nb)
     for name in FUNCTIONS:
         assert f"{name}: {POINTS[name]:g} / {POINTS[name]:g} points" in text, name
     assert "pybullet build time" not in text

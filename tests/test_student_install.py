@@ -211,7 +211,8 @@ def test_lab0_runs_in_the_student_env_and_solutions_is_missing(student_env, tmp_
     nb = nbformat.read(notebook, as_version=4)
     errors = [o for c in nb.cells for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors, errors
-    text = "".join(o.get("text", "") for c in nb.cells for o in c.get("outputs", []))
+    text = "".join(o.get("text", "") + o.get("data", {}).get("text/plain", "")
+                   for c in nb.cells for o in c.get("outputs", []))
     for spec in checks.SPECS["lab0_frames"]:  # full marks from check(...) on every function
         assert f"{spec.name}: {spec.points:g} / {spec.points:g} points" in text, text
     assert "import solutions raised: No module named 'solutions'" in text, text

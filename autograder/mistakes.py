@@ -1,0 +1,111 @@
+"""Name the classic mistake behind a wrong answer, for ``check()`` and the grader's feedback.
+
+A wrong pose that is exactly the inverse of the right one, or right but in millimetres, says
+far more than "worst error 1.15e+03 mm": :func:`diagnose` compares a wrong answer with the
+truth transformed by each classic mistake (the inverse pose, a transposed rotation,
+millimetres for metres, degrees for radians, a mirrored fit, a flipped sign) and returns the
+hint for the one that matches, or None. It only ever looks at an answer that already failed,
+so a hint never changes a score.
+
+Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix, metres.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["diagnose"]
+
+# An answer "is" a mistake's prediction when it lies within this fraction of the
+# prediction's own size (plus a floor for near-zero truths): loose enough for noisy
+# problems, tight enough that an unrelated wrong answer is not given a wrong name.
+_RELATIVE = 0.02
+_FLOOR = 1e-6
+
+_INVERSE = ("it is the inverse of the expected pose: b_T_a where a_T_b was asked (check "
+            "which frame each transform maps from and to)")
+_TRANSPOSED = ("its rotation is the transpose of the expected one (R.T where R was asked: "
+               "check the direction of the rotation)")
+_MILLIMETRES = ("its translation is 1000 times too large: millimetres where metres were "
+                "asked (the course works in metres)")
+_METRES = ("its translation is 1000 times too small: metres where millimetres were asked, "
+           "or a conversion applied twice")
+_DEGREES = ("its rotation angle is off by a factor of 180/pi: degrees and radians mixed up "
+            "(numpy's trigonometry takes radians)")
+_MIRRORED = ("its rotation has determinant -1: a mirror image, not a rotation (in an SVD fit, "
+             "flip the sign of the last column of V when det(V U^T) < 0)")
+
+
+def _close(value: np.ndarray, predicted: np.ndarray) -> bool:
+    scale = float(np.linalg.norm(predicted))
+    return float(np.linalg.norm(value - predicted)) <= _RELATIVE * scale + _FLOOR
+
+
+def _rotation_angle(R: np.ndarray) -> float:
+    return math.acos(max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0)))
+
+
+def _pose_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
+    R, t = value[:3, :3], value[:3, 3]
+    R_true, t_true = truth[:3, :3], truth[:3, 3]
+    if np.linalg.det(R) < 0 and np.allclose(R.T @ R, np.eye(3), atol=1e-3):
+        return _MIRRORED
+    inverse = np.eye(4)
+    inverse[:3, :3], inverse[:3, 3] = R_true.T, -R_true.T @ t_true
+    rotation_differs = not _close(R, R_true)
+    if rotation_differs and _close(value[:3], inverse[:3]):
+        return _INVERSE
+    if rotation_differs and _close(R, R_true.T):
+        return _TRANSPOSED
+    if not rotation_differs and np.linalg.norm(t_true) > 1e-4:
+        if _close(t, 1000.0 * t_true):
+            return _MILLIMETRES
+        if _close(t, t_true / 1000.0):
+            return _METRES
+    if rotation_differs and _close(t, t_true):
+        angle, angle_true = _rotation_angle(R), _rotation_angle(R_true)
+        for factor in (math.pi / 180.0, 180.0 / math.pi):
+            wrapped = math.remainder(angle_true * factor, 2 * math.pi)
+            if angle_true > 1e-3 and abs(abs(wrapped) - angle) <= 0.02 * max(angle, 1e-3):
+                return _DEGREES
+    return None
+
+
+def _array_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
+    if float(np.linalg.norm(truth)) <= _FLOOR:
+        return None
+    if _close(value, 1000.0 * truth):
+        return "it is 1000 times too large: millimetres where metres were asked"
+    if _close(value, truth / 1000.0):
+        return "it is 1000 times too small: metres where millimetres were asked"
+    if _close(value, truth * 180.0 / math.pi):
+        return "it is in degrees where radians were asked"
+    if _close(value, truth * math.pi / 180.0):
+        return "it is in radians where degrees were asked"
+    if _close(value, -truth):
+        return "it has the opposite sign of the expected answer (check the direction or the order)"
+    if truth.ndim == 2 and truth.shape[0] == truth.shape[1] and not _close(value, truth) \
+            and _close(value, truth.T):
+        return "it is the transpose of the expected matrix"
+    return None
+
+
+def diagnose(value, truth) -> str | None:
+    """A hint naming the classic mistake that turns ``truth`` into ``value``, or None.
+
+    ``value`` and ``truth`` are the student's answer and the expected one, of the same shape:
+    a (4, 4) pose (inverse, transposed rotation, millimetres, degrees, mirrored) or any
+    numeric array (x1000, x1/1000, degrees, sign, transpose). Never raises.
+    """
+    try:
+        v = np.asarray(value, dtype=float)
+        t = np.asarray(truth, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if v.shape != t.shape or v.size == 0 or not (np.all(np.isfinite(v)) and np.all(np.isfinite(t))):
+        return None
+    if t.shape == (4, 4) and np.allclose(t[3], [0, 0, 0, 1]):
+        return _pose_mistake(v, t)
+    return _array_mistake(v, t)
