@@ -132,6 +132,10 @@ class FunctionSpec:
     # seeds' worth, and the hidden grade must draw at least as many, so that a bug check()
     # reveals cannot pass the grader by luck.
     practice_trials: int | None = None
+    # Mistakes that depend on the inputs (a chain multiplied in reverse order): for a
+    # problem, [(the words for the mistake, the answer it gives)]; an answer matching one is
+    # told so (autograder.mistakes covers those seen from the truth alone).
+    mistakes: Callable[[Trial], list[tuple[str, Any]]] | None = None
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -364,7 +368,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             rows = {k: (r[0], r[1], 0.0, r[2] >= 1.0) for k, r in rows.items()}
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
-        hint = _mistake_hint(outcome.value, trial.truth) if failed and measured is not None \
+        hint = _mistake_hint(spec, outcome.value, trial) if failed and measured is not None \
             and trial.raises is None else None
         if hint is not None:
             message = f"this answer looks like a classic mistake: {hint}"
@@ -398,8 +402,13 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts)
 
 
-def _mistake_hint(value, truth) -> str | None:
-    """:func:`autograder.mistakes.diagnose` on an answer, or on the first parts of a pair."""
+def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
+    """The spec's own mistakes of this problem, then :func:`autograder.mistakes.diagnose` on
+    the answer (or on the first parts of a pair)."""
+    for words, predicted in (spec.mistakes(trial) if spec.mistakes else ()):
+        if mistakes.matches(value, predicted):
+            return words
+    truth = trial.truth
     hint = mistakes.diagnose(value, truth)
     if hint is None and isinstance(value, (tuple, list)) and isinstance(truth, (tuple, list)) \
             and value and truth:

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-__all__ = ["diagnose"]
+__all__ = ["diagnose", "matches"]
 
 # An answer "is" a mistake's prediction when it lies within this fraction of the
 # prediction's own size (plus a floor for near-zero truths): loose enough for noisy
@@ -90,6 +90,16 @@ def _array_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
             and _close(value, truth.T):
         return "it is the transpose of the expected matrix"
     return None
+
+
+def matches(value, predicted) -> bool:
+    """True when ``value`` is, within a few per cent, the answer a mistake predicts."""
+    try:
+        v = np.asarray(value, dtype=float)
+        p = np.asarray(predicted, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return v.shape == p.shape and bool(np.all(np.isfinite(v))) and _close(v, p)
 
 
 def diagnose(value, truth) -> str | None:

@@ -448,6 +448,15 @@ def test_check_names_the_classic_mistake_behind_a_wrong_answer(capsys):
     checks.check(inverse, "pose_from_rotvec")
     assert "inverse of the expected pose" in capsys.readouterr().out
 
+    def reversed_chain(poses):
+        out = np.eye(4)
+        for T in poses:
+            out = T @ out
+        return out
+
+    checks.check(reversed_chain, "compose_chain")
+    assert "multiplied in reverse order" in capsys.readouterr().out
+
 
 def test_a_check_voided_by_an_edge_case_says_so_instead_of_reading_as_a_contradiction():
     spec = checks.spec_for("pose_from_rotvec", "lab0_frames")

@@ -65,6 +65,9 @@ COMPOSE_CHAIN = FunctionSpec(
     checks=pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
     signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
     forbidden=("robots.geometry.compose",),
+    mistakes=lambda trial: [] if len(trial.args[0]) < 2 else [
+        ("the poses are multiplied in reverse order (y_T_z @ ... @ a_T_b): a_T_z is "
+         "a_T_b @ b_T_c @ ... @ y_T_z, left to right", geo.compose(*trial.args[0][::-1]))],
 )
 POSE_FROM_ROTVEC = FunctionSpec(
     name="pose_from_rotvec", points=4.0, n_trials=3 * ROTVEC_PRACTICE,
