@@ -420,10 +420,11 @@ class StudentCallError(Exception):
     """A call of the student's function inside a closed-loop ``drive`` failed."""
 
 
-def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float) -> TrialOutcome:
+def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
+              wall_factor: float = WALL_BACKSTOP_FACTOR) -> TrialOutcome:
     """One trial: a single ``call_once(args, cpu_limit_s) -> TrialOutcome``, or the spec's
     closed loop of them (``spec.drive``) within ``time_limit_s`` CPU seconds of the student's
-    code in all (wall clock: :data:`WALL_BACKSTOP_FACTOR` times that)."""
+    code in all (wall clock: ``wall_factor`` times that)."""
     if spec.drive is None:
         return call_once(trial.args, time_limit_s)
     started = time.perf_counter()
@@ -432,7 +433,7 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float) 
     def call(*args):
         nonlocal cpu_used
         left = time_limit_s - cpu_used
-        if left <= 0 or time.perf_counter() - started > WALL_BACKSTOP_FACTOR * time_limit_s:
+        if left <= 0 or time.perf_counter() - started > wall_factor * time_limit_s:
             raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s")
         outcome = call_once(args, left)
         cpu_used += outcome.cpu_seconds
@@ -455,7 +456,7 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float) 
 def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> TrialOutcome:
     def once(args, timeout_s):
         # Fresh copies: a function that writes into its input must not corrupt the next check.
-        args = tuple(_copy(a) for a in args)
+        args = tuple(standin.copy_value(a) for a in args)
         tables = spec.substitutes(args) if spec is not None and spec.substitutes else None
         started, cpu_started = time.perf_counter(), time.process_time()
 
@@ -473,14 +474,6 @@ def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> Tr
     if spec is None:
         return once(trial.args, math.inf)
     return run_trial(spec, trial, once, spec.time_limit_s)
-
-
-def _copy(a):
-    if isinstance(a, np.ndarray):
-        return a.copy()
-    if isinstance(a, list):
-        return [_copy(x) for x in a]
-    return a
 
 
 def forbidden_result(spec: FunctionSpec, names) -> FunctionResult:

@@ -526,7 +526,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     outcome = checks.run_trial(
                         spec, trial, lambda args, t, w=worker, s=spec: w.call(
                             s.name, args, t, s.forbidden,
-                            s.substitutes(args) if s.substitutes else None), timeout)
+                            s.substitutes(args) if s.substitutes else None), timeout,
+                        limits.wall_factor)
                     tripped |= worker.tripped
                     worker.tripped.clear()
                     outcomes.append(outcome)

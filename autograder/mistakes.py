@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from robots import geometry as geo
+
 __all__ = ["diagnose", "matches"]
 
 # An answer "is" a mistake's prediction when it lies within this fraction of the
@@ -43,10 +45,6 @@ def _close(value: np.ndarray, predicted: np.ndarray) -> bool:
     return float(np.linalg.norm(value - predicted)) <= _RELATIVE * scale + _FLOOR
 
 
-def _rotation_angle(R: np.ndarray) -> float:
-    return math.acos(max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0)))
-
-
 def _pose_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
     R, t = value[:3, :3], value[:3, 3]
     R_true, t_true = truth[:3, :3], truth[:3, 3]
@@ -65,7 +63,7 @@ def _pose_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
         if _close(t, t_true / 1000.0):
             return _METRES
     if rotation_differs and _close(t, t_true):
-        angle, angle_true = _rotation_angle(R), _rotation_angle(R_true)
+        angle, angle_true = (math.radians(geo.rotation_angle_deg(M)) for M in (R, R_true))
         for factor in (math.pi / 180.0, 180.0 / math.pi):
             wrapped = math.remainder(angle_true * factor, 2 * math.pi)
             if angle_true > 1e-3 and abs(abs(wrapped) - angle) <= 0.02 * max(angle, 1e-3):

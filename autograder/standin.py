@@ -13,11 +13,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["substitute", "substituted"]
+__all__ = ["copy_value", "substitute", "substituted"]
 
 
-def _copy(value):
-    return value.copy() if isinstance(value, np.ndarray) else value
+def copy_value(value):
+    """A copy of an array (or a list of them, nested) that the callee may write into."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, list):
+        return [copy_value(x) for x in value]
+    return value
 
 
 def _flat_args(args) -> np.ndarray | None:
@@ -41,7 +46,7 @@ def substitute(name: str, own, table):
             for key, value in keys:
                 if key is not None and key.shape == flat.shape and \
                         np.allclose(flat, key, rtol=1e-12, atol=1e-15):
-                    return _copy(value)
+                    return copy_value(value)
         if own is None:
             raise NameError(f"name {name!r} is not defined")
         return own(*args, **kwargs)
