@@ -11,7 +11,8 @@ grader, so student code that patches this module gains nothing but a zero.
 
 Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}`` runs one
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
-seconds (an exception or timeout ends that cell only);
+seconds (an exception or timeout ends that cell only); the reply carries the first few KB
+the cell wrote to stdout and to stderr;
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
 "substitutes": {name: [[args, value], ...]}}`` calls a function by name, with a tripwire on
 the routines it must not call (reported as ``"forbidden"`` in the reply; the grader's own
@@ -40,21 +41,27 @@ class _Timeout(BaseException):
 
 
 class _CappedWriter(io.TextIOBase):
-    """stdout/stderr replacement: counts everything, keeps only the first few KB."""
+    """stdout or stderr replacement: counts everything, keeps the first few KB of each cell's
+    output (nbgrader's view of a test cell: what it printed, and whether it wrote to stderr)."""
 
     def __init__(self):
-        self.head, self.total = [], 0
+        self.head, self.kept, self.total = [], 0, 0
 
     def write(self, s):
         s = str(s)
-        kept = sum(len(x) for x in self.head)
-        if kept < OUTPUT_KEEP:
-            self.head.append(s[: OUTPUT_KEEP - kept])
+        if self.kept < OUTPUT_KEEP:
+            self.head.append(s[: OUTPUT_KEEP - self.kept])
+            self.kept += len(self.head[-1])
         self.total += len(s)
         return len(s)
 
     def writable(self):
         return True
+
+    def take(self) -> str:
+        """What was kept since the last call, and forget it."""
+        text, self.head, self.kept = "".join(self.head), [], 0
+        return text
 
 
 def _on_alarm(signum, frame):
@@ -139,8 +146,8 @@ def main(argv: list[str]) -> int:
     # Writing past RLIMIT_FSIZE would kill us with SIGXFSZ; an OSError in the student's cell
     # is the better outcome.
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    out = _CappedWriter()
-    sys.stdin, sys.stdout, sys.stderr = io.StringIO(""), out, out
+    out, err = _CappedWriter(), _CappedWriter()
+    sys.stdin, sys.stdout, sys.stderr = io.StringIO(""), out, err
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
     send, receive = wire.send, wire.receive  # bound now: student code may patch the module
@@ -156,6 +163,7 @@ def main(argv: list[str]) -> int:
         if op == "cell":
             started, cpu_started = time.monotonic(), time.process_time()
             index = request.get("index", 0)
+            out.take(), err.take()
             try:
                 code = compile(str(request.get("source", "")), f"<cell {index}>", "exec")
                 _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
@@ -164,7 +172,8 @@ def main(argv: list[str]) -> int:
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
             reply["seconds"] = time.monotonic() - started
             reply["cpu_seconds"] = time.process_time() - cpu_started
-            reply["output_chars"] = out.total
+            reply["output_chars"] = out.total + err.total
+            reply["stdout"], reply["stderr"] = out.take(), err.take()
             send(rep_fd, reply)
         elif op == "call":
             name = str(request.get("name"))
@@ -186,7 +195,7 @@ def main(argv: list[str]) -> int:
                 reply["forbidden"] = sorted(tripwire.hits)
             reply["seconds"] = time.monotonic() - started
             reply["cpu_seconds"] = time.process_time() - cpu_started
-            reply["output_chars"] = out.total
+            reply["output_chars"] = out.total + err.total
             try:
                 send(rep_fd, reply)
             except (wire.WireError, TypeError, ValueError, OverflowError) as exc:

@@ -3,10 +3,11 @@
 ``init_course(DIR)`` makes a directory where the instructor's usual nbgrader commands work
 (``nbgrader generate_assignment lab0_frames``, ``nbgrader autograde lab0_frames``, ...).
 ``grade_course(DIR, ASSIGNMENT)`` grades every submission in three visible stages: freeze
-(:mod:`autograder.freeze`), execute untrusted code in throwaway sandboxes (nbgrader's
-autograde in :mod:`autograder.scratch`, the isolated grader in :mod:`autograder.grading`),
-and record from the trusted process (:mod:`autograder.record`), writing ``DIR/grades.csv``
-and per-student feedback HTML (:mod:`autograder.feedback`).
+(:mod:`autograder.freeze`), execute untrusted code in a throwaway sandbox (the isolated
+grader's worker, :mod:`autograder.grading`, which also runs the cells for nbgrader's own
+autograde, :mod:`autograder.scratch`), and record from the trusted process
+(:mod:`autograder.record`), writing ``DIR/grades.csv`` and per-student feedback HTML
+(:mod:`autograder.feedback`).
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     if not (root / "gradebook.db").exists():
         from nbgrader.api import Gradebook
 
-        scratch.put_interpreter_on_path()   # a new gradebook runs `alembic`
+        scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         with Gradebook(f"sqlite:///{root / 'gradebook.db'}", course_id=course_id):
             pass
     for lab in sorted(p for p in labs.iterdir() if p.is_dir() and any(p.glob("*.ipynb"))):
@@ -231,7 +232,8 @@ def _cross_check(grade: grading.SubmissionGrade, nb: dict, cell_map: dict[str, s
 
 
 def grade_course(course_dir, assignment: str, workers: int = 1, *,
-                 run_nbgrader: bool = False, nbgrader_cell_timeout_s: int | None = None,
+                 run_nbgrader: bool = False, nbgrader_kernel: bool = False,
+                 nbgrader_cell_timeout_s: int | None = None,
                  nbgrader_timeout_s: float = 300,
                  limits: grading.Limits = grading.Limits(),
                  caps: freeze.Caps = freeze.Caps(),
@@ -243,9 +245,13 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
 
     1. **freeze**: every submission is copied, as data (regular files only, capped), into
        grader-private storage before any student code runs (:mod:`autograder.freeze`);
-    2. **execute untrusted**: per student, nbgrader's autograde in a throwaway sandboxed
-       course (:mod:`autograder.scratch`) and the isolated grader's worker on hidden problems
-       (:mod:`autograder.grading`); neither sees the course, the secret or the answer key;
+    2. **execute untrusted**: per student, one sandboxed worker runs the notebook once and
+       answers the hidden problems (:mod:`autograder.grading`); it sees neither the course,
+       the secret nor the answer key. With ``run_nbgrader``, nbgrader's own autograde
+       converter (sanitize, restore the locked and test cells, score, late penalty) runs
+       here on a throwaway course and takes its cell outcomes from that same run
+       (:func:`autograder.scratch.autograde_in_worker`), so the cross-check costs no second
+       execution; an assignment of several notebooks gets nbgrader's own kernel, sandboxed;
     3. **record**, from this trusted process: validated numbers into ``gradebook.db``
        (backed up first, integrity-checked after, restored if damaged), then ``grades.csv``
        and the feedback pages, written atomically without following links.
@@ -256,8 +262,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         workers: submissions graded in parallel (each in its own sandbox).
         run_nbgrader: run nbgrader's autograde (stage 2) for its cell results; otherwise use
             whatever nbgrader results ``gradebook.db`` already holds, if any.
-        nbgrader_cell_timeout_s: override nbgrader's per-cell timeout (config: 30 s).
-        nbgrader_timeout_s: wall clock of one student's nbgrader run.
+        nbgrader_kernel: run nbgrader's autograde with its own kernel, sandboxed, a second
+            run of each notebook (slower; the autograded notebooks then hold rich output such
+            as plots); always so for an assignment of several notebooks.
+        nbgrader_cell_timeout_s: nbgrader's per-cell timeout in its kernel (config: 30 s).
+        nbgrader_timeout_s: wall clock of one student's nbgrader kernel run.
         limits: the isolated grader's per-submission limits (``deadline_s``: wall clock).
         caps: what one submission may hold (sizes, file and cell counts).
         fresh: draw new hidden problems for this run (a random nonce, written to
@@ -300,8 +309,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         frozen = _freeze(root, assignment, Path(store), caps, students)
         # 2. execute untrusted code, each submission in its own throwaway world
         nb_runs, grades = _execute(root, assignment, frozen, Path(store), workers, secret,
-                                   nonce, limits, run_nbgrader, nbgrader_timeout_s,
-                                   nbgrader_cell_timeout_s, run_notes, progress)
+                                   nonce, limits, run_nbgrader, nbgrader_kernel,
+                                   nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
+                                   progress)
     # 3. record from the trusted side
     rows = _record(root, assignment, frozen, nb_runs, grades, private, run_notes)
     _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs, run_notes)
@@ -346,8 +356,8 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
 
 
 def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limits,
-             run_nbgrader, nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
-             progress=None):
+             run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
+             run_notes, progress=None):
     """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
     a refused one gets an empty grade here (zero, with its flags)."""
     template = known = None
@@ -359,20 +369,31 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
         except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
             run_notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
 
+    in_worker = (not nbgrader_kernel and known is not None
+                 and len({name for name, _ in known}) == 1)
+
     def one(sub: freeze.Frozen):
-        nb = None
+        nb = grade = None
         if sub.accepted and sub.notebooks and template is not None:
             try:
-                nb = scratch.autograde_one(sub, assignment, root, template, known,
-                                           timeout_s=nbgrader_timeout_s,
-                                           cell_timeout_s=nbgrader_cell_timeout_s)
+                if in_worker:   # one run of the cells for both nbgrader and the grader
+                    nb, grade = scratch.autograde_in_worker(
+                        sub, assignment, root, template, known,
+                        lambda paths: grading.grade_notebook(
+                            paths, assignment, sub.student_id, secret, nonce, limits,
+                            run_tests=True))
+                else:   # the in-worker run takes one notebook: nbgrader's own kernel
+                    nb = scratch.autograde_one(sub, assignment, root, template, known,
+                                               timeout_s=nbgrader_timeout_s,
+                                               cell_timeout_s=nbgrader_cell_timeout_s)
             except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
                 nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
         try:
             if not sub.accepted or not sub.notebooks:
                 raise _NothingToGrade()
-            grade = grading.grade_notebook(sub.notebooks, assignment, sub.student_id, secret,
-                                           nonce, limits)
+            if grade is None:
+                grade = grading.grade_notebook(sub.notebooks, assignment, sub.student_id,
+                                               secret, nonce, limits)
         except _NothingToGrade:
             grade = _zero_grade(sub, assignment)
         except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row

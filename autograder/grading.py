@@ -57,6 +57,7 @@ __all__ = [
     "Limits",
     "SubmissionGrade",
     "CellOrigin",
+    "CellRun",
     "load_secret",
     "create_secret",
     "problem_rng",
@@ -104,6 +105,19 @@ class Limits:
         return int(math.ceil(self.load_timeout_s + calls)) + 10
 
 
+@dataclass(frozen=True)
+class CellRun:
+    """One notebook cell as the worker first ran it: ``origin`` says where it sits; ``error``
+    is empty when it ran through ("timed out" when its limit stopped it); ``stdout`` and
+    ``stderr`` are the first few KB it wrote to each."""
+
+    origin: CellOrigin
+    error: str = ""
+    where: str = ""
+    stdout: str = ""
+    stderr: str = ""
+
+
 @dataclass
 class SubmissionGrade:
     """One student's result: per-function scores, tamper flags, and notes for the instructor."""
@@ -117,6 +131,10 @@ class SubmissionGrade:
     # Where each code cell the worker ran ("cell N" in errors: its index here) sits in the
     # notebook, so feedback can number cells as the student sees them.
     cell_origins: list[CellOrigin] = field(default_factory=list)
+    # With ``run_tests``: what each cell did on the first load (nbgrader's view of the run),
+    # and the verdict of each function's in-notebook hidden test (None: passed).
+    cell_runs: list[CellRun] = field(default_factory=list)
+    kernel_checks: dict[str, str | None] = field(default_factory=dict)
 
     @property
     def score(self) -> float:
@@ -201,12 +219,24 @@ class CellOrigin:
     prompt: int
 
 
-def extract_code(notebook_paths, with_origins: bool = False):
+def _is_test_cell(cell: dict) -> bool:
+    """An nbgrader autograder-test cell (graded, not a solution), by its metadata."""
+    meta = cell.get("metadata")
+    meta = meta.get("nbgrader") if isinstance(meta, dict) else None
+    return isinstance(meta, dict) and meta.get("grade") is True and not meta.get("solution")
+
+
+def extract_code(notebook_paths, with_origins: bool = False, tests: set[int] | None = None):
     """(code cells in order, notes) from one or more notebooks, hidden-test cells left out;
     with ``with_origins``, (cells, origins, notes), a :class:`CellOrigin` per kept cell.
 
     Reads raw JSON and tolerates missing metadata, deleted, duplicated or reordered cells:
     graded functions are found later by name, not by cell id.
+
+    ``tests``: a set to fill with the indices of the kept autograder-test cells. Given it, the
+    nbgrader test cells (by metadata) are kept, hidden tests included. Only pass it for a
+    notebook nbgrader has sanitized (its ``OverwriteCells`` put the instructor's source back
+    into every cell whose metadata says it is a test), or a student could mark a cell as one.
     """
     if isinstance(notebook_paths, (str, Path)):
         notebook_paths = [notebook_paths]
@@ -224,10 +254,13 @@ def extract_code(notebook_paths, with_origins: bool = False):
                 continue
             source = _cell_source(cell)
             prompt += bool(source.strip())
-            if HIDDEN_MARK in source:
+            is_test = tests is not None and _is_test_cell(cell)
+            if HIDDEN_MARK in source and not is_test:
                 continue
             source = _strip_magics(source)
             if source and source.strip():
+                if is_test:
+                    tests.add(len(cells))
                 cells.append(source)
                 origins.append(CellOrigin(Path(path).name, position, prompt))
     return (cells, origins, notes) if with_origins else (cells, notes)
@@ -468,7 +501,8 @@ class Worker:
 
 
 def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str,
-                   nonce: str | None, limits: Limits = Limits()) -> SubmissionGrade:
+                   nonce: str | None, limits: Limits = Limits(),
+                   run_tests: bool = False) -> SubmissionGrade:
     """Grade one submission (its frozen notebook file or files) on its own hidden problems.
 
     The code runs in the sandboxed worker, all of its processes in one cgroup when the
@@ -476,6 +510,12 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     (static scan here, tripwire in the worker) scores zero with a ``forbidden:<name>`` flag.
     Never raises because of anything in the submission: every failure becomes a zero on the
     problems it touched and a note; past ``limits.deadline_s`` the rest scores zero.
+
+    ``run_tests`` is nbgrader's run of the same notebook, for a notebook nbgrader has
+    sanitized (see :func:`extract_code`): its test cells run too, in order, on the first load
+    only (a restart skips them), each cell's outcome goes to ``cell_runs``, and every
+    ``hidden_test(f)`` of a test cell is scored here on the kernel seeds, the rule of
+    :func:`autograder.checks.hidden_test`, into ``kernel_checks``.
     """
     started = time.monotonic()
     specs = checks.SPECS.get(assignment)
@@ -483,11 +523,15 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
                          f"known assignments: {sorted(checks.SPECS)}")
     grade = SubmissionGrade(student_id=student_id, assignment=assignment)
-    cells, grade.cell_origins, grade.notes = extract_code(notebook_paths, with_origins=True)
-    grade.flags += scan_for_tampering(cells)
+    tests: set[int] | None = set() if run_tests else None
+    cells, grade.cell_origins, grade.notes = extract_code(notebook_paths, with_origins=True,
+                                                          tests=tests)
+    tests = tests or set()
+    own = [c for i, c in enumerate(cells) if i not in tests]   # the student's code
+    grade.flags += scan_for_tampering(own)
     if not cells:
         grade.notes.append("no code cells found")
-    banned = {spec.name: static_hits(cells, spec.name, spec.forbidden) for spec in specs}
+    banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
 
     caps = sandbox.capabilities()
     cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes) \
@@ -497,55 +541,77 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     load_budget = LoadBudget.of(limits)   # over every restart, not since the start: a worker
     worker_cpu_s = limits.worker_cpu_s(specs)  # that dies late must still be able to reload
     deadline = started + limits.deadline_s
+
+    def loaded() -> Worker:
+        nonlocal worker
+        if worker is None or not worker.alive:
+            if worker is not None:
+                worker.close()
+            worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
+                                   worker_cpu_s)
+            _note_load(grade, worker.load_report, tests)
+            if run_tests and not grade.cell_runs:
+                grade.cell_runs = _cell_runs(worker.load_report, grade.cell_origins, skip)
+            skip.update(tests)   # they ran once, as in nbgrader; a restart needs only the code
+        return worker
+
+    def run(spec: checks.FunctionSpec, trials: list[checks.Trial]):
+        """(outcomes, forbidden routines tripped) of ``spec``'s function on ``trials``."""
+        nonlocal worker
+        outcomes: list[checks.TrialOutcome] = []
+        failure = None
+        tripped: set[str] = set()
+        for trial in trials:
+            if failure is None and time.monotonic() > deadline:
+                failure = f"not run: the submission's {limits.deadline_s:g} s were used up"
+            if failure is not None:  # one hang is enough: do not wait on every problem
+                outcomes.append(checks.TrialOutcome(error=failure))
+                continue
+            try:
+                w = loaded()
+                timeout = limits.call_limit_s(spec)
+                timeout = max(0.1, min(timeout, (deadline - time.monotonic())
+                                       / limits.wall_factor))
+                outcome = checks.run_trial(
+                    spec, trial, lambda args, t, w=w, s=spec: w.call(
+                        s.name, args, t, s.forbidden,
+                        s.substitutes(args) if s.substitutes else None), timeout,
+                    limits.wall_factor)
+                tripped |= w.tripped
+                w.tripped.clear()
+                outcomes.append(outcome)
+                if outcome.error and outcome.error.startswith("timed out"):
+                    failure = f"skipped: an earlier problem timed out after {timeout:g} s"
+            except WorkerFailure as exc:
+                # The problem that stopped the worker says why; the rest say they were
+                # not run (so feedback counts one time-out, not one per problem).
+                outcomes.append(checks.TrialOutcome(error=str(exc)))
+                failure = f"skipped: an earlier problem stopped the worker ({exc})"
+                if worker is not None:
+                    worker.close()
+                worker = None
+        return outcomes, tripped
+
     try:
+        if run_tests:   # every cell runs once even if no function gets called
+            try:
+                loaded()
+            except WorkerFailure as exc:
+                grade.notes.append(f"the notebook did not load: {exc}")
         for spec in specs:
             if banned[spec.name]:
                 grade.functions.append(checks.forbidden_result(spec, banned[spec.name]))
                 continue
             trials = checks.make_trials(spec, problem_rng(secret, nonce, assignment,
                                                           student_id, spec.name))
-            outcomes: list[checks.TrialOutcome] = []
-            failure = None
-            tripped: set[str] = set()
-            for trial in trials:
-                if failure is None and time.monotonic() > deadline:
-                    failure = f"not run: the submission's {limits.deadline_s:g} s were used up"
-                if failure is not None:  # one hang is enough: do not wait on every problem
-                    outcomes.append(checks.TrialOutcome(error=failure))
-                    continue
-                try:
-                    if worker is None or not worker.alive:
-                        if worker is not None:
-                            worker.close()
-                        worker = _start_worker(cells, limits, skip, grade, load_budget,
-                                               cgroup, worker_cpu_s)
-                        _note_load(grade, worker.load_report)
-                    timeout = limits.call_limit_s(spec)
-                    timeout = max(0.1, min(timeout, (deadline - time.monotonic())
-                                           / limits.wall_factor))
-                    outcome = checks.run_trial(
-                        spec, trial, lambda args, t, w=worker, s=spec: w.call(
-                            s.name, args, t, s.forbidden,
-                            s.substitutes(args) if s.substitutes else None), timeout,
-                        limits.wall_factor)
-                    tripped |= worker.tripped
-                    worker.tripped.clear()
-                    outcomes.append(outcome)
-                    if outcome.error and outcome.error.startswith("timed out"):
-                        failure = f"skipped: an earlier problem timed out after {timeout:g} s"
-                except WorkerFailure as exc:
-                    # The problem that stopped the worker says why; the rest say they were
-                    # not run (so feedback counts one time-out, not one per problem).
-                    outcomes.append(checks.TrialOutcome(error=str(exc)))
-                    failure = f"skipped: an earlier problem stopped the worker ({exc})"
-                    if worker is not None:
-                        worker.close()
-                    worker = None
+            outcomes, tripped = run(spec, trials)
             if tripped:
                 banned[spec.name] = sorted(tripped)
                 grade.functions.append(checks.forbidden_result(spec, tripped))
             else:
                 grade.functions.append(checks.score_function(spec, trials, outcomes))
+        for name in hidden_tests_called(cells[i] for i in sorted(tests)):
+            grade.kernel_checks[name] = _kernel_check(name, specs, banned, run)
     finally:
         if worker is not None:
             worker.close()
@@ -561,6 +627,51 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
         grade.flags.append("sandbox:rlimits_only")
     grade.seconds = time.monotonic() - started
     return grade
+
+
+_HIDDEN_TEST_CALL = re.compile(r"\bhidden_test\(\s*([A-Za-z_]\w*)")
+
+
+def hidden_tests_called(test_sources) -> list[str]:
+    """The functions the test cells' ``hidden_test(f)`` lines name, in order, once each.
+
+    Read from the instructor's source (restored by nbgrader), not reported by the worker,
+    so student code that patches ``hidden_test`` cannot skip one."""
+    names: list[str] = []
+    for source in test_sources:
+        for name in _HIDDEN_TEST_CALL.findall(source):
+            if name not in names:
+                names.append(name)
+    return names
+
+
+def _kernel_check(name: str, specs, banned: dict, run) -> str | None:
+    """The verdict of ``hidden_test(name)`` (None: passed, else why not), scored as the
+    in-kernel hidden test scores it (:data:`checks.KERNEL_SEEDS`), but on the grader's side."""
+    spec = next((s for s in specs if s.name == name), None)
+    if spec is None:
+        return f"no graded function is named {name!r}"
+    if banned.get(name):
+        return checks.forbidden_result(spec, banned[name]).summary()
+    trials = [t for seed in checks.KERNEL_SEEDS for t in checks.public_trials(spec, seed)]
+    outcomes, tripped = run(spec, trials)
+    result = (checks.forbidden_result(spec, tripped) if tripped
+              else checks.score_function(spec, trials, outcomes))
+    return None if result.fraction >= 1.0 else result.summary()
+
+
+def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) -> list[CellRun]:
+    """:class:`CellRun` of every cell from a first load's report (a cell skipped after it
+    hung counts as timed out; replies are the worker's, so every field is capped text)."""
+    runs = []
+    for entry, origin in zip(report, origins):
+        error = "" if entry.get("ok") is True else str(entry.get("error") or "failed")[:400]
+        if error == "skipped" and entry.get("index") in skip:
+            error = "timed out"
+        runs.append(CellRun(origin, error, str(entry.get("where") or "")[:80],
+                            str(entry.get("stdout") or "")[:4096],
+                            str(entry.get("stderr") or "")[:4096]))
+    return runs
 
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
@@ -582,11 +693,12 @@ def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
         return worker
 
 
-def _note_load(grade: SubmissionGrade, report: list[dict]) -> None:
+def _note_load(grade: SubmissionGrade, report: list[dict], tests: set[int]) -> None:
+    """Note what loading did; errors of the test cells are nbgrader's result, not notes."""
     if any("loaded" in n for n in grade.notes):
         return  # a restarted worker repeats the same load
     failed = [c for c in report if isinstance(c, dict) and not c.get("ok")
-              and c.get("error") != "skipped"]
+              and c.get("error") != "skipped" and c.get("index") not in tests]
     grade.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
     for c in failed[:5]:
         grade.notes.append(f"  cell error: {str(c.get('error'))[:200]} ({c.get('where', '')})")

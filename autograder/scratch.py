@@ -1,5 +1,10 @@
 """nbgrader's autograde for one student, in a throwaway course the student's code cannot leave.
 
+Two ways. :func:`autograde_in_worker` (what ``cobotlab grade`` uses): nbgrader's converter in
+the trusted process, the notebook's cells run once by the isolated grader's worker, which
+grades the same submission in the same run. :func:`autograde_one` (nbgrader alone, and
+assignments of several notebooks): nbgrader with its own kernel, as described next.
+
 nbgrader's kernel runs the student's notebook, so it gets what that run needs and nothing
 else: a scratch course (its own config, the assignment's source read-only, a gradebook that
 holds only the assignment's definition, the one frozen submission) inside the sandbox of
@@ -11,21 +16,26 @@ only cell scores it can validate against the template it made itself (known cell
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import shutil
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from autograder import sandbox
+from autograder.feedback import student_location
 from autograder.freeze import Frozen, printable
+from autograder.grading import HIDDEN_MARK, hidden_tests_called
 
 __all__ = ["CellScore", "ScratchResult", "make_template", "autograde_one",
-           "put_interpreter_on_path"]
+           "autograde_in_worker", "put_interpreter_on_path", "speed_up_new_gradebooks"]
 
 _PKG = Path(__file__).resolve().parent
 _ROOT = _PKG.parent
@@ -68,6 +78,34 @@ def put_interpreter_on_path() -> None:
         os.environ["PATH"] = bin_dir + (os.pathsep + path if path else "")
 
 
+def speed_up_new_gradebooks() -> None:
+    """Let this process create gradebooks without starting ``alembic`` each time.
+
+    nbgrader stamps every new gradebook with the migration head it gets by running
+    ``alembic heads`` in a subprocess (2.6 s here: a Python start-up and the imports of
+    alembic and SQLAlchemy), and a grading run creates one per assignment; the same head
+    read in process, once, costs 0.25 s. Checked against nbgrader 0.9's function name; if
+    a later nbgrader lacks it, nothing is changed."""
+    import nbgrader.api as api
+
+    if getattr(api.get_alembic_version, "_cobotlab", False) or not hasattr(
+            api, "get_alembic_version"):
+        return
+    from functools import lru_cache
+
+    @lru_cache(maxsize=1)
+    def head() -> str:
+        from alembic.config import Config
+        from alembic.script import ScriptDirectory
+        from nbgrader.dbutil import _temp_alembic_ini
+
+        with _temp_alembic_ini("sqlite:////tmp/gradebook.db") as ini:
+            return str(ScriptDirectory.from_config(Config(ini)).get_current_head())
+
+    head._cobotlab = True
+    api.get_alembic_version = head
+
+
 def _env(home: str) -> dict[str, str]:
     bin_dir = os.path.dirname(sys.executable)  # nbgrader runs `alembic` from PATH
     return {"PATH": f"{bin_dir}:/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8",
@@ -78,8 +116,9 @@ def _env(home: str) -> dict[str, str]:
 def make_template(root: Path, assignment: str, work: Path, duedate=None) -> Path:
     """A gradebook with only ``assignment``'s definition (cells, checksums, max scores).
 
-    Runs ``nbgrader generate_assignment`` on a copy of the source in ``work`` (instructor
-    material only: no student code runs here). Returns the gradebook's path.
+    Runs nbgrader's ``generate_assignment`` converter, in this process, on a copy of the
+    source in ``work`` (instructor material only: no student code runs here; call it before
+    any grading thread starts). Returns the gradebook's path.
     """
     if sandbox.stopping():
         raise sandbox.Interrupted("grading was interrupted")
@@ -87,24 +126,56 @@ def make_template(root: Path, assignment: str, work: Path, duedate=None) -> Path
     (course / "source").mkdir(parents=True)
     shutil.copytree(root / "source" / assignment, course / "source" / assignment, symlinks=False,
                     ignore=shutil.ignore_patterns(".ipynb_checkpoints", "__pycache__"))
-    shutil.copy2(root / "nbgrader_config.py", course / "nbgrader_config.py")
-    home = work / "template-home"
-    home.mkdir()
-    done = subprocess.run(
-        [sys.executable, "-m", "nbgrader", "generate_assignment", assignment, "--force",
-         f"--CourseDirectory.root={course}"],
-        cwd=course, env=_env(str(home)), capture_output=True, text=True, timeout=300,
-        check=False)
+    # In this process (nbgrader is imported once for the whole run anyway), before any
+    # grading thread starts: the converter's start() changes the working directory.
+    speed_up_new_gradebooks()
+    config = _course_config(root, course, assignment)
+    log, messages = _captured_logger()
+    try:
+        from nbgrader.converters import GenerateAssignment
+        from nbgrader.coursedir import CourseDirectory
+
+        GenerateAssignment(coursedir=CourseDirectory(config=config), config=config,
+                           log=log).start()
+        error = ""
+    except Exception as exc:  # noqa: BLE001 - reported below with nbgrader's log
+        error = f"{type(exc).__name__}: {exc}"
     db = course / "gradebook.db"
-    if done.returncode != 0 or not db.is_file():
+    if error or not db.is_file():
         raise RuntimeError(f"nbgrader generate_assignment {assignment} failed on a copy of the "
-                           f"source: {done.stdout[-800:]} {done.stderr[-800:]}")
+                           f"source: {error} {messages.getvalue()[-1200:]}")
     if duedate is not None:
         from nbgrader.api import Gradebook
 
         with Gradebook(f"sqlite:///{db}") as gb:
             gb.update_or_create_assignment(assignment, duedate=duedate)
     return db
+
+
+def _course_config(root: Path, course: Path, assignment: str, student: str | None = None):
+    """The course's nbgrader configuration (the instructor's ``nbgrader_config.py``), aimed at
+    the throwaway ``course`` and one ``assignment`` (and ``student``), overwriting output."""
+    from traitlets.config.loader import PyFileConfigLoader
+
+    config = PyFileConfigLoader("nbgrader_config.py", path=str(root)).load_config()
+    config.CourseDirectory.root = str(course)
+    config.CourseDirectory.assignment_id = assignment
+    if student is not None:
+        config.CourseDirectory.student_id = student
+    config.BaseConverter.force = True
+    return config
+
+
+def _captured_logger():
+    """(logger, its text): a private logger for one nbgrader converter's messages."""
+    import logging
+
+    text = io.StringIO()
+    logger = logging.getLogger(f"cobotlab.nbgrader.{id(text)}")
+    logger.propagate = False
+    logger.setLevel(logging.INFO)
+    logger.handlers = [logging.StreamHandler(text)]
+    return logger, text
 
 
 def template_cells(template_db: Path, assignment: str) -> dict[tuple[str, str], float]:
@@ -158,6 +229,17 @@ def _read_scores(db: Path, assignment: str, student: str,
             for (nb, cell), top in sorted(known.items())], notes
 
 
+def _lay_out(course: Path, frozen: Frozen, assignment: str, template_db: Path) -> None:
+    """A throwaway course: the one frozen submission and a copy of the template gradebook."""
+    dest = course / "submitted" / frozen.student_id / assignment
+    dest.parent.mkdir(parents=True)
+    if frozen.folder is not None:
+        shutil.copytree(frozen.folder, dest, symlinks=False)
+    else:
+        dest.mkdir()
+    shutil.copy2(template_db, course / "gradebook.db")
+
+
 def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path,
                   known: dict[tuple[str, str], float], *, timeout_s: float = 300,
                   cell_timeout_s: int | None = None, memory_mb: int = 3072,
@@ -175,13 +257,7 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
     caps = sandbox.capabilities()
     with sandbox.ScratchDir(scratch_mb) as scratch:
         course = scratch.path / "course"
-        dest = course / "submitted" / frozen.student_id / assignment
-        dest.parent.mkdir(parents=True)
-        if frozen.folder is not None:
-            shutil.copytree(frozen.folder, dest, symlinks=False)
-        else:
-            dest.mkdir()
-        shutil.copy2(template_db, course / "gradebook.db")
+        _lay_out(course, frozen, assignment, template_db)
         (course / "source" / assignment).mkdir(parents=True)  # the read-only bind's mount point
         shutil.copy2(root / "nbgrader_config.py", scratch.path / "nbgrader_config.py")
         (course / "nbgrader_config.py").touch()
@@ -260,6 +336,165 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
             if data is not None:
                 result.notebooks[name] = data
     return result
+
+
+# ------------------------------------------------------------ nbgrader with cobotlab's executor
+
+
+def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db: Path,
+                        known: dict[tuple[str, str], float], grade_notebook, *,
+                        notebook_mb: float = 20.0):
+    """nbgrader's autograde of one frozen submission, its cells run once by cobotlab's grader.
+
+    nbgrader's own converter runs here, in the trusted process, on a throwaway course (the
+    template gradebook, the one submission): it sanitizes the notebook (clears outputs,
+    restores locked and test cells from the gradebook, checks the metadata), then, where its
+    ``Execute`` would start a kernel, ``grade_notebook([path])`` runs the sanitized notebook
+    in the sandboxed worker, test cells included, and grades it on the hidden problems in the
+    same worker; its cell outcomes become the cells' outputs, and nbgrader scores them, saves
+    the scores and applies the late penalty as usual. No student code runs in this process:
+    the submission's notebook is only read, as JSON, by nbgrader and by the grader.
+
+    ``grade_notebook(paths)`` must return a :class:`autograder.grading.SubmissionGrade` made
+    with ``run_tests=True``. Returns ``(ScratchResult, grade)``; ``grade`` is None when
+    nbgrader refused the notebook before running it (a broken or mangled notebook): nbgrader
+    scores it 0 then, and the caller grades the raw submission itself.
+
+    What differs from a kernel: cells run as plain Python (IPython magics removed), so the
+    outputs hold what the cells printed and their errors, not rich output (plots, the
+    ``check()`` tables); ``hidden_test(f)`` is scored on the grader's side on the same
+    problems as in a kernel, so a submission that patches it or the kernel gains nothing.
+    """
+    from nbgrader.coursedir import CourseDirectory
+
+    if sandbox.stopping():
+        raise sandbox.Interrupted("grading was interrupted")
+    # nbgrader's gradebook code trips SQLAlchemy's session warnings on every run, and
+    # nbformat announces the duplicate cell ids nbgrader then fixes: its log has what matters.
+    warnings.filterwarnings("ignore", message=r".*not in session.*")
+    warnings.filterwarnings("ignore", message=r"Non-unique cell id")
+    result = ScratchResult()
+    logger, log_text = _captured_logger()
+    execute = _worker_execute_class()(grade_notebook=grade_notebook)
+    with tempfile.TemporaryDirectory(prefix="cobotlab-nbgrader-") as work:
+        course = Path(work) / "course"
+        _lay_out(course, frozen, assignment, template_db)
+        shutil.copytree(root / "source" / assignment, course / "source" / assignment,
+                        ignore=shutil.ignore_patterns(".ipynb_checkpoints", "__pycache__"))
+        config = _course_config(root, course, assignment, frozen.student_id)
+        started = time.monotonic()
+        try:
+            converter = _autograde_class()(coursedir=CourseDirectory(config=config),
+                                           config=config, log=logger)
+            converter.autograde_preprocessors = [
+                execute if _is_execute(pp) else pp for pp in converter.autograde_preprocessors]
+            converter.start()
+        except Exception as exc:  # noqa: BLE001 - nbgrader's verdict, not the grader's
+            result.notes.append(f"nbgrader autograde failed: {type(exc).__name__}: "
+                                f"{printable(exc, 300)}")
+        finally:
+            logger.handlers = []
+        # nbgrader's own share: the grader's time inside it is counted as the grader's
+        result.seconds = time.monotonic() - started - (
+            execute.grade.seconds if execute.grade is not None else 0.0)
+        result.log = printable(log_text.getvalue()[-4000:], 4000)
+        result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s of its own (its cells "
+                            "run by the grader)")
+        result.cells, notes = _read_scores(course / "gradebook.db", assignment,
+                                           frozen.student_id, known)
+        result.notes += notes
+        graded = course / "autograded" / frozen.student_id / assignment
+        for name in sorted({nb for nb, _ in known}):
+            data = _regular_bytes(graded / f"{name}.ipynb", int(notebook_mb * 2**20))
+            if data is not None:
+                result.notebooks[name] = data
+    return result, execute.grade
+
+
+def _is_execute(preprocessor) -> bool:
+    from nbgrader.preprocessors import Execute
+
+    if isinstance(preprocessor, str):
+        return preprocessor.rsplit(".", 1)[-1] == "Execute"
+    return isinstance(preprocessor, type) and issubclass(preprocessor, Execute)
+
+
+def _autograde_class():
+    """nbgrader's ``Autograde`` converter, minus the ``os.chdir`` of its ``start``: several
+    submissions are graded at once in threads of one process, and the working directory
+    is the process's (nothing here needs it: every path is absolute)."""
+    from nbconvert.writers import FilesWriter
+    from nbgrader.converters import Autograde
+
+    class InProcessAutograde(Autograde):
+        def start(self) -> None:
+            self.init_notebooks()
+            self.writer = FilesWriter(parent=self, config=self.config)
+            self.exporter = self.exporter_class(parent=self, config=self.config)
+            for pp in self.preprocessors:
+                self.exporter.register_preprocessor(pp)
+            self.convert_notebooks()
+
+    return InProcessAutograde
+
+
+def _worker_execute_class():
+    """The preprocessor that stands where nbgrader's ``Execute`` does (nbgrader imported
+    only when the cross-check runs)."""
+    import nbformat
+    from nbformat.v4 import new_output
+    from nbgrader.preprocessors import NbGraderPreprocessor
+    from nbgrader.utils import is_grade, is_solution
+
+    class WorkerExecute(NbGraderPreprocessor):
+        """Run the notebook in cobotlab's worker (and grade it there) instead of a kernel."""
+
+        def __init__(self, grade_notebook=None, **kwargs):
+            super().__init__(**kwargs)
+            self.grade_notebook = grade_notebook
+            self.grade = None
+
+        def preprocess(self, nb, resources):
+            with tempfile.TemporaryDirectory(prefix="cobotlab-sanitized-") as tmp:
+                path = Path(tmp) / f"{resources['nbgrader']['notebook']}.ipynb"
+                nbformat.write(nb, str(path))
+                self.grade = grade = self.grade_notebook([path])
+            runs = {run.origin.position: run for run in grade.cell_runs}
+            for position, cell in enumerate(nb.cells, 1):
+                if cell.cell_type != "code":
+                    continue
+                run = runs.get(position)
+                cell.outputs = []
+                if run is None:
+                    if not grade.cell_runs and cell.source.strip():
+                        cell.outputs.append(_error_output(
+                            "WorkerError", "the notebook did not load in cobotlab's worker"))
+                    continue
+                cell.execution_count = run.origin.prompt
+                if run.stdout:
+                    cell.outputs.append(new_output("stream", name="stdout", text=run.stdout))
+                if run.stderr:
+                    cell.outputs.append(new_output("stream", name="stderr", text=run.stderr))
+                if run.error:
+                    ename, _, evalue = run.error.partition(": ")
+                    if run.error == "timed out":
+                        ename, evalue = "CellTimeoutError", "stopped at its time limit"
+                    where = student_location(f" ({run.where})", grade.cell_origins) \
+                        if run.where else ""
+                    cell.outputs.append(_error_output(ename, evalue + where))
+                elif is_grade(cell) and not is_solution(cell) and HIDDEN_MARK in cell.source:
+                    for name in hidden_tests_called([cell.source]):
+                        verdict = grade.kernel_checks.get(name, "not scored")
+                        if verdict is not None:
+                            cell.outputs.append(_error_output("AssertionError", verdict))
+                            break   # the kernel would stop at the first failing assert
+            return nb, resources
+
+    def _error_output(ename: str, evalue: str):
+        return new_output("error", ename=ename, evalue=evalue,
+                          traceback=[f"{ename}: {evalue}"])
+
+    return WorkerExecute
 
 
 def _regular_bytes(path: Path, cap: int) -> bytes | None:

@@ -11,8 +11,11 @@ same class. Then, side by side:
 * plain nbgrader: one `nbgrader autograde LAB` over the whole class, as an instructor without
   cobotlab runs it (one process, no sandbox, no second grader);
 * `grade_course(..., run_nbgrader=True)` with each ``--workers``: the whole pipeline (freeze,
-  nbgrader's autograde per student in its own sandboxed scratch course, the isolated grader
-  on hidden problems, recording).
+  one sandboxed run of each notebook that serves both nbgrader's autograde and the isolated
+  grader on hidden problems, recording);
+* the previous pipeline, ``nbgrader_kernel=True`` (`cobotlab grade --nbgrader-kernel`), with
+  1 worker: nbgrader's autograde with its own kernel in a sandboxed scratch course per
+  student, then the isolated grader's own run of the notebook.
 
 Time per submission is the run's wall clock over the class size; its 95 % interval comes from
 a bootstrap over the per-submission completion gaps (the autograded notebooks' write times
@@ -146,13 +149,14 @@ def time_plain_nbgrader(course: Path, lab: str) -> tuple[float, np.ndarray, floa
     return wall, np.diff([started, *done]), cpu
 
 
-def time_pipeline(course: Path, lab: str, workers: int):
-    """(wall s, per-submission gaps s, CPU s, rows, mean s of the scratch nbgrader runs) of
-    `grade_course` with nbgrader's cross-check."""
+def time_pipeline(course: Path, lab: str, workers: int, kernel: bool = False):
+    """(wall s, per-submission gaps s, CPU s, rows, mean s of nbgrader's own share) of
+    `grade_course` with nbgrader's cross-check (``kernel``: in nbgrader's own kernel)."""
     marks: list[float] = []
     started = time.time()
     with _CpuMeter() as meter:
-        rows = grade_course(course, lab, workers=workers, run_nbgrader=True, quiet=True,
+        rows = grade_course(course, lab, workers=workers, run_nbgrader=True,
+                            nbgrader_kernel=kernel, quiet=True,
                             progress=lambda done, total, sid: marks.append(time.time()) if done
                             else None)
     wall, cpu = time.time() - started, meter.cpu_s
@@ -181,11 +185,13 @@ def main() -> None:
     parser.add_argument("--students", type=int, default=100)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--bootstrap", type=int, default=2000)
+    parser.add_argument("--no-previous", dest="previous", action="store_false",
+                        help="skip the previous pipeline's row (nbgrader's own kernel)")
     args = parser.parse_args()
     rng = np.random.default_rng(1)
     print(f"{args.students} submissions per lab; {os.cpu_count()} cores; load average "
           f"{os.getloadavg()[0]:.1f} at the start")
-    header = (f"{'lab':<14} {'grader':<22} {'wall s':>8} {'s/submission [95% CI]':>26} "
+    header = (f"{'lab':<14} {'grader':<26} {'wall s':>8} {'s/submission [95% CI]':>26} "
               f"{'vs nbgrader':>12} {'speed-up [95% CI]':>22} {'CPU s/sub':>10}")
     lines = []
     for lab in args.labs:
@@ -196,28 +202,30 @@ def main() -> None:
                 _copy_course(base, Path(tmp) / "plain"), lab)
             plain = plain_wall / args.students
             lo, hi = _boot_mean(plain_gaps, plain_wall, rng, args.bootstrap)
-            lines.append(f"{lab:<14} {'plain nbgrader':<22} {plain_wall:>8.1f} "
+            lines.append(f"{lab:<14} {'plain nbgrader':<26} {plain_wall:>8.1f} "
                          f"{plain:>9.2f} [{lo:6.2f}, {hi:6.2f}] {'1.00x':>12} {'':>22} "
                          f"{plain_cpu / args.students:>10.1f}")
             first = None
-            for workers in args.workers:
-                course = _copy_course(base, Path(tmp) / f"w{workers}")
-                wall, gaps, cpu, rows, nb_s = time_pipeline(course, lab, workers)
+            runs = [(w, False) for w in args.workers] + ([(1, True)] if args.previous else [])
+            for workers, kernel in runs:
+                course = _copy_course(base, Path(tmp) / f"w{workers}{'k' * kernel}")
+                wall, gaps, cpu, rows, nb_s = time_pipeline(course, lab, workers, kernel)
                 assert len(rows) == args.students
                 per = wall / args.students
                 lo, hi = _boot_mean(gaps, wall, rng, args.bootstrap)
-                if first is None:
-                    first = gaps
+                if first is None or kernel:
+                    first = gaps if first is None else first
                     speed = ""
                 else:
                     slo, shi = _boot_ratio(first, gaps, rng, args.bootstrap)
                     speed = f"{first.mean() / gaps.mean():.2f}x [{slo:.2f}, {shi:.2f}]"
                 mean = np.mean([r["score"] for r in rows])
-                lines.append(f"{lab:<14} {f'cobotlab, {workers} worker(s)':<22} {wall:>8.1f} "
+                name = "previous, nbgrader kernel" if kernel else f"cobotlab, {workers} worker(s)"
+                lines.append(f"{lab:<14} {name:<26} {wall:>8.1f} "
                              f"{per:>9.2f} [{lo:6.2f}, {hi:6.2f}] {per / plain:>11.2f}x "
                              f"{speed:>22} {cpu / args.students:>10.1f}   mean score "
-                             f"{mean:.2f}, scratch nbgrader {nb_s:.1f} s each")
-        print(header, *lines[-1 - len(args.workers):], sep="\n", flush=True)
+                             f"{mean:.2f}, nbgrader's own share {nb_s:.1f} s each")
+        print(header, *lines[-1 - len(runs):], sep="\n", flush=True)
     print("\nall labs:", header, *lines, sep="\n")
     print("targets: 'vs nbgrader' <= 1.00x (the whole pipeline no slower per submission than "
           "plain nbgrader) and the speed-up of N workers near N")

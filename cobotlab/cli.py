@@ -163,8 +163,13 @@ def _build_parser() -> argparse.ArgumentParser:
     grade.add_argument("--workers", type=int, default=1, help="parallel graders (default 1)")
     grade.add_argument("--no-nbgrader", action="store_true",
                        help="skip nbgrader's autograde; use the results gradebook.db already has")
+    grade.add_argument("--nbgrader-kernel", action="store_true",
+                       help="run nbgrader's autograde in its own kernel (a second, sandboxed "
+                            "run of each notebook: slower, but the autograded notebooks keep "
+                            "plots and check() tables); default: its cells run once, by the "
+                            "grader's worker")
     grade.add_argument("--nbgrader-timeout", type=float, default=300, metavar="S",
-                       help="wall clock of one student's nbgrader run (default 300 s)")
+                       help="wall clock of one student's nbgrader kernel run (default 300 s)")
     grade.add_argument("--students", default=None, metavar="IDS",
                        help="grade only these students: a,b,c or @FILE (one id a line); a "
                             "shard of the class, e.g. one job of many")
@@ -580,7 +585,7 @@ def _grade(args) -> None:
 
     try:
         grade_course(args.course_dir, args.assignment, workers=args.workers,
-                     run_nbgrader=not args.no_nbgrader,
+                     run_nbgrader=not args.no_nbgrader, nbgrader_kernel=args.nbgrader_kernel,
                      nbgrader_timeout_s=args.nbgrader_timeout,
                      students=_student_ids(args.students),
                      progress=None if args.no_progress else progress,

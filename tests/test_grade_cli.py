@@ -75,24 +75,28 @@ def _still_running(seen: dict[int, str]) -> list[str]:
 
 @pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="needs bubblewrap")
 @pytest.mark.timeout(300)
-def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path):
+# By default the grader's worker runs the notebook for nbgrader too; --nbgrader-kernel runs
+# nbgrader's own kernel first (as for an assignment of several notebooks).
+@pytest.mark.parametrize("option, runner", [(None, "autograder._worker"),
+                                            ("--nbgrader-kernel", "ipykernel")])
+def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, option, runner):
     course = kit.fresh_course(released, tmp_path)
     kit.submit(course, ASSIGNMENT, "sleeper", extra="import time\ntime.sleep(600)")
     env = {k: v for k, v in os.environ.items() if k != "COBOTLAB_GRADING_SECRET"}
     cli = subprocess.Popen([sys.executable, "-m", "cobotlab.cli", "grade", str(course),
-                            ASSIGNMENT, "--no-progress"], cwd=REPO, env=env,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            ASSIGNMENT, "--no-progress", *([option] if option else [])],
+                           cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     seen: dict[int, str] = {}
     try:
         deadline = time.monotonic() + 180
-        kernel = None
-        while kernel is None and time.monotonic() < deadline and cli.poll() is None:
+        sleeper = None
+        while sleeper is None and time.monotonic() < deadline and cli.poll() is None:
             seen.update(_descendants(cli.pid))
-            kernel = next((p for p in seen if "ipykernel" in _cmdline(p)), None)
+            sleeper = next((p for p in seen if runner in _cmdline(p)), None)
             time.sleep(0.3)
-        assert kernel is not None, ("nbgrader's kernel never started",
-                                    cli.poll(), cli.stderr.read() if cli.poll() else "")
-        time.sleep(2.0)   # the kernel is now inside time.sleep(600)
+        assert sleeper is not None, (f"{runner} never started",
+                                     cli.poll(), cli.stderr.read() if cli.poll() else "")
+        time.sleep(2.0)   # the notebook is now inside time.sleep(600)
         seen.update(_descendants(cli.pid))
         assert _still_running(seen), "nothing to interrupt"
         cli.send_signal(signal.SIGINT)   # the CLI alone, as a terminal's Ctrl-C reaches it

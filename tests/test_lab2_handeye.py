@@ -180,8 +180,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, solutions, tmp_pa
     kit.submit(course, ASSIGNMENT, "ref", replace=solutions)
     kit.submit(course, ASSIGNMENT, "blank")
     kit.submit(course, ASSIGNMENT, "wrong", replace=_wrong_sources(solutions))
-    kit.nbgrader(course, "autograde", ASSIGNMENT)
-    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True)
+    rows = grade_course(course, ASSIGNMENT, workers=2, run_nbgrader=True, quiet=True)
     assert [r["student_id"] for r in rows] == ["blank", "ref", "wrong"]
     grades = kit.read_grades(course)
     assert float(grades["ref"]["score"]) == 15.0 and float(grades["ref"]["max_score"]) == 15.0

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from autograder import checks, grading
-from autograder.course import grade_course, run_nbgrader_autograde
+from autograder.course import grade_course
 from robots import geometry as geo
 from solutions import registration as reg
 
@@ -148,8 +148,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     kit.submit(course, ASSIGNMENT, "ref", replace=_solutions())
     kit.submit(course, ASSIGNMENT, "blank")
     kit.submit(course, ASSIGNMENT, "wrong", replace={**_solutions(), **_wrong()})
-    run_nbgrader_autograde(course, ASSIGNMENT, "ref", timeout_s=300)
-    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True)
+    rows = grade_course(course, ASSIGNMENT, workers=2, run_nbgrader=True, quiet=True)
     grades = {r["student_id"]: r for r in rows}
     assert set(grades) == {"ref", "blank", "wrong"}
     assert grades["ref"]["score"] == MAX_SCORE and grades["ref"]["max_score"] == MAX_SCORE
