@@ -29,8 +29,12 @@ system-packages:
 demo: $(STAMP)
 	$(VENV)/bin/cobotlab demo
 
+# Three workers on CI's two cores: the suite's processes use about 1000 CPU seconds (user +
+# system, measured with 2 and 3 workers) while a quiet two-worker run took 983 s of wall
+# clock on two cores, so half the time a core waits (kernels and Chromium starting, sockets,
+# wall-clock backstops). Grading limits count CPU seconds: the extra load changes no grade.
 test: $(STAMP) system-packages
-	$(PY) -m pytest -n 2 --dist loadfile -q
+	$(PY) -m pytest -n 3 --dist loadfile -q
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robots sim_backends autograder solutions cobotlab tests benchmarks

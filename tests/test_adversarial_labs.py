@@ -9,10 +9,15 @@ The cases built around correct lab-0 answers (``mangled``: full marks by name) h
 to say about a blank and are left to tests/test_course_cycle.py.
 
 nbgrader is not run: the flags checked are those of the independent grader's own scan.
+
+Each case runs on one of the two labs (alternately, by name), so every attack meets a lab
+other than lab 0 once per suite run (tests/test_course_cycle.py runs them all on lab 0);
+``COBOTLAB_FULL_CORPUS=1`` runs every case on both labs.
 """
 
 from __future__ import annotations
 
+import os
 import re
 
 import course_kit as kit
@@ -64,6 +69,10 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     cases = {n: c for n, c in kit.corpus().items()
              if n not in CORRECT_ANSWERS_ONLY and c["layer"] == "notebook"}
     assert len(cases) >= 12 and sum(len(_scan_flags(c)) for c in cases.values()) >= 7
+    if os.environ.get("COBOTLAB_FULL_CORPUS") != "1":   # this lab's half of the cases
+        share = sorted(LABS).index(assignment)
+        cases = {n: c for i, (n, c) in enumerate(sorted(cases.items()))
+                 if i % len(LABS) == share}
     for name, case in cases.items():
         kit.submit(course, assignment, name, replace=_retarget(case, functions),
                    extra=case["extra"], mangle=case["mangle"])
