@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from nbconvert.preprocessors import Preprocessor
 from nbformat.v4 import new_output
-from traitlets import Bool, Unicode
+from traitlets import Bool, List, Unicode
 
 __all__ = ["HideHiddenTests"]
 
@@ -37,7 +37,9 @@ def strip_hidden(source: str, begin: str = BEGIN, end: str = END) -> tuple[str, 
 class HideHiddenTests(Preprocessor):
     """Cut every hidden-test region out of a notebook's cells, and replace the outputs of the
     cells that held one with a one-line note: a failing hidden assert prints its own source
-    lines in the traceback, and a passing one may print what it checked.
+    lines in the traceback, and a passing one may print what it checked. cobotlab's comments
+    keep the score and the failed checks; their flags and cross-check lines are cut (the
+    instructor reads those in formgrader, before anyone confronts a student with them).
 
     Unlike nbgrader's ClearHiddenTests it never raises on a notebook a student edited (a
     stray or unclosed marker), so one submission cannot stop the class's feedback.
@@ -50,7 +52,18 @@ class HideHiddenTests(Preprocessor):
     note = Unicode("(Output of the hidden tests removed: your cobotlab feedback page lists "
                    "what they found.)", help="what replaces the outputs").tag(config=True)
 
+    instructor_only = List(Unicode(), ["Flags", "nbgrader's own"],
+                           help="lines of cobotlab's cell comments that start so are for the "
+                                "instructor (tamper flags, the cross-check): cut from feedback"
+                           ).tag(config=True)
+
     def preprocess_cell(self, cell, resources, index):
+        meta = cell.get("metadata", {}).get("nbgrader", {})
+        comment = meta.get("comment") if isinstance(meta, dict) else None
+        if isinstance(comment, str) and comment.startswith("cobotlab:"):
+            meta["comment"] = "\n".join(
+                line for line in comment.split("\n")
+                if not line.startswith(tuple(self.instructor_only)))
         source = cell.get("source", "")
         if isinstance(source, list):
             source = "".join(source)

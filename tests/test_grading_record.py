@@ -272,3 +272,6 @@ def test_cobotlab_scores_are_what_nbgrader_shows_and_its_feedback_hides_the_test
     fools_page = (course / "feedback" / "fools" / LAB0 / f"{LAB0}.html").read_text()
     assert "cobotlab: 0 / 3 points" in fools_page
     assert "Output of the hidden tests removed" in fools_page
+    # the flags and the cross-check are the instructor's (formgrader shows them), not feedback
+    assert fooled not in fools_page and "nbgrader&#39;s own" not in fools_page
+    assert "nbgrader's own" not in html.unescape(fools_page)
