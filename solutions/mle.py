@@ -87,6 +87,9 @@ _SHIFT_TOL_M = 0.01
 _MAD_TO_SIGMA = 1.4826
 _SIGMA_FLOOR_RAD = 1e-12
 _SIGMA_FLOOR_M = 1e-12
+#: Fewest views ``refine_reprojection(fit_intrinsics=True)`` accepts (Zhang's calibration needs
+#: 3 views of a plane for a full K; one more leaves redundancy for the hand-eye pose).
+_MIN_VIEWS_INTRINSICS = 4
 
 
 @dataclass
@@ -111,7 +114,9 @@ class HandEyeRefinement:
     the residuals. It grows in proportion to the real pixel noise, but equals it only for a
     board like the virtual one (16 corners spanning 40 % of the viewing distance).
     ``board_scale``: the factor fitted on the board's stated corner positions (1 unless
-    ``refine_reprojection(fit_board_scale=True)``).
+    ``refine_reprojection(fit_board_scale=True)``). ``camera_matrix`` / ``dist_coeffs``: the
+    intrinsics refined with the hand-eye fit (``refine_reprojection(fit_intrinsics=True)``),
+    None when the given ones were kept; ``predicted_corners`` uses them when set.
     """
 
     X: np.ndarray
@@ -131,6 +136,8 @@ class HandEyeRefinement:
     noise_model: str = "isotropic"
     image_sigma_rad: float | None = None
     board_scale: float = 1.0
+    camera_matrix: np.ndarray | None = None
+    dist_coeffs: np.ndarray | None = None
 
     @property
     def outlier_pose_indices(self) -> tuple[int, ...]:
@@ -913,8 +920,26 @@ def _check_camera(board_points, pixels, K, dist, n_views):
     return P, px, K, dist
 
 
+#: Intrinsics ``refine_reprojection(fit_intrinsics=True)`` refines, in this order: focal
+#: lengths and principal point (pixels), then the first two radial distortion terms. The
+#: tangential and higher radial terms stay as given: on 20-30 views tied to the robot they are
+#: poorly determined and trade off against X.
+INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2")
+
+
+def _with_intrinsics(K, dist, delta):
+    """(K, dist) with ``delta`` (6,) added to (fx, fy, cx, cy, k1, k2)."""
+    K, dist = K.copy(), dist.copy()
+    K[0, 0] += delta[0]
+    K[1, 1] += delta[1]
+    K[0, 2] += delta[2]
+    K[1, 2] += delta[3]
+    dist[:2] += delta[4:6]
+    return K, dist
+
+
 def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view, noise,
-                         fit_scale: bool = False):
+                         fit_scale: bool = False, fit_intrinsics: bool = False):
     """Normal equations of the corner residuals with each view's robot error marginalised.
 
     Pixel residuals r (measured - projected) of view i are modelled as
@@ -924,14 +949,15 @@ def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view
     complement) gives the marginal likelihood's Gauss-Newton system over dg alone.
 
     With ``fit_scale`` a 13th parameter ds scales the board (``P`` is the board at its
-    current scale s; s <- s (1 + ds)).
+    current scale s; s <- s (1 + ds)). With ``fit_intrinsics`` six more follow: additive
+    corrections of ``INTRINSIC_PARAMETERS`` (OpenCV's own d pixel / d intrinsics).
 
     Returns (H (p, p), g (p,), marginal cost per view, raw squared residual per view,
     EM sufficient statistics (sum over views of E[|u|^2], E[|v|^2], E[|r - J_l xi|^2])),
-    p = 12 or 13.
+    p = 12 + fit_scale + 6 fit_intrinsics.
     """
     s_px2, s_rr2, s_rt2 = noise
-    n_par = 13 if fit_scale else 12
+    n_geo = 13 if fit_scale else 12
     n = len(px)
     cost, raw = np.zeros(n), np.zeros(n)
     V = np.asarray(views)
@@ -945,14 +971,18 @@ def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view
     seen = valid[V][:, :, None]
     r = np.where(seen, px[V] - proj.reshape(nv, npt, 2), 0.0).reshape(nv, 2 * npt)
     dpdp = np.where(seen[..., None], jac[:, 3:6].reshape(nv, npt, 2, 3), 0.0)
-    D = np.zeros((nv, npt, 3, n_par))
+    D = np.zeros((nv, npt, 3, n_geo))
     D[..., 0:3] = -_skew(pc)                                    # Z <- [exp(phi_z), rho_z] Z
     D[..., 3:6] = np.eye(3)
     D[..., 6:9] = -R[:, None] @ _skew(P)[None]                  # Y <- Y [exp(phi_y), rho_y]
     D[..., 9:12] = R[:, None]
     if fit_scale:
         D[..., 12] = pc - t[:, None, :]                         # s P <- s (1 + ds) P
-    Jg = -(dpdp @ D).reshape(nv, 2 * npt, n_par)
+    Jg = -(dpdp @ D).reshape(nv, 2 * npt, n_geo)
+    if fit_intrinsics:
+        # projectPoints' columns: rvec 0:3, tvec 3:6, (fx, fy) 6:8, (cx, cy) 8:10, dist 10:.
+        dpdk = np.where(seen[..., None], jac[:, 6:12].reshape(nv, npt, 2, 6), 0.0)
+        Jg = np.concatenate([Jg, -dpdk.reshape(nv, 2 * npt, 6)], axis=2)
     w = w_view[V]
     rr = np.einsum("vk,vk->v", r, r)
     raw[V] = rr
@@ -991,7 +1021,8 @@ def _reprojection_system(P, px, valid, K, dist, Z, Y, A, H, mount, views, w_view
 
 def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str = "eye_in_hand",
                         X0=None, Y0=None, robust: bool = True, max_iter: int = 50,
-                        robot_sigma=None, fit_board_scale: bool = False) -> HandEyeRefinement:
+                        robot_sigma=None, fit_board_scale: bool = False,
+                        fit_intrinsics: bool = False) -> HandEyeRefinement:
     """Hand-eye calibration by minimising the corner reprojection error (pixels).
 
     Corner j of view i is predicted at ``project(K, dist, inv(X) @ H_i @ Y @ board_points[j])``
@@ -1018,6 +1049,14 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     cent off its stated size: the PnP distances are then off by s but the robot's are not);
     the corners are then predicted at ``s * board_points`` (``board_scale`` of the result).
 
+    ``fit_intrinsics`` also refines ``INTRINSIC_PARAMETERS`` (fx, fy, cx, cy in pixels; k1, k2),
+    started from ``K`` and ``dist``, on the same corners: the views' camera poses are then tied
+    to the robot's instead of free per view as in ``cv2.calibrateCamera``. No prior pulls them
+    back to the start: hundreds of corners per view determine them, and a prior would need
+    the start's covariance, which a caller's K does not carry. At least
+    ``_MIN_VIEWS_INTRINSICS`` views are required. The refined intrinsics are returned as
+    ``camera_matrix`` and ``dist_coeffs``; predict other views with them.
+
     Returns a ``HandEyeRefinement`` with ``reprojection_rms_px`` (inlier views, before the
     robot-error correction), ``pixel_sigma_px``, ``robot_rotation_sigma_rad``,
     ``board_scale``; its ``translation_sigma_m`` is the robot translation noise and
@@ -1040,6 +1079,10 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
         raise ValueError(f"only {len(views)} views have at least 4 corners seen; capture at least "
                          "3 views with the board (10-20 is typical)")
     closed_forms.check_rotation_variety(A[views, :3, :3], "base_T_flange (views with corners)")
+    if fit_intrinsics and len(views) < _MIN_VIEWS_INTRINSICS:
+        raise ValueError(f"fit_intrinsics needs at least {_MIN_VIEWS_INTRINSICS} views with "
+                         f"corners, got {len(views)}: capture more views, or keep K and dist "
+                         "fixed (fit_intrinsics=False)")
     px = np.where(valid[:, :, None], px, 0.0)
     counts = valid.sum(axis=1)
     H = _chain(A, mount)
@@ -1048,9 +1091,12 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     w_view = np.zeros(len(A))
     w_view[views] = 1.0
 
-    def system(Z, Y, w, noise, scale=1.0):
-        return _reprojection_system(scale * P, px, valid, K, dist, Z, Y, A, H, mount, views, w,
-                                    noise, fit_board_scale)
+    cam = (K, dist)
+    n_geo = 13 if fit_board_scale else 12
+
+    def system(Z, Y, w, noise, scale=1.0, cam=cam):
+        return _reprojection_system(scale * P, px, valid, cam[0], cam[1], Z, Y, A, H, mount,
+                                    views, w, noise, fit_board_scale, fit_intrinsics)
 
     def view_weights(raw):
         rms = np.sqrt(raw[views] / (2 * counts[views]))
@@ -1070,7 +1116,7 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     converged = False
     for _outer in range(8 if estimate_robot else 2):
         w_view = view_weights(raw)
-        Hm, g, cost_v, raw, stats = system(Z, Y, w_view, noise, scale)
+        Hm, g, cost_v, raw, stats = system(Z, Y, w_view, noise, scale, cam)
         cost = float(w_view @ cost_v)
         lam = 1e-6
         converged = False
@@ -1086,7 +1132,8 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
                 Zn = _exp_se3(step[0:3], step[3:6]) @ Z
                 Yn = Y @ _exp_se3(step[6:9], step[9:12])
                 scale_n = scale * (1.0 + step[12]) if fit_board_scale else scale
-                Hn, gn, cost_vn, rawn, statsn = system(Zn, Yn, w_view, noise, scale_n)
+                cam_n = _with_intrinsics(*cam, step[n_geo:]) if fit_intrinsics else cam
+                Hn, gn, cost_vn, rawn, statsn = system(Zn, Yn, w_view, noise, scale_n, cam_n)
                 cost_n = float(w_view @ cost_vn)
                 if cost_n <= cost or lam > 1e8:
                     break
@@ -1095,12 +1142,13 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
                 converged = True
                 break
             Z, Y, Hm, g, cost, raw, stats = Zn, Yn, Hn, gn, cost_n, rawn, statsn
-            scale = scale_n
+            scale, cam = scale_n, cam_n
             lam = max(lam / 10.0, 1e-9)
         # EM update of the noise levels over the views in use.
         n_obs = 2 * counts[views].sum()
         n_views = len(views)
-        new_px2 = max(stats[2] / max(n_obs - 12, 1), 1e-24)
+        n_fitted = 12 + (len(INTRINSIC_PARAMETERS) if fit_intrinsics else 0)
+        new_px2 = max(stats[2] / max(n_obs - n_fitted, 1), 1e-24)
         if estimate_robot:
             new = (new_px2, max(stats[0] / (3 * n_views), 1e-16), max(stats[1] / (3 * n_views), 1e-16))
         else:
@@ -1122,6 +1170,8 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
         cost=float(cost), n_iterations=total_it, converged=converged,
         robot_rotation_sigma_rad=float(np.sqrt(noise[1])), reprojection_rms_px=rms,
         pixel_sigma_px=float(np.sqrt(noise[0])), per_pose_chi2=rms_view, board_scale=scale,
+        camera_matrix=cam[0] if fit_intrinsics else None,
+        dist_coeffs=cam[1] if fit_intrinsics else None,
     )
 
 
@@ -1152,6 +1202,7 @@ class CornerNoiseChoice:
     ``robot_sigma`` that prior as (rotation rad, translation m) ((0, 0): pixel-only) and
     ``fit_board_scale`` whether the board's scale was a parameter; a pose-based candidate has
     ``robot_weight`` NaN, ``robot_sigma`` None and ``fit_board_scale`` False.
+    ``fit_intrinsics``: whether the reprojection fit refined the camera's intrinsics.
     ``held_out_px``: geometric mean over the views of the RMS pixel error of each view's
     corners predicted by a fit that did not see it (inner K-fold cross-validation; inf when
     the candidate could not be fitted on some fold).
@@ -1162,6 +1213,7 @@ class CornerNoiseChoice:
     fit_board_scale: bool
     held_out_px: float
     method: str = "reprojection"
+    fit_intrinsics: bool = False
 
     @property
     def label(self) -> str:
@@ -1169,7 +1221,8 @@ class CornerNoiseChoice:
         if self.method != "reprojection":
             return f"pose {self.method}"
         scale = ", board scale free" if self.fit_board_scale else ""
-        return f"reprojection robot {self.robot_weight:g} x{scale}"
+        camera = ", intrinsics refined" if self.fit_intrinsics else ""
+        return f"reprojection robot {self.robot_weight:g} x{scale}{camera}"
 
 
 def _project_view(board_points, K, dist, cam_T_target):
@@ -1181,8 +1234,11 @@ def _project_view(board_points, K, dist, cam_T_target):
 def predicted_corners(result: HandEyeRefinement, board_points, K, dist, base_T_flange):
     """Pixels (n, N, 2) where ``result`` puts the board corners in each view of these robot
     poses: ``project(K, dist, inv(X) @ H_i @ Y @ (board_scale * board_points))`` with H_i as in
-    the module docstring (``inv(base_T_flange_i @ X) @ Y`` for eye-in-hand)."""
+    the module docstring (``inv(base_T_flange_i @ X) @ Y`` for eye-in-hand). ``K`` and ``dist``
+    are replaced by the result's ``camera_matrix`` / ``dist_coeffs`` when it refined them."""
     A = geo.as_poses(base_T_flange, "base_T_flange")
+    if result.camera_matrix is not None:
+        K, dist = result.camera_matrix, result.dist_coeffs
     C = geo.invert(result.X) @ _chain(A, result.mount) @ result.Y
     P = result.board_scale * np.asarray(board_points, dtype=float)
     return np.array([_project_view(P, K, dist, c) for c in C])
@@ -1228,13 +1284,15 @@ def _fit_choice(choice: CornerNoiseChoice, P, px, K, dist, A, C, mount, start):
         return _pose_candidate(choice.method, A, C, mount)
     return refine_reprojection(P, px, K, dist, A, mount, X0=start.X, Y0=start.Y,
                                robot_sigma=choice.robot_sigma,
-                               fit_board_scale=choice.fit_board_scale)
+                               fit_board_scale=choice.fit_board_scale,
+                               fit_intrinsics=choice.fit_intrinsics)
 
 
 def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
                            mount: str = "eye_in_hand", cam_T_target=None, *,
                            robot_weights=ROBOT_WEIGHT_FRACTIONS, fit_board_scale=(False, True),
-                           pose_candidates=POSE_CANDIDATES, folds: int = _CV_FOLDS):
+                           pose_candidates=POSE_CANDIDATES, folds: int = _CV_FOLDS,
+                           fit_intrinsics=(False,)):
     """Hand-eye calibration from raw corners with the model chosen by held-out views.
 
     The default for a capture with corners. Real captures carry robot pose error comparable to
@@ -1251,7 +1309,10 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
 
     ``robot_weights`` are fractions of the robot noise that ``refine_hand_eye`` estimates
     on all views (rotation, and the translation noise it cannot tell from the camera's;
-    0 = pixel-only); ``pose_candidates`` a subset of ``POSE_CANDIDATES`` (``()`` for corner
+    0 = pixel-only); ``fit_intrinsics`` whether each reprojection fit keeps ``K`` and ``dist``
+    (False) or refines them with the hand-eye fit (True; both: each candidate twice; a fold
+    then predicts its left-out views with the intrinsics refined on its other views);
+    ``pose_candidates`` a subset of ``POSE_CANDIDATES`` (``()`` for corner
     fits only). Inputs as for ``refine_reprojection``; ``cam_T_target`` (solvePnP poses) is
     found from the corners when not given.
 
@@ -1267,6 +1328,9 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
         raise ValueError(f"folds must be between 2 and the number of views ({len(A)}), got {folds}")
     weights = tuple(float(w) for w in robot_weights)
     scales = tuple(bool(b) for b in fit_board_scale)
+    cameras = tuple(bool(b) for b in fit_intrinsics)
+    if weights and not cameras:
+        raise ValueError("fit_intrinsics must be a non-empty tuple of booleans, e.g. (False,)")
     if any(not np.isfinite(w) or w < 0 for w in weights) or (weights and not scales):
         raise ValueError("robot_weights must be fractions >= 0 and fit_board_scale a "
                          "non-empty tuple of booleans")
@@ -1282,8 +1346,9 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
     # The pose-based fit's REML noise split (camera translation and robot translation share one
     # term there) sets the robot prior's scale; the candidates rescale it.
     robot_sigma = np.array([start.robot_rotation_sigma_rad, start.translation_sigma_m])
-    candidates = [CornerNoiseChoice(w, tuple(float(v) for v in w * robot_sigma), scale, np.nan)
-                  for w in weights for scale in scales]
+    candidates = [CornerNoiseChoice(w, tuple(float(v) for v in w * robot_sigma), scale, np.nan,
+                                    fit_intrinsics=camera)
+                  for camera in cameras for w in weights for scale in scales]
     candidates += [CornerNoiseChoice(np.nan, None, False, np.nan, method=m) for m in pose_methods]
     fold_of = np.arange(len(A)) % folds
 

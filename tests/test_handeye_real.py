@@ -144,6 +144,32 @@ def test_the_data_picks_a_pose_based_fit_when_the_pixels_are_biased_per_view():
     assert geo.rotation_error_deg(result.X, p.X_true) < 0.05
 
 
+def test_the_data_picks_refined_intrinsics_when_the_given_ones_are_off():
+    """Intrinsics 1.5 % off in focal length and 5 px off in the principal point (what a
+    calibration on few or poorly spread views gives): with ``fit_intrinsics=(False, True)``
+    the held-out views choose a fit that refines them, it recovers K, and its held-out
+    prediction (with the K it carries) beats every fit that kept the given K."""
+    p = make_real_like_hand_eye(6, n_poses=12, robot_rot_deg=0.002, robot_trans_mm=0.02,
+                                robot_gain=0.0, board_scale=1.0, pixel_px=0.1)
+    board = p.board.object_points()
+    K_off = np.asarray(p.camera.K, float).copy()
+    K_off[0, 0] *= 1.015
+    K_off[1, 1] *= 1.015
+    K_off[0, 2] += 5.0
+    result, choices = mle.calibrate_from_corners(board, p.pixels, K_off, p.camera.dist,
+                                                 p.base_T_flange, cam_T_target=p.cam_T_target,
+                                                 fit_intrinsics=(False, True))
+    assert len(choices) == 12 + len(mle.POSE_CANDIDATES)
+    assert choices[0].fit_intrinsics and "intrinsics refined" in choices[0].label
+    kept = min(c.held_out_px for c in choices if not c.fit_intrinsics)
+    assert choices[0].held_out_px < 0.5 * kept
+    assert result.camera_matrix is not None
+    np.testing.assert_allclose(result.camera_matrix, p.camera.K, atol=1.0)
+    with pytest.raises(ValueError, match="fit_intrinsics"):
+        mle.calibrate_from_corners(board, p.pixels, K_off, p.camera.dist, p.base_T_flange,
+                                   cam_T_target=p.cam_T_target, fit_intrinsics=())
+
+
 def test_calibrate_from_corners_refuses_bad_settings():
     p = make_real_like_hand_eye(1, n_poses=5, pixel_px=0.1)
     args = (p.board.object_points(), p.pixels, p.camera.K, p.camera.dist, p.base_T_flange)

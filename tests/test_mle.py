@@ -5,6 +5,7 @@ import pytest
 
 from autograder.synthetic import NoiseModel, make_hand_eye, make_opencv_scenario
 from robots import geometry as geo
+from solutions import mle
 from solutions.mle import pose_residuals, refine_hand_eye, refine_reprojection
 
 MOUNTS = ("eye_in_hand", "eye_to_hand")
@@ -331,3 +332,77 @@ def test_cramer_rao_bound_scales_with_the_noise_and_refuses_one_axis():
                               rotation_sigma_rad=1e-3, translation_sigma_m=1e-3)
     with pytest.raises(ValueError, match="finite and > 0"):
         cramer_rao_covariance(*args, rotation_sigma_rad=0.0, translation_sigma_m=1e-3)
+
+
+# --------------------------------------------------------------------------- intrinsics refined
+
+
+def test_reprojection_intrinsics_jacobian_matches_finite_differences():
+    """The intrinsics columns of the corner system: its gradient g = J^T W r (J = d residual /
+    d parameter) must be half the finite-difference derivative of the pixel cost r^T W r,
+    and, with the robot nuisance marginalised, close to that of the marginal cost (not exact:
+    the nuisance's own Jacobian depends on the intrinsics too, which Gauss-Newton ignores)."""
+    p = make_hand_eye(3, "eye_in_hand", n_poses=6, noise=NoiseModel(pixel_px=0.5))
+    P = p.board.object_points()
+    px = p.pixels
+    valid = np.all(np.isfinite(px), axis=2)
+    views = np.arange(len(px))
+    A = p.base_T_flange
+    H = mle._chain(A, "eye_in_hand")
+    Z, Y = geo.invert(p.X_true), p.Y_true
+    K, dist = p.camera.K.astype(float), np.array([-0.1, 0.05, 0.001, -0.001, 0.0])
+    w = np.ones(len(px))
+
+    for noise, rel in (((0.25, 0.0, 0.0), 1e-6), ((0.25, 1e-7, 1e-7), 3e-2)):
+        def cost(delta, noise=noise):
+            Kd, dd = mle._with_intrinsics(K, dist, delta)
+            return float(mle._reprojection_system(P, px, valid, Kd, dd, Z, Y, A, H,
+                                                  "eye_in_hand", views, w, noise, False,
+                                                  True)[2].sum())
+
+        _, g, _, _, _ = mle._reprojection_system(P, px, valid, K, dist, Z, Y, A, H,
+                                                 "eye_in_hand", views, w, noise, False, True)
+        assert g.shape == (18,)
+        for k, h in zip(range(6), (1e-3, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6)):
+            e = np.zeros(6)
+            e[k] = h
+            fd = (cost(e) - cost(-e)) / (2 * h)
+            assert 2 * g[12 + k] == pytest.approx(fd, rel=rel), mle.INTRINSIC_PARAMETERS[k]
+
+
+@pytest.mark.parametrize("fit_board_scale", (False, True))
+def test_refine_reprojection_recovers_perturbed_intrinsics(fit_board_scale):
+    p = make_hand_eye(4, "eye_in_hand", n_poses=10)
+    K_true, dist_true = p.camera.K.astype(float), np.asarray(p.camera.dist, float).ravel()
+    K0 = K_true.copy()
+    K0[0, 0] *= 1.01
+    K0[1, 1] *= 0.99
+    K0[0, 2] += 4.0
+    K0[1, 2] -= 3.0
+    dist0 = np.zeros(5) if dist_true.size == 0 else dist_true.copy()
+    dist0[0] += 0.01
+    X0 = geo.pose_from_rotvec([0.01, -0.01, 0.01], [0.003, -0.002, 0.004]) @ p.X_true
+    kept = refine_reprojection(p.board.object_points(), p.pixels, K0, dist0, p.base_T_flange,
+                               X0=X0, Y0=p.Y_true, robot_sigma=(0.0, 0.0),
+                               fit_board_scale=fit_board_scale)
+    assert kept.camera_matrix is None and kept.reprojection_rms_px > 0.1
+    res = refine_reprojection(p.board.object_points(), p.pixels, K0, dist0, p.base_T_flange,
+                              X0=X0, Y0=p.Y_true, robot_sigma=(0.0, 0.0),
+                              fit_board_scale=fit_board_scale, fit_intrinsics=True)
+    assert res.reprojection_rms_px < 1e-5
+    np.testing.assert_allclose(res.camera_matrix, K_true, atol=1e-5)
+    np.testing.assert_allclose(res.dist_coeffs[:2], dist0[:2] - [0.01, 0.0], atol=1e-7)
+    r, t = _errors(res.X, p.X_true)
+    assert r < 1e-7 and t < 1e-8
+    # predicted_corners uses the refined intrinsics, not the K it is handed.
+    pred = mle.predicted_corners(res, p.board.object_points(), K0, dist0, p.base_T_flange)
+    assert np.nanmax(np.abs(pred - p.pixels)) < 1e-4
+
+
+def test_refine_reprojection_intrinsics_needs_enough_views():
+    p = make_hand_eye(5, "eye_in_hand", n_poses=6)
+    few = p.pixels.copy()
+    few[3:] = np.nan
+    with pytest.raises(ValueError, match="fit_intrinsics needs at least 4 views"):
+        refine_reprojection(p.board.object_points(), few, p.camera.K, p.camera.dist,
+                            p.base_T_flange, X0=p.X_true, Y0=p.Y_true, fit_intrinsics=True)
