@@ -19,7 +19,7 @@ import nbformat
 from nbclient import NotebookClient
 
 from autograder import grading
-from autograder.course import LABS_DIR, init_course
+from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
 
 
 def source_notebook(assignment: str) -> Path:
@@ -252,3 +252,59 @@ def serve_localhost(port: int, reply: bytes, stop) -> bool:
 
     threading.Thread(target=serve, daemon=True).start()
     return True
+
+
+# nbgrader's own (trusting) autograde runs, for the cross-check, on the cases built to fool it
+# and on the one built to wedge it; the other cases go through the independent grader only.
+FOOL_NBGRADER = ("sys_modules", "numpy_patch", "kernel_patch")
+WEDGE_NBGRADER = ("forge_protocol",)
+
+
+def corpus_batch_parts() -> tuple[list[str], list[str]]:
+    """The lab 0 notebook-layer corpus in two parts, graded by two test files in parallel:
+    the cases nbgrader's kernel runs too (FOOL_NBGRADER, WEDGE_NBGRADER: its runs cost about
+    as much as grading all the others), and the rest."""
+    names = sorted(n for n, c in corpus("lab0_frames").items() if c["layer"] == "notebook")
+    kernel = [n for n in names if n in FOOL_NBGRADER + WEDGE_NBGRADER]
+    return kernel, [n for n in names if n not in kernel]
+
+
+def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None:
+    """Submit the named lab 0 corpus cases and the reference, grade them in one batch, and
+    check every case's score bounds and flags (see tests/adversarial/README.md)."""
+    lab = "lab0_frames"
+    course = fresh_course(released, tmp_path)
+    cases = {n: c for n, c in corpus(lab).items() if n in names}
+    assert sorted(cases) == sorted(names), "unknown or non-notebook cases"
+    for name, case in cases.items():
+        submit(course, lab, name, replace=case["replace"], extra=case["extra"],
+               mangle=case["mangle"])
+    submit(course, lab, "reference",
+           replace=solution_sources(lab, ("invert_pose", "compose_chain", "pose_from_rotvec")))
+    fools = [n for n in names if n in FOOL_NBGRADER]
+    if fools:
+        # nbgrader's cell timeout is wall clock: the cases that fool it get its configured
+        # 30 s (with 4 s, a run at load 6 lost kernel_patch's cross-check flag once)
+        run_nbgrader_autograde(course, lab, ["reference", *fools], timeout_s=300)
+    wedges = [n for n in names if n in WEDGE_NBGRADER]
+    if wedges:   # 4 s a cell and 60 s in all: the wedged run is killed, the grade must hold
+        run_nbgrader_autograde(course, lab, wedges, timeout_s=60, cell_timeout_s=4)
+    # sleepers are cut at 2x their limit: the attack is tested here, not the clock
+    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
+                            wall_factor=2)
+    rows = grade_course(course, lab, workers=2, limits=limits, quiet=True)
+    grades = {r["student_id"]: r for r in rows}
+    assert set(grades) == set(cases) | {"reference"}, "every submission gets a row"
+    # without a kernel run nbgrader has no result for the reference, and says so
+    assert grades["reference"]["score"] == 10.0
+    assert grades["reference"]["flags"] == ("" if fools else "nbgrader_no_result")
+    for name, case in cases.items():
+        row = grades[name]
+        assert row["score"] <= case["earned"] + 1e-9, (name, row)
+        assert row["score"] >= case["min"] - 1e-9, (name, row)
+        flags = row["flags"].split(";")
+        for wanted in case["flags"]:
+            assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
+    secret = grading.load_secret(course)
+    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
+        assert secret not in path.read_text(), path
