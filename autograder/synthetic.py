@@ -223,7 +223,7 @@ def perturb_pose(T: np.ndarray, rot_std_rad: float, trans_std_m: float,
     """A noisy copy of pose ``T`` (see the module docstring for the noise model)."""
     out = np.array(T, dtype=float, copy=True)
     if rot_std_rad > 0:
-        out[:3, :3] = Rotation.from_rotvec(rng.normal(0.0, rot_std_rad, 3)).as_matrix() @ out[:3, :3]
+        out[:3, :3] = geo.rotation_from_rotvec(rng.normal(0.0, rot_std_rad, 3)) @ out[:3, :3]
     if trans_std_m > 0:
         out[:3, 3] += rng.normal(0.0, trans_std_m, 3)
     return out
@@ -235,7 +235,7 @@ def _gross_error(T: np.ndarray, rot_deg: float, trans_mm: float, rng) -> np.ndar
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
     out = T.copy()
-    out[:3, :3] = Rotation.from_rotvec(np.radians(rot_deg) * axis).as_matrix() @ T[:3, :3]
+    out[:3, :3] = geo.rotation_from_rotvec(np.radians(rot_deg) * axis) @ T[:3, :3]
     out[:3, 3] += direction * trans_mm / 1000.0
     return out
 
@@ -243,7 +243,7 @@ def _gross_error(T: np.ndarray, rot_deg: float, trans_mm: float, rng) -> np.ndar
 def _random_rotation(rng, max_deg: float) -> np.ndarray:
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
-    return Rotation.from_rotvec(np.radians(rng.uniform(0, max_deg)) * axis).as_matrix()
+    return geo.rotation_from_rotvec(np.radians(rng.uniform(0, max_deg)) * axis)
 
 
 # --------------------------------------------------------------------------- hand-eye
@@ -256,8 +256,8 @@ def _sample_view(rng, board: Board, camera: CameraModel, depth_m=(0.35, 0.7),
     # then tilt about an in-plane axis and roll about the optical axis, as a student would.
     tilt_axis = np.r_[rng.normal(size=2), 0.0]
     tilt_axis /= np.linalg.norm(tilt_axis)
-    R = (Rotation.from_rotvec(np.radians(rng.uniform(-roll_deg, roll_deg)) * np.array([0, 0, 1.0]))
-         * Rotation.from_rotvec(np.radians(rng.uniform(0, tilt_deg)) * tilt_axis)).as_matrix()
+    roll = geo.rotation_from_rotvec(np.radians(rng.uniform(-roll_deg, roll_deg)) * np.array([0, 0, 1.0]))
+    R = roll @ geo.rotation_from_rotvec(np.radians(rng.uniform(0, tilt_deg)) * tilt_axis)
     depth = rng.uniform(*depth_m)
     half_w = 0.35 * depth * camera.width / camera.K[0, 0]
     half_h = 0.35 * depth * camera.height / camera.K[1, 1]
@@ -275,7 +275,7 @@ def _nudge_view(rng, view, board: Board, camera: CameraModel, motion_deg) -> np.
     if the board then leaves the image or turns more than 50 deg away from the camera."""
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
-    turn = Rotation.from_rotvec(np.radians(rng.uniform(*motion_deg)) * axis).as_matrix()
+    turn = geo.rotation_from_rotvec(np.radians(rng.uniform(*motion_deg)) * axis)
     R = turn @ view[:3, :3]
     if R[2, 2] < np.cos(np.radians(50.0)):
         return None
@@ -427,7 +427,7 @@ def _opencv_style_pose(rng, theta_range, t_range) -> np.ndarray:
     axis = rng.uniform(-1.0, 1.0, 3)
     theta = rng.uniform(*np.radians(theta_range)) * rng.choice([-1.0, 1.0])
     t = rng.uniform(*t_range, 3) * rng.choice([-1.0, 1.0], 3)
-    return geo.make_pose(Rotation.from_rotvec(theta * axis).as_matrix(), t)
+    return geo.make_pose(geo.rotation_from_rotvec(theta * axis), t)
 
 
 def make_opencv_scenario(seed, mount: str = "eye_in_hand", n_poses: int = 10,
@@ -581,8 +581,8 @@ def make_real_like_hand_eye(seed, n_poses: int = 28, robot_rot_deg: float = 0.03
     reported = base_T_flange.copy()
     reference = base_T_flange[0, :3, :3]
     for i, T in enumerate(base_T_flange):
-        turn = Rotation.from_matrix(T[:3, :3] @ reference.T).as_rotvec()
-        reported[i, :3, :3] = Rotation.from_rotvec((1.0 + robot_gain) * turn).as_matrix() @ reference
+        turn = geo.rotvec_from_rotation(T[:3, :3] @ reference.T)
+        reported[i, :3, :3] = geo.rotation_from_rotvec((1.0 + robot_gain) * turn) @ reference
         reported[i, :3, 3] = (1.0 + robot_gain) * T[:3, 3]
     reported = np.stack([perturb_pose(T, np.radians(robot_rot_deg), robot_trans_mm / 1000.0, rng)
                          for T in reported])

@@ -21,6 +21,7 @@ plan or to solve. The synthetic table of the earlier demo is :func:`run_syntheti
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -216,8 +217,10 @@ def flange_calibration(settings: DemoSettings) -> FlangeOutcome:
         target = truth.flange_target
         rng = np.random.default_rng(settings.seed)
         start = robot.flange_pose()
-        candidates = [T for T in _flange_poses(start, rng, 3 * settings.n_flange, robot.safety)
-                      if _reachable(robot, T)][: settings.n_flange]
+        # Lazily: each unreachable pose costs every IK restart, so stop at the first n_flange.
+        reachable = (T for T in _flange_poses(start, rng, 3 * settings.n_flange, robot.safety)
+                     if _reachable(robot, T))
+        candidates = list(itertools.islice(reachable, settings.n_flange))
         if len(candidates) < 6:
             raise RuntimeError(f"only {len(candidates)} flange poses are reachable on the "
                                f"{settings.robot}; the demo needs 6")

@@ -286,11 +286,12 @@ class SimArm:
         angle = np.radians(pose_error(start, target)[1])
         n = max(1, int(np.ceil(max(dist / LINEAR_STEP_M, angle / LINEAR_STEP_RAD))))
         slerp = Slerp([0.0, 1.0], Rotation.from_matrix([start[:3, :3], target[:3, :3]]))
+        rotations = slerp(np.arange(1, n + 1) / n).as_matrix()  # one call: scipy's is slow
         path, q_prev = [], start_q
         for k in range(1, n + 1):
             s = k / n
             waypoint = np.eye(4)
-            waypoint[:3, :3] = slerp([s]).as_matrix()[0]
+            waypoint[:3, :3] = rotations[k - 1]
             waypoint[:3, 3] = (1 - s) * start[:3, 3] + s * target[:3, 3]
             try:
                 # Few restarts: far from the seed a solution is on another branch anyway.

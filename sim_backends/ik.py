@@ -22,7 +22,7 @@ import numpy as np
 import pybullet as p
 from scipy.spatial.transform import Rotation
 
-from robots.geometry import as_pose, pose_from_quat_xyzw
+from robots.geometry import as_pose, pose_from_quat_xyzw, rotation_angle_deg, rotvec_from_rotation
 from robots.interfaces import UnreachableError
 
 __all__ = ["POSITION_TOL_M", "ROTATION_TOL_DEG", "KinematicModel", "pose_error"]
@@ -34,15 +34,14 @@ ROTATION_TOL_DEG = 0.05
 def pose_error(reached: np.ndarray, target: np.ndarray) -> tuple[float, float]:
     """Position miss (m) and rotation miss (deg) between two (4, 4) poses."""
     dp = float(np.linalg.norm(target[:3, 3] - reached[:3, 3]))
-    dr = float(np.degrees(np.linalg.norm(
-        Rotation.from_matrix(target[:3, :3] @ reached[:3, :3].T).as_rotvec())))
+    dr = rotation_angle_deg(target[:3, :3] @ reached[:3, :3].T)
     return dp, dr
 
 
 def _error_vector(reached: np.ndarray, target: np.ndarray) -> np.ndarray:
     # Position error and rotation error as a base-frame rotation vector, the quantities the
     # (base-frame) geometric Jacobian maps joint steps to.
-    rot = Rotation.from_matrix(target[:3, :3] @ reached[:3, :3].T).as_rotvec()
+    rot = rotvec_from_rotation(target[:3, :3] @ reached[:3, :3].T)
     return np.concatenate([target[:3, 3] - reached[:3, 3], rot])
 
 

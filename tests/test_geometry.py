@@ -77,6 +77,44 @@ def test_rotation_error_is_precise_for_tiny_angles():
     assert geo.rotation_error_deg(np.eye(4), R) == pytest.approx(np.degrees(1e-9), rel=1e-6)
 
 
+# Angles at the branch points of the plain-float conversions: the Taylor series below 1e-4
+# rad, the switch to the symmetric part at cos = -0.9 (154 deg), and 180 deg itself.
+EDGE_ANGLES = (0.0, 1e-12, 1e-8, 0.99e-4, 1.01e-4, 0.3, 2.69, 2.70, 3.0, np.pi - 1e-6, np.pi)
+
+
+@pytest.mark.parametrize("angle", EDGE_ANGLES)
+def test_fast_conversions_agree_with_scipy_at_every_branch(angle):
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        axis = rng.normal(size=3)
+        rv = angle * axis / np.linalg.norm(axis)
+        R = Rotation.from_rotvec(rv).as_matrix()
+        np.testing.assert_allclose(geo.rotation_from_rotvec(rv), R, atol=1e-15)
+        back = geo.rotvec_from_rotation(R)
+        # At 180 deg +axis and -axis are the same rotation: compare as rotations there.
+        np.testing.assert_allclose(Rotation.from_rotvec(back).as_matrix(), R, atol=2e-15)
+        if angle < 3.0:
+            np.testing.assert_allclose(back, rv, atol=2e-15)
+        assert geo.rotation_angle_deg(R) == pytest.approx(np.degrees(angle), abs=1e-12)
+        assert geo.rotation_angle_deg(R[None])[0] == pytest.approx(np.degrees(angle), abs=1e-12)
+        q = Rotation.from_matrix(R).as_quat()
+        np.testing.assert_allclose(geo.pose_from_quat_xyzw(3.0 * q)[:3, :3], R, atol=2e-15)
+
+
+def test_a_slightly_off_rotation_gets_its_nearest_rotations_angle_and_nan_is_refused():
+    R = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
+    off = R + 1e-5 * np.random.default_rng(0).normal(size=(3, 3))
+    expected = Rotation.from_matrix(off)  # scipy orthonormalises first too
+    np.testing.assert_allclose(geo.rotvec_from_rotation(off), expected.as_rotvec(), atol=1e-9)
+    assert geo.rotation_angle_deg(off) == pytest.approx(np.degrees(expected.magnitude()), abs=1e-7)
+    nan_corner = np.eye(3)
+    nan_corner[2, 2] = np.nan  # NaN only in the last column, which a max() would have dropped
+    with pytest.raises(ValueError, match="NaN or inf"):
+        geo.rotation_angle_deg(nan_corner)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        geo.rotvec_from_rotation(nan_corner)
+
+
 def test_stacks_broadcast():
     rng = np.random.default_rng(0)
     Ts = np.stack([geo.pose_from_rotvec(rng.normal(size=3), rng.normal(size=3)) for _ in range(5)])
