@@ -3,7 +3,8 @@
 Started by :mod:`autograder.grading` as ``python -I -m autograder._worker REQ_FD REPLY_FD
 MEM_MB CPU_S FILE_MB``, inside the sandbox of :mod:`autograder.sandbox` where it can run
 (no view of the course, the answer key or the specs; ``autograder.checks`` is replaced by a
-stub so the notebook's ``from autograder.checks import check`` still works), with a clean
+stub so the notebook's ``from autograder.checks import check`` still works, and
+``robots.viewer`` by one that draws nothing: see ``_NotDrawn``), with a clean
 environment; it sets those resource limits on itself before any student code runs. It holds
 no secret and no ground truth: it receives problem *inputs* only and sends back whatever the
 student's function returned. Everything it sends is re-validated (and size-capped) by the
@@ -129,6 +130,44 @@ def _stub_checks() -> None:
     sys.modules["autograder.checks"] = stub
 
 
+class _NotDrawn:
+    """Stands in for ``robots.viewer.WorkcellViewer`` and everything reached through it.
+
+    The worker has no browser, so a 3-D widget is never seen; building one costs more than
+    the rest of lab 0 together (importing k3d and ipywidgets, tessellating the scene, and a
+    redraw after every robot move while the lab 3 servo runs). Any call, attribute or item
+    gives the stand-in back, so a notebook's viewer cells run as they do in JupyterLab,
+    drawing nothing. No graded function can depend on it: it returns no numbers.
+    """
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return self
+
+    def __call__(self, *args, **kwargs):
+        return self
+
+    def __getitem__(self, key):
+        return self
+
+    def __iter__(self):
+        return iter(())
+
+    def __repr__(self) -> str:
+        return "<3-D view: not drawn while grading>"
+
+
+def _stub_viewer() -> None:
+    stub = types.ModuleType("robots.viewer")
+    stub.WorkcellViewer = _NotDrawn
+    stub.__getattr__ = lambda name: _NotDrawn  # any other name the module exports
+    sys.modules["robots.viewer"] = stub
+
+
 def _limit(which: int, value: int) -> None:
     # soft = hard: student code may lower a limit but never raise it again.
     resource.setrlimit(which, (value, value))
@@ -150,6 +189,7 @@ def main(argv: list[str]) -> int:
     sys.stdin, sys.stdout, sys.stderr = io.StringIO(""), out, err
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
+    _stub_viewer()
     send, receive = wire.send, wire.receive  # bound now: student code may patch the module
 
     while True:

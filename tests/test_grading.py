@@ -227,6 +227,27 @@ def hog():
     assert os.getpid() > 0  # still here
 
 
+def test_viewer_cells_run_in_the_worker_without_building_a_widget():
+    # What the labs' viewer cells do (lab 0's, lab 2's loop of estimates, lab 3's bare `view`)
+    cell = """
+from robots.viewer import WorkcellViewer
+view = WorkcellViewer(object(), frame_length=0.05)
+for name in ("a", "b"):
+    view.show_estimate("cam", None, parent="flange", label=name)
+panel = view.with_jog_panel()
+view.plot.camera = [0, 0, 0]
+view.objects["frame cam"].model_matrix
+view.close()
+import sys
+def what_was_built():
+    return [repr(view), repr(panel), "k3d" in sys.modules, "ipywidgets" in sys.modules]
+"""
+    with grading.Worker([cell], LIMITS) as worker:
+        shown, panel, k3d_loaded, widgets_loaded = worker.call("what_was_built", (), 3).value
+    assert "not drawn while grading" in shown and "not drawn while grading" in panel
+    assert not k3d_loaded and not widgets_loaded
+
+
 def test_mangled_and_renamed_notebooks_are_graded_by_name(tmp_path):
     other = _notebook(tmp_path, "import numpy as np\ndef invert_pose(T):\n    return np.eye(4)",
                       name="renamed_copy.ipynb")
