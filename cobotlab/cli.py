@@ -9,6 +9,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+# `cobotlab calibrate --method`: besides solutions.handeye.METHODS
+AUTO_METHOD = "auto"
+CORNERS_METHOD = "corners"
+
 
 def _build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
@@ -64,12 +68,14 @@ def _build_parser() -> argparse.ArgumentParser:
     cal.add_argument("capture_dir", metavar="CAPTURE_DIR", help="a folder written by save_capture")
     cal.add_argument("--mount", default="eye_in_hand",
                      help="eye_in_hand (camera on the flange, default) or eye_to_hand")
-    cal.add_argument("--method", default="nonlinear",
-                     help="nonlinear (default, robust), tsai, park, daniilidis, axes_ls, or "
+    cal.add_argument("--method", default=AUTO_METHOD,
+                     help="auto (default): corners when every view kept its board corners "
+                          "(4 or more) and there are at least 4 views, else nonlinear; "
                           "corners: fit the detected corners themselves, the model (pixel-only, "
                           "a robot-error prior, the board's scale, or a pose-based fit) chosen "
                           "by held-out views (solutions.mle.calibrate_from_corners; best on the "
-                          "real captures of benchmarks/handeye_real.py)")
+                          "real captures of benchmarks/handeye_real.py); nonlinear (robust, on "
+                          "the board poses); tsai, park, daniilidis, axes_ls")
     cal.add_argument("--out", default=None,
                      help="result YAML (default CAPTURE_DIR/flange_T_cam.yaml or base_T_cam.yaml)")
 
@@ -277,9 +283,9 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
 
     if mount not in handeye.MOUNTS:
         raise ValueError(f"--mount must be eye_in_hand or eye_to_hand, got {mount!r}")
-    if method not in handeye.METHODS + (CORNERS_METHOD,):
-        raise ValueError(f"unknown --method {method!r}; choose one of "
-                         f"{', '.join(handeye.METHODS + (CORNERS_METHOD,))}")
+    choices = (AUTO_METHOD, CORNERS_METHOD) + handeye.METHODS
+    if method not in choices:
+        raise ValueError(f"unknown --method {method!r}; choose one of {', '.join(choices)}")
     capture = load_capture(capture_dir)
     has_pose = np.all(np.isfinite(capture.cam_T_target), axis=(1, 2))
     F, C = capture.pose_pairs()
@@ -291,6 +297,9 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     solve = (handeye.calibrate_eye_in_hand_report if mount == "eye_in_hand"
              else handeye.calibrate_eye_to_hand_report)
     kept = np.flatnonzero(has_pose)
+    auto_note = ""
+    if method == AUTO_METHOD:
+        method, auto_note = _auto_method(capture, kept)
     if method == CORNERS_METHOD:
         result, held_out_solve = _corner_calibration(capture, kept, F, C, mount)
     else:
@@ -306,7 +315,7 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     print(f"capture: {capture_dir} ({capture.robot_name or 'robot ?'}, "
           f"{capture.camera_name or 'camera ?'}, {len(F)} views, "
           f"{len(capture.failed_indices)} failed at capture)")
-    print(f"{parent}_T_cam by {method} ({mount}):")
+    print(f"{parent}_T_cam by {method} ({mount}){auto_note}:")
     for row in X:
         print("  [" + "  ".join(f"{v:11.6f}" for v in row) + "]")
     print("translation (mm): " + "  ".join(f"{v:.2f}" for v in X[:3, 3] * 1000))
@@ -347,7 +356,18 @@ def _calibrate(capture_dir, mount: str, method: str, out) -> None:
     print(f"saved {out}")
 
 
-CORNERS_METHOD = "corners"
+def _auto_method(capture, kept) -> tuple[str, str]:
+    """``--method auto``: (the method, a note saying why) for this capture.
+
+    The corner fit wins on the real captures of benchmarks/handeye_real.py (the pose-based
+    ``nonlinear`` is the best of the rest there), but it needs every view's corners.
+    """
+    short = [int(capture.pose_indices[i]) for i in kept if len(capture.corners_px[i]) < 4]
+    if len(kept) >= 4 and not short:
+        return CORNERS_METHOD, " (auto: every view has its board corners)"
+    why = (f"views {short} have fewer than 4 corners" if short
+           else f"only {len(kept)} views, the corner fit's cross-validation needs 4")
+    return "nonlinear", f" (auto: {why})"
 
 
 def _corner_calibration(capture, kept, F, C, mount: str):

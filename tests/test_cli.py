@@ -155,10 +155,12 @@ def test_calibrate_solves_a_saved_capture_and_writes_the_yaml(capsys, sim_captur
     out = tmp_path / "result.yaml"
     assert cli.main(["calibrate", str(folder), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "flange_T_cam by nonlinear (eye_in_hand)" in text
+    # every view kept its corners: the default is the corner fit
+    assert "flange_T_cam by corners (eye_in_hand) (auto: every view has its board corners)" in text
+    assert "corner fit:" in text and "held-out error" in text
     assert text.count("view ") >= len(capture) and "flagged views:" in text
     result = load_calibration(out)
-    assert result.n_samples == len(capture) and result.method == "nonlinear"
+    assert result.n_samples == len(capture) and result.method == "corners"
     assert translation_error(result.pose, true_X) < 1e-3
     assert rotation_error_deg(result.pose, true_X) < 0.1
     doc = yaml.safe_load(out.read_text())
@@ -185,7 +187,7 @@ def test_calibrate_warns_when_the_views_cannot_tell_the_mounts_apart(capsys, sim
 
 def _synthetic_capture(folder, mount):
     """A capture folder holding a synthetic problem's poses (views that also roll the camera);
-    the images are blank, since ``calibrate`` reads only the poses."""
+    no corners and blank images, so ``calibrate`` reads only the poses (auto: nonlinear)."""
     from autograder.synthetic import NoiseModel, make_hand_eye
     from robots.capture import Capture, save_capture
     from robots.interfaces import Intrinsics
@@ -194,7 +196,7 @@ def _synthetic_capture(folder, mount):
     n = len(p.base_T_flange)
     save_capture(Capture(
         base_T_flange=p.base_T_flange, cam_T_target=p.cam_T_target,
-        corners_px=[np.zeros((48, 2))] * n, object_points=[np.zeros((48, 3))] * n,
+        corners_px=[np.zeros((0, 2))] * n, object_points=[np.zeros((0, 3))] * n,
         intrinsics=Intrinsics(600.0, 600.0, 319.5, 239.5, 640, 480),
         commanded_base_T_flange=p.base_T_flange, pose_indices=np.arange(n),
         timestamps=np.arange(n, dtype=float), images=[np.zeros((4, 4, 3), np.uint8)] * n),
@@ -208,7 +210,10 @@ def test_calibrate_names_the_right_mount_when_the_wrong_one_is_given(capsys, tmp
                                                                      true_mount, wrong_mount):
     _synthetic_capture(tmp_path / "cap", true_mount)
     assert cli.main(["calibrate", str(tmp_path / "cap"), "--mount", true_mount]) == 0
-    assert "WARNING" not in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "WARNING" not in text
+    # no corners in these views: the default falls back to the pose-based fit and says why
+    assert "by nonlinear" in text and "fewer than 4 corners" in text
     # The wrong mount gives every solver a wrong X: refused, naming the mount that fits, and
     # nothing saved that a lab could mistake for a calibration.
     (tmp_path / "cap" / "flange_T_cam.yaml").unlink(missing_ok=True)
