@@ -365,8 +365,12 @@ def _auto_method(capture, kept) -> tuple[str, str]:
     short = [int(capture.pose_indices[i]) for i in kept if len(capture.corners_px[i]) < 4]
     if len(kept) >= 4 and not short:
         return CORNERS_METHOD, " (auto: every view has its board corners)"
-    why = (f"views {short} have fewer than 4 corners" if short
-           else f"only {len(kept)} views, the corner fit's cross-validation needs 4")
+    if len(short) == len(kept):
+        why = "no view has board corners (4 or more): the capture holds poses only"
+    elif short:
+        why = f"views {short} have fewer than 4 corners"
+    else:
+        why = f"only {len(kept)} views, the corner fit's cross-validation needs 4"
     return "nonlinear", f" (auto: {why})"
 
 
