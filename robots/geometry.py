@@ -288,9 +288,10 @@ def project_to_so3(M) -> np.ndarray:
 # --------------------------------------------------------------------------- conversions
 
 
-def _pose_from_rotation(rot: Rotation, t) -> np.ndarray:
+def _pose_from_rotation(R: np.ndarray, t) -> np.ndarray:
+    """(4, 4) pose from a (3, 3) rotation known to be exact and an optional translation (m)."""
     T = np.eye(4)
-    T[:3, :3] = rot.as_matrix()
+    T[:3, :3] = R
     if t is not None:
         T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
     return T
@@ -301,11 +302,7 @@ def pose_from_rotvec(rotvec, t=None) -> np.ndarray:
 
     This is the (rx, ry, rz) of UR controllers and OpenCV's ``Rodrigues``.
     """
-    T = np.eye(4)
-    T[:3, :3] = rotation_from_rotvec(rotvec)
-    if t is not None:
-        T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
-    return T
+    return _pose_from_rotation(rotation_from_rotvec(rotvec), t)
 
 
 # The conversions below sit in inner loops (IK iterations, grading and benchmark trials), where
@@ -335,9 +332,10 @@ def rotvec_from_rotation(R) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     if R.shape != (3, 3):
         raise ValueError(f"rotvec_from_rotation needs a (3, 3) rotation, got shape {R.shape}")
-    if _one_rotation_angle_deg(R) is None:
-        R = project_to_so3(R)
-    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    entries = _exact_rotation_entries(R)
+    if entries is None:
+        entries = _exact_rotation_entries(project_to_so3(R))
+    (a, b, c), (d, e, f), (g, h, i) = entries
     wx, wy, wz = h - f, c - g, d - b  # 2 sin(theta) * axis
     sin = math.sqrt(wx * wx + wy * wy + wz * wz) / 2.0
     cos = (a + e + i - 1.0) / 2.0
@@ -373,14 +371,10 @@ def pose_from_quat_xyzw(quat_xyzw, t=None) -> np.ndarray:
     if not math.isfinite(norm) or norm < 1e-12:
         raise ValueError(f"quaternion {q} is not finite and non-zero")
     x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    T = np.array([
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w), 0.0],
-        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w), 0.0],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y), 0.0],
-        [0.0, 0.0, 0.0, 1.0]])
-    if t is not None:
-        T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
-    return T
+    return _pose_from_rotation(np.array([
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]]), t)
 
 
 def quat_xyzw_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
@@ -395,7 +389,7 @@ def quat_xyzw_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
 def pose_from_rpy(roll, pitch, yaw, t=None, degrees: bool = False) -> np.ndarray:
     """Pose with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ = intrinsic ZYX)."""
     rot = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=degrees)
-    return _pose_from_rotation(rot, t)
+    return _pose_from_rotation(rot.as_matrix(), t)
 
 
 def rpy_from_pose(T, degrees: bool = False) -> np.ndarray:
@@ -410,7 +404,7 @@ def pose_from_euler_zyx(yaw, pitch, roll, t=None, degrees: bool = False) -> np.n
     Aubo's report (rz, ry, rx) in ZYX order.
     """
     rot = Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=degrees)
-    return _pose_from_rotation(rot, t)
+    return _pose_from_rotation(rot.as_matrix(), t)
 
 
 def euler_zyx_from_pose(T, degrees: bool = False) -> np.ndarray:
@@ -459,15 +453,23 @@ def rotation_angle_deg(R) -> np.ndarray | float:
 _EXACT_ROTATION_TOL = 1e-9
 
 
-def _one_rotation_angle_deg(R) -> float | None:
-    """rotation_angle_deg of one (3, 3) block; None if it is not orthonormal to 1e-9 (or NaN)."""
-    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+def _exact_rotation_entries(R) -> list | None:
+    """The rows of a (3, 3) block as plain floats; None unless orthonormal to 1e-9 (or NaN)."""
+    rows = R.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = rows
     # A sum, not max(): max() drops a NaN that is not its first argument.
     gram_error = (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
                   + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
                   + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i))
-    if not gram_error <= _EXACT_ROTATION_TOL:
+    return rows if gram_error <= _EXACT_ROTATION_TOL else None
+
+
+def _one_rotation_angle_deg(R) -> float | None:
+    """rotation_angle_deg of one (3, 3) block; None if it is not orthonormal to 1e-9 (or NaN)."""
+    rows = _exact_rotation_entries(R)
+    if rows is None:
         return None
+    (a, b, c), (d, e, f), (g, h, i) = rows
     sin = math.sqrt((h - f) ** 2 + (c - g) ** 2 + (d - b) ** 2) / 2.0
     return math.degrees(math.atan2(sin, (a + e + i - 1.0) / 2.0))
 
