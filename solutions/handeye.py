@@ -339,8 +339,8 @@ def _prepare(A, B, pairs=None, validate: bool = True, from_poses: bool = False) 
             f"AX = XB needs at least 2 motions (3 poses) with different rotation axes, got "
             f"{len(A)}: capture more poses"
         )
-    rvA = Rotation.from_matrix(A[:, :3, :3]).as_rotvec()
-    rvB = Rotation.from_matrix(B[:, :3, :3]).as_rotvec()
+    rvA = geo.rotvecs_from_rotations(A[:, :3, :3])
+    rvB = geo.rotvecs_from_rotations(B[:, :3, :3])
     # A robot motion and the camera motion it causes rotate by the same angle: if most do not,
     # A[k] and B[k] are not the same motion, and no X can be right. (Motions built here from
     # poses were checked as poses, with a message about the poses.)

@@ -363,9 +363,16 @@ def _unit_parts(e: np.ndarray, camera_shape: np.ndarray | None) -> np.ndarray:
     return parts
 
 
+def _covariance(variances: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """Per-pose covariances sum_k v_k S_k, (N, 6, 6), from ``parts`` (K, N, 6, 6).
+
+    One matrix product: np.tensordot costs several times more at this size."""
+    return (np.asarray(variances, float) @ parts.reshape(len(parts), -1)).reshape(parts.shape[1:])
+
+
 def _information(variances: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """Per-pose information matrices inv(sum_k v_k S_k), (N, 6, 6)."""
-    return np.linalg.inv(np.tensordot(variances, parts, axes=1))
+    return np.linalg.inv(_covariance(variances, parts))
 
 
 def _shift_parts(parts: np.ndarray, shift, board_axes) -> np.ndarray:
@@ -431,7 +438,7 @@ def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=
     last_step = np.zeros(2)
     for _ in range(max_iter):
         S, D = derivatives(v, d)
-        W = np.linalg.inv(np.tensordot(v, S, axes=1))
+        W = np.linalg.inv(_covariance(v, S))
         WJ = W @ Jk
         WJ2 = WJ.reshape(-1, 12)
         Hinv = np.linalg.inv(Jf.T @ WJ2)
@@ -472,7 +479,7 @@ def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=
             converged = True
             break
     S = _shift_parts(base, d, axes)
-    cov = np.tensordot(v, S, axes=1)
+    cov = _covariance(v, S)
     W = np.linalg.inv(cov)
     WJ2 = (W @ Jk).reshape(-1, 12)
     H = Jf.T @ WJ2
@@ -530,30 +537,55 @@ def _outliers(r, cov, J, keep, n_noise_parameters: int) -> np.ndarray:
     return stat > limit
 
 
+def _solve_small(A: list, b: list) -> list:
+    """x with A x = b for a system of a handful of unknowns (lists of floats): Gaussian
+    elimination with partial pivoting, as LAPACK's gesv does. Plain floats, because the REML
+    steps solve one such system per iteration and numpy's per-call overhead was most of the
+    cost. ``np.linalg.LinAlgError`` when A is singular."""
+    n = len(b)
+    M = [list(row) + [b[i]] for i, row in enumerate(A)]
+    for c in range(n):
+        p = max(range(c, n), key=lambda i: abs(M[i][c]))
+        if M[p][c] == 0.0:
+            raise np.linalg.LinAlgError("singular matrix")
+        M[c], M[p] = M[p], M[c]
+        for i in range(c + 1, n):
+            f = M[i][c] / M[c][c]
+            if f:
+                M[i] = [a - f * u for a, u in zip(M[i], M[c])]
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        x[i] = (M[i][n] - sum(M[i][j] * x[j] for j in range(i + 1, n))) / M[i][i]
+    return x
+
+
 def _bounded_solve(F, rhs, lower, held, held_value) -> np.ndarray:
     """Solve F x = rhs for the entries not ``held`` (those keep ``held_value``), holding at
     ``lower`` any that would fall below it and re-solving the rest."""
-    if not held.any():
-        x = np.linalg.solve(F, rhs)
-        if np.all(x >= lower):
-            return x
-    fixed = held.copy()
-    x = np.where(held, held_value, lower)
-    for _ in range(len(rhs)):
-        free = ~fixed
-        if not free.any():
+    F, rhs, lower = np.asarray(F).tolist(), np.asarray(rhs).tolist(), np.asarray(lower).tolist()
+    held, held_value = np.asarray(held).tolist(), np.asarray(held_value).tolist()
+    n = len(rhs)
+    fixed = list(held)
+    x = [held_value[i] if held[i] else lower[i] for i in range(n)]
+    for _ in range(n):
+        free = [i for i in range(n) if not fixed[i]]
+        if not free:
             break
-        x = np.where(held, held_value, np.where(fixed, lower, 0.0))
-        Ff = F[free]
+        x = [held_value[i] if held[i] else (lower[i] if fixed[i] else 0.0) for i in range(n)]
+        pinned = [j for j in range(n) if fixed[j]]
         try:
-            x[free] = np.linalg.solve(Ff[:, free], rhs[free] - Ff[:, fixed] @ x[fixed])
+            solution = _solve_small([[F[i][j] for j in free] for i in free],
+                                    [rhs[i] - sum(F[i][j] * x[j] for j in pinned) for i in free])
         except np.linalg.LinAlgError:
-            x[free] = np.maximum(lower[free], 0.0)
-        low = free & (x < lower)
-        if not low.any():
+            solution = [max(lower[i], 0.0) for i in free]
+        for i, value in zip(free, solution):
+            x[i] = value
+        low = [i for i in free if x[i] < lower[i]]
+        if not low:
             break
-        fixed |= low
-    return np.where(held, held_value, np.maximum(x, lower))
+        for i in low:
+            fixed[i] = True
+    return np.array([held_value[i] if held[i] else max(x[i], lower[i]) for i in range(n)])
 
 
 def _loss(z2: np.ndarray, loss: str | None) -> tuple[np.ndarray, np.ndarray]:
@@ -790,7 +822,7 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
             # A suspect that either model explains is cleared and comes back before the last
             # estimate: on PnP poses with little noise the two can be close calls.
             for _, _, cam_shape, v, _ in fitted:
-                cov = np.tensordot(v, _unit_parts(e, cam_shape), axes=1)
+                cov = _covariance(v, _unit_parts(e, cam_shape))
                 suspects &= _outliers(r, cov, J, keep, int(np.sum(~held)))
             keep = ~suspects
         if chosen == "planar_target" and redundancy >= 36:
@@ -811,7 +843,7 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
     # Stage 3: weighted least squares under that model on the poses that are not outliers;
     # the suspects are tested again, and the noise re-estimated whenever the kept set changes.
     for _ in range(6):
-        cov = np.tensordot(variances, parts(e), axes=1)
+        cov = _covariance(variances, parts(e))
         info = np.linalg.inv(cov)
         keep_changed = False
         if robust and suspects.any():

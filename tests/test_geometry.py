@@ -101,6 +101,58 @@ def test_fast_conversions_agree_with_scipy_at_every_branch(angle):
         np.testing.assert_allclose(geo.pose_from_quat_xyzw(3.0 * q)[:3, :3], R, atol=2e-15)
 
 
+def test_stacked_rotvecs_equal_the_single_conversion_at_every_branch():
+    rng = np.random.default_rng(8)
+    axes = rng.normal(size=(len(EDGE_ANGLES) * 5, 3))
+    rv = np.repeat(EDGE_ANGLES, 5)[:, None] * axes / np.linalg.norm(axes, axis=1)[:, None]
+    R = Rotation.from_rotvec(rv).as_matrix()
+    R[-1] += 1e-6 * rng.normal(size=(3, 3))  # off by rounding: projected first, as one by one
+    one_by_one = np.array([geo.rotvec_from_rotation(m) for m in R])
+    np.testing.assert_allclose(geo.rotvecs_from_rotations(R), one_by_one, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match=r"\(N, 3, 3\)"):
+        geo.rotvecs_from_rotations(R[0])
+
+
+def _with(T, index, value):
+    T = np.array(T, dtype=float)
+    T[index] = value
+    return T
+
+
+# One pose: a clean one takes the plain-float check, everything else the stack's full check.
+SINGLE_POSES = {
+    "clean, huge t": (geo.pose_from_rotvec([0.3, -1.0, 2.0], [1e308, -1e308, 1e308]), None),
+    "nan in t": (_with(np.eye(4), (1, 3), np.nan), "NaN or inf"),
+    "inf - inf in t": (geo.make_pose(t=[np.inf, -np.inf, 0.0]), "NaN or inf"),
+    "nan in R": (_with(np.eye(4), (1, 2), np.nan), "NaN or inf"),
+    "bottom row": (_with(np.eye(4), (3, 2), 1e-6), "bottom row"),
+    "bottom row off by rounding": (_with(np.eye(4), (3, 2), 1e-12), None),
+    "reflection": (np.diag([1.0, 1.0, -1.0, 1.0]), "det -1"),
+    "not orthonormal": (np.diag([1.1, 1.0, 1.0, 1.0]), "not orthonormal"),
+}
+
+
+@pytest.mark.parametrize("case", SINGLE_POSES)
+def test_single_pose_validation_agrees_with_the_stack_check(case):
+    T, message = SINGLE_POSES[case]
+    if message is None:
+        np.testing.assert_array_equal(geo.as_pose(T), geo.as_poses(T[None])[0])
+        return
+    for check in (lambda: geo.as_pose(T, "X"), lambda: geo.as_poses(T[None], "X")):
+        with pytest.raises(ValueError, match=message):
+            check()
+
+
+def test_a_rotation_off_by_rounding_is_repaired_with_a_warning_one_pose_or_many():
+    T = geo.pose_from_rotvec([0.3, -1.0, 2.0], [0.1, 0.2, 0.3])
+    T[:3, :3] += 2e-6 * np.random.default_rng(3).normal(size=(3, 3))
+    for check in (lambda: geo.as_pose(T), lambda: geo.as_poses(T[None])[0],
+                  lambda: geo.make_pose(T[:3, :3])):
+        with pytest.warns(UserWarning, match="re-orthonormalised"):
+            fixed = check()
+        np.testing.assert_allclose(fixed[:3, :3].T @ fixed[:3, :3], np.eye(3), atol=1e-12)
+
+
 def test_a_slightly_off_rotation_gets_its_nearest_rotations_angle_and_nan_is_refused():
     R = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
     off = R + 1e-5 * np.random.default_rng(0).normal(size=(3, 3))

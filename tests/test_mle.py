@@ -436,3 +436,22 @@ def test_corner_fit_keeps_an_extra_parameter_only_for_a_gain_that_matters(free_p
     options = [free, fixed, pose_based]
     k = mle._simplest_within_noise([c for c, _ in options], [r for _, r in options])
     assert options[k][0].fit_board_scale == (chosen == "free")
+
+
+def test_the_noise_steps_bounded_solve_holds_floors_and_solves_the_rest():
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n = int(rng.integers(1, 6))
+        M = rng.normal(size=(n, n))
+        F, rhs = M @ M.T + 0.1 * np.eye(n), rng.normal(size=n)
+        lower = np.where(rng.random(n) < 0.6, 0.1 * rng.normal(size=n), -np.inf)
+        held, held_value = rng.random(n) < 0.2, rng.normal(size=n)
+        x = mle._bounded_solve(F, rhs, lower, held, held_value)
+        np.testing.assert_array_equal(x[held], held_value[held])
+        assert np.all(x[~held] >= lower[~held])
+        free = ~held & (x > lower)  # the entries not at a bound solve their own equations
+        np.testing.assert_allclose((F @ x)[free], rhs[free], atol=1e-9)
+        if not held.any() and np.all(np.linalg.solve(F, rhs) >= lower):
+            np.testing.assert_allclose(x, np.linalg.solve(F, rhs), atol=1e-12)
+    with pytest.raises(np.linalg.LinAlgError):
+        mle._solve_small([[1.0, 2.0], [2.0, 4.0]], [1.0, 2.0])
