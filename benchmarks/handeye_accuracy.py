@@ -34,7 +34,12 @@ best, the default is at least 15 % below. Each ratio is printed with a paired-bo
 interval (trials resampled, the same trials for both methods), and each row's verdict says
 whether a miss is real (the whole interval is past the target) or within sampling noise.
 Pixel-noise rows keep the earlier target (15 % better than OpenCV's best). Speed: on 20 poses
-the default takes at most 5 x OpenCV PARK's time on every row.
+the default takes at most 5 x OpenCV PARK's time on every row. The table's ms/call is one call
+per trial, in among the other methods; the speed verdict is measured apart, because single
+calls swing by +-20 % with the machine's state (PARK alone moved between 3.1 and 4.9 ms from
+row to row in one run): on each trial the default and PARK run alternately SPEED_REPEATS
+times, each keeps its fastest run, and the row's ratio is the median over trials of
+default / PARK, with a bootstrap 95 % interval over the trials.
 """
 
 from __future__ import annotations
@@ -75,6 +80,9 @@ BOOTSTRAP = 2000
 ORACLE_SLACK = 1.05
 OPENCV_GAIN = 0.95
 OPENCV_GAIN_WHERE_POSSIBLE = 0.85
+SPEED_LIMIT = 5.0
+SPEED_REPEATS = 5
+SPEED_KEY = "speed: fastest of alternating runs (default ms, PARK ms)"
 
 
 @dataclass(frozen=True)
@@ -179,6 +187,9 @@ def run_trial(args):
         results[label] = (geo.rotation_error_deg(X, problem.X_true),
                           geo.translation_error(X, problem.X_true) * 1000, ms,
                           None if flagged is None else (tuple(flagged), problem.outlier_indices))
+    if scenario.n_poses == 20:
+        solvers = dict(methods)
+        results[SPEED_KEY] = _fastest_runs(solvers[DEFAULT_METHOD], solvers["opencv PARK"])
     start = time.process_time()
     X_oracle = oracle_fit(scenario, problem)
     if X_oracle is not None:
@@ -191,9 +202,46 @@ def run_trial(args):
     return results
 
 
+def _fastest_runs(*solvers) -> tuple[float, ...]:
+    """Each solver's fastest of SPEED_REPEATS runs (CPU ms), the solvers taking turns, so a
+    change in the machine's speed weighs on all of them alike."""
+    best = [np.inf] * len(solvers)
+    for _ in range(SPEED_REPEATS):
+        for k, solve in enumerate(solvers):
+            start = time.process_time()
+            try:
+                solve()
+            except Exception:  # noqa: BLE001 - a refusal costs its time like an answer
+                pass
+            best[k] = min(best[k], (time.process_time() - start) * 1000)
+    return tuple(best)
+
+
+def speed_target(scenario: Scenario, trials: list[dict], file=sys.stdout) -> list[str]:
+    """The speed target on a 20-pose row, printed with its bootstrap interval; returns the
+    line of a miss (real or within noise)."""
+    if SPEED_KEY not in trials[0]:
+        return []
+    ms = np.array([t[SPEED_KEY] for t in trials], float)
+    ratios = ms[:, 0] / ms[:, 1]
+    idx = np.random.default_rng(2).integers(0, len(ratios), size=(BOOTSTRAP, len(ratios)))
+    lo, hi = np.percentile(np.median(ratios[idx], axis=1), [2.5, 97.5])
+    ratio = float(np.median(ratios))
+    verdict = _verdict(ratio, lo, hi, SPEED_LIMIT)
+    text = (f"default/PARK {ratio:.2f} [{lo:.2f}, {hi:.2f}] <= {SPEED_LIMIT:g} (fastest of "
+            f"{SPEED_REPEATS} alternating runs per trial: median {np.median(ms[:, 0]):.2f} ms "
+            f"against {np.median(ms[:, 1]):.2f} ms)")
+    print(f"- speed: {text}: {verdict}", file=file)
+    if verdict.startswith("met"):
+        return []
+    return [f"speed {scenario.name} {scenario.mount} n=20: {text}: {verdict}"]
+
+
 def summarise(trials: list[dict]) -> list[tuple]:
     rows = []
     for label in trials[0]:
+        if label == SPEED_KEY:
+            continue
         # np.hstack: the bound row holds many draws per trial, a method one error per trial.
         r = np.hstack([t[label][0] for t in trials]).astype(float)
         t = np.hstack([t[label][1] for t in trials]).astype(float)
@@ -301,9 +349,6 @@ def check_targets(scenario: Scenario, rows) -> list[str]:
                     and ours[3] < best_trans and ours[4] < min(r[4] for r in opencv))
     if scenario.name == "opencv-test" and not beats_opencv:
         missed.append(f"opencv-test {scenario.mount}: default does not beat OpenCV's best")
-    if scenario.n_poses == 20 and "opencv PARK" in by_label and ours[5] > 5 * by_label["opencv PARK"][5]:
-        missed.append(f"speed {scenario.name} {scenario.mount} n=20: default {ours[5]:.2f} ms > "
-                      f"5 x OpenCV PARK {by_label['opencv PARK'][5]:.2f} ms")
     if scenario.name == "one-bad-pose" and not (ours[1] <= 0.3 and ours[3] <= 20):
         missed.append(f"one-bad-pose {scenario.mount}: default median {ours[1]:.3f} deg / "
                       f"{ours[3]:.2f} mm (target <= 0.3 deg / 20 mm)")
@@ -334,6 +379,7 @@ def main(argv=None) -> int:
             rows = summarise(results)
             print_table(scenario, rows, trials)
             missed += limit_targets(scenario, results)
+            missed += speed_target(scenario, results)
             missed += check_targets(scenario, rows)
             sys.stdout.flush()
     print(f"\nTotal time {time.perf_counter() - started:.0f} s with {args.workers} workers.")

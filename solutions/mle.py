@@ -36,6 +36,7 @@ cam2base = ``base_T_cam`` (= X here). This module takes ``base_T_flange`` as is 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -387,7 +388,7 @@ def _shift_parts(parts: np.ndarray, shift, board_axes) -> np.ndarray:
 
 
 def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=None,
-                max_iter: int = 12, tol: float = _NOISE_TOL):
+                max_iter: int = 12, tol: float = _NOISE_TOL, likelihood: bool = True):
     """Noise model parameters by REML Fisher scoring at fixed residuals.
 
     The residual covariance of pose i is Sigma_i = sum_k v_k S_k,i (``parts``; see
@@ -405,8 +406,9 @@ def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=
     A weak prior (standard deviation 0.5 m) keeps the shift defined when the data say nothing
     about it. Only the kept poses count.
 
-    Returns (variances (K,), shift (2,), -2 log REML likelihood up to a constant, whether the
-    steps converged within ``max_iter``).
+    Returns (variances (K,), shift (2,), -2 log REML likelihood up to a constant (NaN unless
+    ``likelihood``: only a comparison of models needs it), whether the steps converged within
+    ``max_iter``).
     """
     base, rk, Jk = parts[:, keep], r[keep], J[keep]
     K, m = len(base), len(rk)
@@ -478,6 +480,8 @@ def _reml_noise(parts, variances, r, J, keep, held=None, board_axes=None, shift=
         if moved < tol:
             converged = True
             break
+    if not likelihood:
+        return v, d, math.nan, converged
     S = _shift_parts(base, d, axes)
     cov = _covariance(v, S)
     W = np.linalg.inv(cov)
@@ -562,6 +566,13 @@ def _solve_small(A: list, b: list) -> list:
 def _bounded_solve(F, rhs, lower, held, held_value) -> np.ndarray:
     """Solve F x = rhs for the entries not ``held`` (those keep ``held_value``), holding at
     ``lower`` any that would fall below it and re-solving the rest."""
+    if not np.any(held):  # the common case: one solve, no bound reached
+        try:
+            x = np.linalg.solve(F, rhs)
+            if np.all(x >= lower):
+                return x
+        except np.linalg.LinAlgError:
+            pass
     F, rhs, lower = np.asarray(F).tolist(), np.asarray(rhs).tolist(), np.asarray(lower).tolist()
     held, held_value = np.asarray(held).tolist(), np.asarray(held_value).tolist()
     n = len(rhs)
@@ -770,10 +781,13 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
     # Stage 1: a first fit under isotropic noise levels from the medians, with the robust loss
     # if asked; then the levels again from the medians of the inliers. Any reasonable weighting
     # finds a gross error here; the poses it sets aside are only suspects, tested again below
-    # under the fitted noise model.
+    # under the fitted noise model. This fit need not be tight (a relative cost decrease of
+    # 1e-4): REML sees its residuals only through P r, which a further move along J does not
+    # change to first order, and stage 3 fits again to 1e-8. (Measured on 300 problems: the
+    # same noise models and outliers as with 1e-6, X within 0.0004 deg / 0.003 mm.)
     info = _information(iso, _unit_parts(e, None))
     Z, Y, _, z2, total_it, converged = _gauss_newton(problem, Z, Y, info, loss if robust else None,
-                                                     max_iter, keep, tol=1e-6)
+                                                     max_iter, keep, tol=1e-4)
     r, Jinv, P = problem.residuals(Z, Y)
     e = problem.lever_arms(Z, P)
     if robust and estimate:
@@ -812,9 +826,10 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
             candidates.append(("planar_target", shape, np.array([scale, 0.1 * iso[1], iso[2]])))
         fitted = []
         for name, cam_shape, start in candidates:
-            # A few steps tell the models apart; the chosen one is finished below.
+            # Two steps tell the models apart (the same choice as after four on 299 of 300
+            # problems, and the same medians); the chosen one is finished below.
             v, _, m2ll, done = _reml_noise(_unit_parts(e, cam_shape), start, r, J, keep, held,
-                                           max_iter=4)
+                                           max_iter=2)
             fitted.append((m2ll, name, cam_shape, v, done))
         _, chosen, shape, variances, done = min(fitted, key=lambda f: f[0])
         estimated_on = keep
@@ -831,7 +846,7 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
             axes, done = C[:, :3, :2], False
         if not done or not np.array_equal(keep, estimated_on):
             variances, shift, _, _ = _reml_noise(_unit_parts(e, shape), variances, r, J, keep,
-                                                 held, axes, max_iter=8)
+                                                 held, axes, max_iter=8, likelihood=False)
     else:
         shape = None
 
@@ -867,7 +882,7 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
         if estimate:
             variances, shift, _, _ = _reml_noise(_unit_parts(e, shape), variances, r,
                                                  problem.jacobian(P, Jinv), keep, held, axes,
-                                                 shift)
+                                                 shift, likelihood=False)
 
     z2 = _chi2(r, _information(variances, parts(e)))
     outliers = tuple(int(i) for i in np.flatnonzero(~keep)) if robust else ()
