@@ -16,6 +16,7 @@ only cell scores it can validate against the template it made itself (known cell
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import os
@@ -24,6 +25,7 @@ import sqlite3
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -419,12 +421,47 @@ def _is_execute(preprocessor) -> bool:
     return isinstance(preprocessor, type) and issubclass(preprocessor, Execute)
 
 
+_ENV_LOCK = threading.Lock()
+_ENV_USERS: dict[str, int] = {}
+_ENV_SAVED: dict[str, str | None] = {}
+
+
+@contextlib.contextmanager
+def _shared_setenv(**values):
+    """``nbgrader.utils.setenv`` for threads: the variables are set while any thread is
+    inside, and put back when the last one leaves. nbgrader's own deletes the variable when
+    each conversion ends, so with two conversions at once (``--workers 2``) the second one
+    to finish raised KeyError, and nbgrader removed that student's autograded notebook."""
+    with _ENV_LOCK:
+        for key, value in values.items():
+            if not _ENV_USERS.get(key):
+                _ENV_SAVED[key] = os.environ.get(key)
+            _ENV_USERS[key] = _ENV_USERS.get(key, 0) + 1
+            os.environ[key] = value
+    try:
+        yield
+    finally:
+        with _ENV_LOCK:
+            for key in values:
+                _ENV_USERS[key] -= 1
+                if _ENV_USERS[key] == 0:
+                    saved = _ENV_SAVED.pop(key)
+                    if saved is None:
+                        os.environ.pop(key, None)
+                    else:
+                        os.environ[key] = saved
+
+
 def _autograde_class():
     """nbgrader's ``Autograde`` converter, minus the ``os.chdir`` of its ``start``: several
     submissions are graded at once in threads of one process, and the working directory
-    is the process's (nothing here needs it: every path is absolute)."""
+    is the process's (nothing here needs it: every path is absolute). For the same reason
+    its environment variable is set with ``_shared_setenv``."""
+    import nbgrader.utils
     from nbconvert.writers import FilesWriter
     from nbgrader.converters import Autograde
+
+    nbgrader.utils.setenv = _shared_setenv  # autograde looks it up as utils.setenv per call
 
     class InProcessAutograde(Autograde):
         def start(self) -> None:

@@ -126,3 +126,37 @@ def test_a_patched_hidden_test_fools_the_kernel_but_not_the_worker(released, tmp
     rows = grade_course(worker_course, LAB0, limits=LIMITS, run_nbgrader=True, quiet=True)
     assert _nbgrader_own(worker_course)["patcher"]["test_compose_chain"] == 0.0
     assert rows[0]["score"] < 10 and "suspicious_grader_patch" in rows[0]["flags"].split(";")
+
+
+def test_two_conversions_at_once_share_nbgrader_s_environment_variable():
+    """nbgrader's setenv deletes NBGRADER_EXECUTION when each conversion ends: with
+    `--workers 2` the second to end raised KeyError and lost its autograded notebook."""
+    import os
+    import threading
+
+    import nbgrader.utils
+
+    from autograder import scratch
+
+    scratch._autograde_class()  # installs the shared setenv, as a grading run does
+    inside, leave, errors = threading.Barrier(2), threading.Event(), []
+
+    def conversion(first: bool):
+        try:
+            with nbgrader.utils.setenv(NBGRADER_EXECUTION="autograde"):
+                inside.wait(timeout=10)
+                if not first:
+                    leave.wait(timeout=10)   # the first one has ended; this one is inside
+                    assert os.environ["NBGRADER_EXECUTION"] == "autograde"
+            if first:
+                leave.set()
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    assert "NBGRADER_EXECUTION" not in os.environ
+    threads = [threading.Thread(target=conversion, args=(k == 0,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=20)
+    assert errors == [] and "NBGRADER_EXECUTION" not in os.environ
