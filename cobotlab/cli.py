@@ -188,6 +188,20 @@ def _build_parser() -> argparse.ArgumentParser:
     redraw.add_argument("--replay", default=None, metavar="NONCE",
                         help="the problems of an earlier --fresh run (its nonce in runs.jsonl)")
 
+    merge = sub.add_parser(
+        "merge",
+        help="bring shard jobs' grades (cobotlab grade --students) into this course",
+        description=(
+            "Merge the grades of ASSIGNMENT from each SHARD (a job's copy of the course, "
+            "graded there with `cobotlab grade SHARD ASSIGNMENT --students @FILE`) into "
+            "COURSE: cell scores and comments into gradebook.db (backed up first), rows into "
+            "grades.csv, feedback pages and autograded notebooks. The shard's files are read "
+            "as data; nothing of it runs."),
+    )
+    merge.add_argument("course_dir", metavar="COURSE", help="the home course directory")
+    merge.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
+    merge.add_argument("shards", metavar="SHARD", nargs="+", help="a graded copy of the course")
+
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
     check = robot_sub.add_parser(
@@ -647,6 +661,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"course laid out in {init_course(args.dir, exchange=args.exchange)}")
         elif args.command == "grade":
             _grade(args)
+        elif args.command == "merge":
+            from autograder.scratch import put_interpreter_on_path
+            from autograder.shards import merge_shard
+
+            put_interpreter_on_path()   # as for grade: nbgrader's gradebook needs `alembic`
+            for shard in args.shards:
+                merge_shard(args.course_dir, args.assignment, shard)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:

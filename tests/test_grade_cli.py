@@ -7,6 +7,7 @@ alone as a terminal would, and then no process the CLI started may be left.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -17,8 +18,9 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import record, sandbox
+from autograder import checks, record, sandbox
 from autograder.course import grade_course
+from autograder.shards import merge_shard
 from cobotlab.cli import _student_ids
 
 pytestmark = pytest.mark.slow
@@ -116,19 +118,76 @@ def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, 
     assert not sandbox.stopping()
 
 
-def test_a_shard_grades_only_its_students_with_progress(released, tmp_path):
-    course = kit.fresh_course(released, tmp_path)
-    for student in ("ada", "bo", "cy"):
-        kit.submit(course, ASSIGNMENT, student)
+def _submit_class(course: Path) -> None:
+    # ada writes every function, cy one of them, bo nothing: three different scores.
+    solutions = kit.solution_sources(ASSIGNMENT, [s.name for s in checks.SPECS[ASSIGNMENT]])
+    kit.submit(course, ASSIGNMENT, "ada", replace=solutions)
+    kit.submit(course, ASSIGNMENT, "bo")
+    kit.submit(course, ASSIGNMENT, "cy", replace={"invert_pose": solutions["invert_pose"]})
+
+
+def test_a_shard_grades_only_its_students_and_merges_back_into_the_home_course(released,
+                                                                              tmp_path):
+    shard = kit.fresh_course(released, tmp_path / "job")  # a cluster job's copy of the course
+    home = kit.fresh_course(released, tmp_path / "home")
+    for course in (shard, home):
+        _submit_class(course)
     calls = []
-    rows = grade_course(course, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
+    rows = grade_course(shard, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
+                        run_nbgrader=True,  # as the CLI does: autograded notebooks too
                         progress=lambda done, total, sid: calls.append((done, total, sid)))
     assert sorted(r["student_id"] for r in rows) == ["ada", "cy"]
     assert calls[0] == (0, 2, "")
     assert sorted(calls[1:]) == [(1, 2, calls[1][2]), (2, 2, calls[2][2])]
     assert {calls[1][2], calls[2][2]} == {"ada", "cy"}
     with pytest.raises(ValueError, match="no submission .* by dee"):
-        grade_course(course, ASSIGNMENT, quiet=True, students=["ada", "dee"])
+        grade_course(shard, ASSIGNMENT, quiet=True, students=["ada", "dee"])
+
+    # Back home: the gradebook (where formgrader and nbgrader export look), grades.csv, the
+    # feedback pages and the cross-check ledger hold what the job graded, bo untouched.
+    merged = merge_shard(home, ASSIGNMENT, shard, quiet=True)
+    by_id = {r["student_id"]: r for r in rows}
+    assert {r["student_id"]: float(r["raw_score"]) for r in merged} == {
+        sid: float(r["raw_score"]) for sid, r in by_id.items()}
+    assert float(by_id["ada"]["raw_score"]) > float(by_id["cy"]["raw_score"]) > 0
+    ours, theirs = (_gradebook_cells(c, ["ada", "cy"]) for c in (home, shard))
+    assert ours == theirs and all(ours.values())
+    assert set(kit.read_grades(home)) == {"ada", "cy"}
+    for sid in ("ada", "cy"):
+        assert float(kit.read_grades(home)[sid]["score"]) == float(by_id[sid]["score"])
+        page = home / "feedback_cobotlab" / sid / ASSIGNMENT / "feedback.html"
+        assert page.read_bytes() == (shard / page.relative_to(home)).read_bytes()
+        notebook = home / "autograded" / sid / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
+        assert notebook.read_bytes() == (shard / notebook.relative_to(home)).read_bytes()
+    ledger = json.loads((home / ".cobotlab" / "nbgrader_cells.json").read_text())
+    assert set(ledger[ASSIGNMENT]) == {"ada", "cy"}
+    assert record.gradebook_problem(home / "gradebook.db") is None
+    assert not (home / ".cobotlab" / record.RUN_MARKER).exists()
+
+    # A shard whose grades.csv was tampered with (or graded another lab version) is refused,
+    # and nothing of it is written.
+    before = (home / "gradebook.db").read_bytes()
+    text = (shard / "grades.csv").read_text()
+    (shard / "grades.csv").write_text(text.replace(f",{by_id['ada']['raw_score']},",
+                                                   ",99.0,", 1))
+    with pytest.raises(ValueError, match="scores 99"):
+        merge_shard(home, ASSIGNMENT, shard, quiet=True)
+    assert (home / "gradebook.db").read_bytes() == before
+    with pytest.raises(ValueError, match="the course itself"):
+        merge_shard(home, ASSIGNMENT, home, quiet=True)
+
+
+def _gradebook_cells(course: Path, students: list[str]) -> dict:
+    from nbgrader.api import Gradebook
+
+    with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
+        out = {}
+        for sid in students:
+            sub = gb.find_submission(ASSIGNMENT, sid)
+            out[sid] = sorted((g.name, g.auto_score, g.max_score) for nb in sub.notebooks
+                              for g in nb.grades) + sorted(
+                (c.name, c.auto_comment) for nb in sub.notebooks for c in nb.comments)
+        return out
 
 
 def test_student_list_from_the_command_line_or_a_file(tmp_path):

@@ -1,0 +1,198 @@
+"""Bring the grades of shard jobs (``cobotlab grade --students``) into the home course.
+
+A class past one machine is graded in shards, each job on its own copy of the course
+(docs/instructors.md). ``merge_shard(HOME, ASSIGNMENT, SHARD)`` takes one job's copy back:
+its students' cell scores and comments into HOME's ``gradebook.db`` (through nbgrader's API,
+so formgrader, manual overrides and ``nbgrader export`` see them as if HOME had graded),
+their rows into HOME's ``grades.csv``, their feedback pages and autograded notebooks, and the
+cross-check ledger, so the next regrade at home still compares with nbgrader's own values.
+
+The shard's files are read as data, as a submission is: only regular files (never a link),
+student ids that are safe folder names, scores that are numbers within their cell's points,
+and only for students whose row the shard's ``grades.csv`` has. HOME's gradebook is backed
+up first and checked after, as in ``grade_course``; a late penalty is HOME's rule again.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+from autograder import checks, course, freeze, grading, record, scratch
+
+__all__ = ["merge_shard"]
+
+_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook
+
+
+def _read(path: Path, what: str) -> bytes:
+    data, why = freeze._read_regular(path, _CAP_BYTES)
+    if data is None:
+        raise ValueError(f"{what} {path}: {why}")
+    return data
+
+
+def _shard_rows(shard: Path, assignment: str) -> list[dict]:
+    text = _read(shard / course.GRADES_CSV, "the shard's grades").decode("utf-8")
+    rows = [r for r in csv.DictReader(io.StringIO(text)) if r.get("assignment") == assignment]
+    if not rows:
+        raise ValueError(f"{shard / course.GRADES_CSV} has no row of {assignment!r}: grade the "
+                         "shard first (cobotlab grade SHARD ASSIGNMENT --students @FILE)")
+    max_points = sum(s.points for s in checks.SPECS[assignment])
+    for row in rows:
+        sid = row.get("student_id", "")
+        problem = freeze.student_id_problem(sid)
+        if problem:
+            raise ValueError(f"the shard's grades.csv names a student id that is {problem}: "
+                             f"{freeze.printable(sid, 80)!r}")
+        try:
+            raw, top = float(row["raw_score"]), float(row["max_score"])
+        except (KeyError, ValueError):
+            raise ValueError(f"the shard's row of {sid} has no numeric raw_score / max_score") \
+                from None
+        if not (math.isfinite(raw) and abs(top - max_points) < 1e-9 and 0 <= raw <= top):
+            raise ValueError(
+                f"the shard's row of {sid} scores {raw:g} / {top:g}, but {assignment} is out of "
+                f"{max_points:g} here: was the shard graded with another version of the lab?")
+    return rows
+
+
+def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
+    """{student: (timestamp, {(notebook, grade id): (score, points)}, {comment: text})}
+    from the shard's gradebook, scores checked against their cells' points."""
+    from nbgrader.api import Gradebook, MissingEntry
+
+    db = shard / "gradebook.db"
+    _read(db, "the shard's gradebook")  # a regular file, not a link
+    out = {}
+    with Gradebook(f"sqlite:///{db}") as gb:
+        for sid in students:
+            try:
+                sub = gb.find_submission(assignment, sid)
+            except MissingEntry:
+                raise ValueError(f"{db} has no submission of {assignment!r} by {sid}, yet its "
+                                 "grades.csv has a row: the shard's copy is incomplete") from None
+            scores, comments = {}, {}
+            for nb in sub.notebooks:
+                for g in nb.grades:
+                    value, top = float(g.auto_score or 0.0), float(g.max_score or 0.0)
+                    if not (math.isfinite(value) and 0.0 <= value <= top):
+                        raise ValueError(f"{db}: cell {g.name!r} of {sid} scores {value:g} "
+                                         f"of {top:g} points")
+                    scores[(nb.name, g.name)] = (value, top)
+                for c in nb.comments:
+                    if c.auto_comment:  # written by the job's trusted process; capped anyway
+                        comments[c.name] = str(c.auto_comment)[:4000]
+            out[sid] = (sub.timestamp.isoformat() if sub.timestamp else "", scores, comments)
+    return out
+
+
+def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: list[str]) -> None:
+    """The student's feedback page and autograded notebooks, regular files only."""
+    for folder, pattern in (("feedback_cobotlab", "feedback.html"), ("autograded", "*.ipynb")):
+        base = shard / folder / sid / assignment
+        for path in sorted(base.glob(pattern)) if base.is_dir() else []:
+            try:
+                record.write_file(home, f"{folder}/{sid}/{assignment}/{path.name}",
+                                  _read(path, "shard file"))
+            except (OSError, ValueError) as exc:
+                notes.append(f"{sid}: {folder}/{path.name} not copied: {freeze.printable(exc)}")
+
+
+def _check_assignment(home: Path, assignment: str) -> None:
+    from nbgrader.api import Gradebook, MissingEntry
+
+    with Gradebook(f"sqlite:///{home / 'gradebook.db'}") as gb:
+        try:
+            gb.find_assignment(assignment)
+        except MissingEntry:
+            raise ValueError(f"{home}'s gradebook has no assignment {assignment!r}: run "
+                             f"`nbgrader generate_assignment {assignment}` there first") from None
+
+
+def _write(home, shard, private, assignment, students, cells, theirs, notes) -> None:
+    """The shard's students into HOME: gradebook cells and comments, ledger, files."""
+    ledger = course._load_ledger(private)
+    mine = ledger.setdefault(assignment, {})
+    for sid in students:
+        timestamp, scores, comments = cells[sid]
+        # nbgrader's cell results first (every cell, a notebook's missing ones at 0), then the
+        # comments with cobotlab's findings: the same two writes `cobotlab grade` makes.
+        record.record_nbgrader(
+            home, assignment, sid, timestamp,
+            [scratch.CellScore(nb, gid, value, top) for (nb, gid), (value, top) in scores.items()],
+            {nb for nb, _ in scores})
+        record.record_cobotlab(home, assignment, sid, timestamp, {}, comments)
+        entry = theirs.get(sid)
+        if isinstance(entry, dict) and isinstance(entry.get("cells"), dict):
+            mine[sid] = {"timestamp": entry.get("timestamp"), "cells": entry["cells"]}
+        else:
+            mine.pop(sid, None)
+        _copy_outputs(home, shard, assignment, sid, notes)
+    record.write_file(private, course._LEDGER, json.dumps(ledger).encode("utf-8"))
+
+
+def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> list[dict]:
+    """Merge one shard job's grades of ``assignment`` into ``course_dir`` (see the module
+    docstring). The students must be in HOME's gradebook's class or are added to it (their
+    names stay HOME's); the assignment must exist there (``nbgrader generate_assignment``).
+
+    Returns the rows written to ``course_dir/grades.csv`` (one per student of the shard).
+    """
+    home, shard = Path(course_dir).resolve(), Path(shard_dir).resolve()
+    if home == shard:
+        raise ValueError("the shard is the course itself: pass the job's copy of the course")
+    if assignment not in checks.SPECS:
+        raise ValueError(f"no graded functions are registered for assignment {assignment!r}")
+    rows = _shard_rows(shard, assignment)
+    students = [r["student_id"] for r in rows]
+    cells = _shard_gradebook(shard, assignment, students)
+    theirs = course._load_ledger(shard / grading.PRIVATE_DIR).get(assignment, {})
+
+    _check_assignment(home, assignment)
+
+    private = course._private_dir(home)
+    notes = course._begin_run(home, private)
+    try:
+        _write(home, shard, private, assignment, students, cells, theirs, notes)
+    except BaseException:
+        # Nothing half-merged: the gradebook as it was before, and no run left marked.
+        record.restore_gradebook(home, private / "gradebook.backup.db")
+        (private / record.RUN_MARKER).unlink(missing_ok=True)
+        raise
+    damaged = course._check_gradebook(home, private, notes)
+
+    now = {} if damaged else course._nbgrader_results(home, assignment, students)
+    merged = []
+    for row in rows:
+        nb = now.get(row["student_id"], {})
+        theirs_cells = {gid for _, gid in cells[row["student_id"]][1]}
+        if not damaged and set(nb.get("cells", {})) != theirs_cells:
+            notes.append(f"{row['student_id']}: the shard's gradebook has cells "
+                         f"{sorted(theirs_cells)}, this course's {sorted(nb.get('cells', {}))}: "
+                         "were both made from the same source notebook?")
+        who = nb.get("student", {})
+        penalty = float(nb.get("penalty", 0.0))
+        raw = float(row["raw_score"])
+        merged.append({**{k: row.get(k, "") for k in course.GRADE_COLUMNS},
+                       "duedate": nb.get("duedate") or row.get("duedate", ""),
+                       "timestamp": nb.get("timestamp") or row.get("timestamp", ""),
+                       "last_name": who.get("last_name", ""),
+                       "first_name": who.get("first_name", ""), "email": who.get("email", ""),
+                       "late_submission_penalty": penalty,
+                       "score": max(0.0, round(raw - penalty, 2)),
+                       "flags": ";".join(f for f in [row.get("flags", ""),
+                                                     "gradebook_restored" if damaged else ""]
+                                         if f)})
+    record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
+                      key=("assignment", "student_id"))
+    notes.append(f"merged {len(merged)} student(s) from the shard {shard}")
+    course._end_run(home, private, assignment, None, "merged", merged, [], {}, notes)
+    if not quiet:
+        print(f"{assignment}: merged {len(merged)} student(s) from {shard} into {home}")
+        for note in notes[:-1]:
+            print(f"  note: {freeze.printable(note)}")
+    return merged
