@@ -154,24 +154,43 @@ def _ibvs_substitutes(args) -> dict:
 
 def _trial_ibvs(rng, index: int) -> Trial:
     n = 4 + index % 3  # 4, 5 or 6 points: a square (chess-square corners) and extra points
-    side = rng.uniform(0.05, 0.1)
-    square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * side / 2
-    extra = rng.uniform([-side, -side, 0.0], [side, side, 0.04], (n - 4, 3))
-    pts = np.vstack([square, extra])
-    goal = _look_at_pose(rng, rng.uniform(0.25, 0.5))
-    # Start: translated by 3-8 cm and turned by 5-20 degrees about the target centre.
-    axis, direction = rng.normal(size=3), rng.normal(size=3)
-    angle = np.radians(rng.uniform(5, 20))
-    orbit = np.eye(4)
-    orbit[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
-    start = orbit @ goal
-    start[:3, 3] += rng.uniform(0.03, 0.08) * direction / np.linalg.norm(direction)
-    gain = float(rng.uniform(1.0, 2.5))
-    # A correct law reaches the goal to micrometres; the tolerance leaves room for any
-    # sound variant (a different pseudo-inverse) and none for a law that stalls or diverges.
-    return Trial(args=(), truth={"pts": pts, "start": start, "goal": goal, "gain": gain},
-                 tol={"position": 0.1, "rotation": 0.01, "velocity": 1e-6},
-                 label=f"{n} points, offset {np.degrees(angle):.0f} deg, gain {gain:.2f}")
+    while True:  # redrawn only when the start lies outside IBVS's reach (see below)
+        side = rng.uniform(0.05, 0.1)
+        square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * side / 2
+        extra = rng.uniform([-side, -side, 0.0], [side, side, 0.04], (n - 4, 3))
+        pts = np.vstack([square, extra])
+        goal = _look_at_pose(rng, rng.uniform(0.25, 0.5))
+        # Start: translated by 3-8 cm and turned by 5-20 degrees about the target centre.
+        axis, direction = rng.normal(size=3), rng.normal(size=3)
+        angle = np.radians(rng.uniform(5, 20))
+        orbit = np.eye(4)
+        orbit[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
+        start = orbit @ goal
+        start[:3, 3] += rng.uniform(0.03, 0.08) * direction / np.linalg.norm(direction)
+        gain = float(rng.uniform(1.0, 2.5))
+        # A correct law reaches the goal to micrometres; the tolerance leaves room for any
+        # sound variant (a different pseudo-inverse) and none for a law that stalls or diverges.
+        trial = Trial(args=(), truth={"pts": pts, "start": start, "goal": goal, "gain": gain},
+                      tol={"position": 0.1, "rotation": 0.01, "velocity": 1e-6},
+                      label=f"{n} points, offset {np.degrees(angle):.0f} deg, gain {gain:.2f}")
+        if _within_reach(trial):
+            return trial
+
+
+def _within_reach(trial: Trial) -> bool:
+    """Whether the textbook law reaches the goal from this start, at the trial's gain and at
+    0.8 and 1.25 times it. IBVS is a local method: a few starts drift into a local minimum,
+    e.g. with four coplanar points the mirror pose of a small square, whose image is nearly
+    the goal's (the fairness benchmark found a correct law stalled 243 mm and 28 deg off at an
+    image error of 0.0013). Correct code cannot do better there, so such starts are not
+    graded; the other gains keep out starts on the edge of the basin, where rounding (lstsq
+    against pinv) decides which way the camera goes."""
+    for factor in (1.0, 0.8, 1.25):
+        gain = trial.truth["gain"] * factor
+        reached = _drive_ibvs(lambda s, s_star, Z, _: _reference_ibvs(s, s_star, Z, gain), trial)
+        if not (reached["position"] < 0.01 and reached["rotation"] < 0.001):
+            return False
+    return True
 
 
 def _drive_ibvs(call, trial: Trial) -> dict:
