@@ -178,19 +178,16 @@ def _trial_ibvs(rng, index: int) -> Trial:
 
 
 def _within_reach(trial: Trial) -> bool:
-    """Whether the textbook law reaches the goal from this start, at the trial's gain and at
-    0.8 and 1.25 times it. IBVS is a local method: a few starts drift into a local minimum,
-    e.g. with four coplanar points the mirror pose of a small square, whose image is nearly
-    the goal's (the fairness benchmark found a correct law stalled 243 mm and 28 deg off at an
-    image error of 0.0013). Correct code cannot do better there, so such starts are not
-    graded; the other gains keep out starts on the edge of the basin, where rounding (lstsq
-    against pinv) decides which way the camera goes."""
-    for factor in (1.0, 0.8, 1.25):
-        gain = trial.truth["gain"] * factor
-        reached = _drive_ibvs(lambda s, s_star, Z, _: _reference_ibvs(s, s_star, Z, gain), trial)
-        if not (reached["position"] < 0.01 and reached["rotation"] < 0.001):
-            return False
-    return True
+    """Whether the textbook law reaches the goal (to 0.01 mm and 0.001 deg) from this start.
+    IBVS is a local method: a few starts drift into a local minimum, e.g. with four coplanar
+    points the mirror pose of a small square, whose image is nearly the goal's (the fairness
+    benchmark found a correct law stalled 243 mm and 28 deg off at an image error of
+    0.0013). Correct code cannot do better there, so such starts are not graded. (One closed
+    loop, ~5 ms a trial. Checking at other gains too, against starts on the edge of the basin
+    where rounding decides the way, tripled the cost of grading a lab 3 submission; the
+    fairness benchmark's ibvs_velocity row measures what the single check leaves.)"""
+    reached = _drive_ibvs(lambda s, s_star, Z, gain: _reference_ibvs(s, s_star, Z, gain), trial)
+    return reached["position"] < 0.01 and reached["rotation"] < 0.001
 
 
 def _drive_ibvs(call, trial: Trial) -> dict:
