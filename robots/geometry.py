@@ -135,18 +135,14 @@ def _warn_repaired(name: str, indices, gram_errors) -> None:
 
 
 def _is_clean_rotation(r0, r1, r2) -> bool:
-    """Whether rows r0, r1, r2 (plain floats) form a rotation with max |R^T R - I| within
-    ``ORTHONORMAL_TOL`` and det > 0. NaN compares False, so it is never "clean".
+    """Whether rows r0, r1, r2 (plain floats; only their first 3 entries are read) form a
+    rotation orthonormal within ``ORTHONORMAL_TOL`` with det > 0. NaN is never "clean".
 
     The validators check single poses this way first: numpy's per-call overhead on a 3 x 3
     (~80 us) dominated solvers that validate every motion. Anything not clean goes through
     the full check, which names the problem or repairs rounding."""
-    tol = ORTHONORMAL_TOL
-    for i in range(3):
-        for j in range(i, 3):
-            g = r0[i] * r0[j] + r1[i] * r1[j] + r2[i] * r2[j]
-            if not abs(g - (1.0 if i == j else 0.0)) <= tol:
-                return False
+    if not _gram_error(r0, r1, r2) <= ORTHONORMAL_TOL:
+        return False
     det = (r0[0] * (r1[1] * r2[2] - r1[2] * r2[1]) - r0[1] * (r1[0] * r2[2] - r1[2] * r2[0])
            + r0[2] * (r1[0] * r2[1] - r1[1] * r2[0]))
     return det > 0
@@ -504,15 +500,22 @@ def rotation_angle_deg(R) -> np.ndarray | float:
 _EXACT_ROTATION_TOL = 1e-9
 
 
+def _gram_error(r0, r1, r2) -> float:
+    """Sum of |R^T R - I| over its 6 distinct entries, from the rows of R as plain floats
+    (only their first 3 entries are read); NaN if any entry is NaN."""
+    a, b, c = r0[:3]
+    d, e, f = r1[:3]
+    g, h, i = r2[:3]
+    # A sum, not max(): max() drops a NaN that is not its first argument.
+    return (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
+            + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
+            + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i))
+
+
 def _exact_rotation_entries(R) -> list | None:
     """The rows of a (3, 3) block as plain floats; None unless orthonormal to 1e-9 (or NaN)."""
     rows = R.tolist()
-    (a, b, c), (d, e, f), (g, h, i) = rows
-    # A sum, not max(): max() drops a NaN that is not its first argument.
-    gram_error = (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
-                  + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
-                  + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i))
-    return rows if gram_error <= _EXACT_ROTATION_TOL else None
+    return rows if _gram_error(*rows) <= _EXACT_ROTATION_TOL else None
 
 
 def _one_rotation_angle_deg(R) -> float | None:

@@ -577,7 +577,7 @@ def _bounded_solve(F, rhs, lower, held, held_value) -> np.ndarray:
     held, held_value = np.asarray(held).tolist(), np.asarray(held_value).tolist()
     n = len(rhs)
     fixed = list(held)
-    x = [held_value[i] if held[i] else lower[i] for i in range(n)]
+    x = list(held_value)  # all held when no entry is free: the return below takes held_value
     for _ in range(n):
         free = [i for i in range(n) if not fixed[i]]
         if not free:
