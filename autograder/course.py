@@ -500,17 +500,9 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
         nb = nb_results.get(grade.student_id, {}) if sub.accepted else {}
         if damaged:
             grade.flags.append("gradebook_restored")
-        penalty = nb.get("penalty", 0.0)
-        who = nb.get("student", {})
-        rows.append({
-            "assignment": assignment, "duedate": nb.get("duedate") or "",
-            "timestamp": nb.get("timestamp") or sub.timestamp, "student_id": grade.student_id,
-            "last_name": who.get("last_name", ""), "first_name": who.get("first_name", ""),
-            "email": who.get("email", ""), "raw_score": grade.score,
-            "late_submission_penalty": penalty,
-            "score": max(0.0, round(grade.score - penalty, 2)),
-            "max_score": grade.max_score, "flags": ";".join(printable(f, 120)
-                                                            for f in grade.flags)})
+        rows.append(grade_row(assignment, grade.student_id, nb, grade.score, grade.max_score,
+                              ";".join(printable(f, 120) for f in grade.flags),
+                              sub.timestamp))
         if sub.accepted:
             try:
                 record.write_file(root, f"feedback_cobotlab/{grade.student_id}/{assignment}/"
@@ -520,6 +512,22 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     return rows
+
+
+def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float, max_score: float,
+              flags: str, timestamp="") -> dict:
+    """One grades.csv row (:data:`GRADE_COLUMNS`): the score cobotlab gave, with the names,
+    due date, timestamp and late penalty as the gradebook has them now (``nb``: an entry of
+    ``_nbgrader_results``; the score less the penalty, never below 0)."""
+    penalty = float(nb.get("penalty", 0.0))
+    who = nb.get("student", {})
+    return {"assignment": assignment, "duedate": nb.get("duedate") or "",
+            "timestamp": nb.get("timestamp") or timestamp, "student_id": student_id,
+            "last_name": who.get("last_name", ""), "first_name": who.get("first_name", ""),
+            "email": who.get("email", ""), "raw_score": raw_score,
+            "late_submission_penalty": penalty,
+            "score": max(0.0, round(raw_score - penalty, 2)),
+            "max_score": max_score, "flags": flags}
 
 
 def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | None:

@@ -19,6 +19,8 @@ import csv
 import io
 import json
 import math
+import os
+import stat
 from pathlib import Path
 
 from autograder import checks, course, freeze, grading, record, scratch
@@ -66,7 +68,8 @@ def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
     from nbgrader.api import Gradebook, MissingEntry
 
     db = shard / "gradebook.db"
-    _read(db, "the shard's gradebook")  # a regular file, not a link
+    if not (os.path.lexists(db) and stat.S_ISREG(os.lstat(db).st_mode)):
+        raise ValueError(f"the shard's gradebook {db} is missing or not a regular file")
     out = {}
     with Gradebook(f"sqlite:///{db}") as gb:
         for sid in students:
@@ -174,19 +177,12 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
             notes.append(f"{row['student_id']}: the shard's gradebook has cells "
                          f"{sorted(theirs_cells)}, this course's {sorted(nb.get('cells', {}))}: "
                          "were both made from the same source notebook?")
-        who = nb.get("student", {})
-        penalty = float(nb.get("penalty", 0.0))
-        raw = float(row["raw_score"])
-        merged.append({**{k: row.get(k, "") for k in course.GRADE_COLUMNS},
-                       "duedate": nb.get("duedate") or row.get("duedate", ""),
-                       "timestamp": nb.get("timestamp") or row.get("timestamp", ""),
-                       "last_name": who.get("last_name", ""),
-                       "first_name": who.get("first_name", ""), "email": who.get("email", ""),
-                       "late_submission_penalty": penalty,
-                       "score": max(0.0, round(raw - penalty, 2)),
-                       "flags": ";".join(f for f in [row.get("flags", ""),
-                                                     "gradebook_restored" if damaged else ""]
-                                         if f)})
+        flags = ";".join(f for f in (row.get("flags", ""),
+                                     "gradebook_restored" if damaged else "") if f)
+        nb = {**nb, "duedate": nb.get("duedate") or row.get("duedate", "")}
+        merged.append(course.grade_row(assignment, row["student_id"], nb,
+                                       float(row["raw_score"]), float(row["max_score"]), flags,
+                                       row.get("timestamp", "")))
     record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
                       key=("assignment", "student_id"))
     notes.append(f"merged {len(merged)} student(s) from the shard {shard}")
