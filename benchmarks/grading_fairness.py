@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import beta
+from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -626,7 +627,8 @@ def run_function(job) -> dict:
             if v.correct:  # how close correct code comes to losing credit
                 margin[i] = max(margin[i], *(_margin(spec, t, o)
                                              for t, o in zip(trials, outcomes)))
-    return {"assignment": assignment, "function": name, "draws": stop - start, "seen": seen,
+    return {"assignment": assignment, "function": name, "start": start,
+            "draws": stop - start, "seen": seen,
             "variants": [v.name for v in table], "correct": [v.correct for v in table],
             "lost": lost, "points": points, "margin": margin, "examples": examples,
             "seconds": time.perf_counter() - started, "n_trials": spec.n_trials,
@@ -634,6 +636,7 @@ def run_function(job) -> dict:
 
 
 def _merge(parts: list[dict]) -> dict:
+    parts = sorted(parts, key=lambda p: p["start"])  # the first example is the lowest draw
     out = dict(parts[0])
     out["draws"] = sum(p["draws"] for p in parts)
     out["seen"] = [sum(p["seen"][i] for p in parts) for i in range(len(out["seen"]))]
@@ -745,6 +748,9 @@ def write_markdown(store: dict) -> None:
     RESULTS_MD.write_text("\n".join(lines))
 
 
+CHUNK_DRAWS = 250  # draws per job
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--draws", type=int, default=10_000, help="hidden draws per function")
@@ -764,15 +770,24 @@ def main(argv=None) -> int:
         for spec in checks.SPECS[lab]:
             if wanted and spec.name not in wanted:
                 continue
-            chunk = math.ceil(draws / max(1, args.workers))
+            # Small chunks keep both workers busy to the end (the mistakes make the first
+            # draws dearer) and let the progress bar move on runs of an hour or more.
+            chunk = min(CHUNK_DRAWS, math.ceil(draws / max(1, args.workers)))
             jobs += [(lab, spec.name, s, min(s + chunk, draws), args.mistake_draws)
                      for s in range(0, draws, chunk)]
     started = time.perf_counter()
-    if args.workers > 1:
-        with mp.get_context("fork").Pool(args.workers) as pool:
-            parts = pool.map(run_function, jobs)
-    else:
-        parts = [run_function(j) for j in jobs]
+    parts = []
+    with tqdm(total=sum(j[3] - j[2] for j in jobs), unit="draw", desc="fairness",
+              file=sys.stderr, smoothing=0.05) as bar:
+        if args.workers > 1:
+            with mp.get_context("fork").Pool(args.workers) as pool:
+                for p in pool.imap_unordered(run_function, jobs):
+                    parts.append(p)
+                    bar.update(p["draws"])
+        else:
+            for j in jobs:
+                parts.append(run_function(j))
+                bar.update(parts[-1]["draws"])
     merged: dict[tuple, list] = {}
     for p in parts:
         merged.setdefault((p["assignment"], p["function"]), []).append(p)
