@@ -191,7 +191,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, solutions, tmp_pa
     # fresh each run); the rest right (4 + 2 + 2).
     wrong = float(grades["wrong"]["score"])
     assert 9.5 <= wrong <= 10.5, grades["wrong"]
-    assert all(grades[s]["flags"] == "" for s in grades), grades
+    assert all(grades[s]["flags"] == "" for s in grades), {s: g["flags"] for s, g in grades.items()}
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "motions" in feedback and " deg" in feedback and " mm" in feedback
     secret = grading.load_secret(course)
