@@ -37,10 +37,11 @@ axes_scale (all pairs: 4.3), so full credit also allows 15 x axes_scale, three t
 again; rot_scale becomes the larger of the two allowances over ROT_K, on 7 % of problems the
 axes term (fairness benchmark, docs/benchmarks/grading_fairness.md).
 
-Not covered: a Tsai that keeps only the consecutive motions of those it is given is
-heavy-tailed (median 2, but 54 and 20 on the worst of the 400 problems): it fails 1 problem
-in 400 here. A tolerance wide enough for it (120 x, 40 x) let a solver fed inverted motions
-keep 31 % of the credit on the translation check, so the tolerance stays where it is.
+A Tsai that keeps only the consecutive motions of those it is given is heavy-tailed (median 2,
+but 54 and 20 on the worst of 400 problems on the older scale). A tolerance wide enough for it
+there (120 x, 40 x) let a solver fed inverted motions keep 31 % of the credit on the
+translation check. On the consecutive-motion scale above it lost no credit in 10,000 draws
+(largest error 0.47 of the tolerance), with every mistake still caught.
 """
 
 from __future__ import annotations
