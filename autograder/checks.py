@@ -22,14 +22,29 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from autograder import forbidden, mistakes, standin
-from robots import geometry as geo
+
+# The spec types are re-exported: checks.Check, checks.measure_pose, ... are public names.
+from autograder.spec_types import (  # noqa: F401
+    EXACT_BANDS,
+    EXACT_TOL,
+    Check,
+    FunctionSpec,
+    OutputError,
+    Trial,
+    as_output_pose,
+    measure_pose,
+    pose_checks,
+    pose_errors,
+    random_pose,
+    random_rotvec,
+)
+from autograder.specs import collect_specs
 
 __all__ = [
     "Check",
@@ -55,86 +70,6 @@ PUBLIC_SEEDS = (0, 1, 2)
 # The seeds nbgrader's in-kernel hidden tests use; not secret (the kernel is not trusted), just
 # different from the practice seeds. The authoritative grade uses secret per-student seeds.
 KERNEL_SEEDS = (1001, 1002)
-
-
-class OutputError(ValueError):
-    """A student's return value that cannot be scored (wrong type, shape, NaN)."""
-
-
-@dataclass(frozen=True)
-class Check:
-    """One measured aspect of an answer.
-
-    ``bands`` are ``(multiple_of_tolerance, credit)`` pairs, tightest first: an error within
-    ``multiple * tol`` earns ``credit``. ``unit`` names the error's unit for feedback.
-    """
-
-    name: str
-    unit: str
-    weight: float
-    bands: tuple[tuple[float, float], ...]
-    describe: str = ""
-
-    def credit(self, error: float, tol: float) -> float:
-        if not math.isfinite(error):
-            return 0.0
-        for multiple, credit in self.bands:
-            if error <= multiple * tol:
-                return credit
-        return 0.0
-
-
-@dataclass
-class Trial:
-    """One problem: the inputs the student's function gets, and what only the grader keeps."""
-
-    args: tuple
-    truth: Any
-    tol: dict[str, float]
-    label: str = ""
-    # Edge cases earn credit only when the whole answer is right, so a trivial output (the
-    # identity for a zero rotation) cannot collect partial credit on them.
-    all_or_nothing: bool = False
-    # A degenerate problem (collinear points, too few of them): the right answer is raising
-    # this exception (by class name, e.g. "ValueError"), which earns full credit; a returned
-    # value earns none, whatever it is.
-    raises: str | None = None
-
-
-@dataclass(frozen=True)
-class FunctionSpec:
-    """How to grade one student function, found in the notebook by ``name``."""
-
-    name: str
-    points: float
-    n_trials: int   # hidden problems per student
-    make_trial: Callable[[np.random.Generator, int], Trial]
-    measure: Callable[[Any, Trial], dict[str, float]]
-    checks: tuple[Check, ...]
-    signature: str
-    time_limit_s: float = 10.0
-    # Closed-loop grading (a control law): ``drive(call, trial)`` calls the student's function
-    # as often as it needs, ``call(*args)`` returning its value or raising StudentCallError,
-    # and returns what ``measure`` scores. None: one call with ``trial.args``.
-    # ``time_limit_s`` then bounds the whole loop of one trial.
-    drive: Callable | None = None
-    # Dotted names of routines this function must not call (the library routine that does
-    # what the lab teaches): a use earns zero for the function (autograder.forbidden).
-    forbidden: tuple[str, ...] = ()
-    # One bug costs once: ``substitutes(args)`` gives, for one call with ``args``, the true
-    # answers of the other graded functions it relies on, {name: [(their args, value), ...]}.
-    # While the call runs, the notebook's function of that name answers those arguments with
-    # the true value (anything else still goes to the student's own), so a sign error in
-    # interaction_matrix is not charged again in ibvs_velocity. Values only, never code.
-    substitutes: Callable[[tuple], dict[str, list[tuple[tuple, Any]]]] | None = None
-    # Practice problems per public seed (None: n_trials). check() shows len(PUBLIC_SEEDS)
-    # seeds' worth, and the hidden grade must draw at least as many, so that a bug check()
-    # reveals cannot pass the grader by luck.
-    practice_trials: int | None = None
-    # Mistakes that depend on the inputs (a chain multiplied in reverse order): for a
-    # problem, [(the words for the mistake, the answer it gives)]; an answer matching one is
-    # told so (autograder.mistakes covers those seen from the truth alone).
-    mistakes: Callable[[Trial], list[tuple[str, Any]]] | None = None
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -210,73 +145,6 @@ class FunctionResult:
         for e in self.errors:
             lines.append(f"  ! {e}")
         return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------- output validation
-
-
-def as_output_pose(value) -> np.ndarray:
-    """The student's return value as a finite (4, 4) float array, or OutputError saying why."""
-    if isinstance(value, (list, tuple)):
-        try:
-            value = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise OutputError("returned a list that is not a 4x4 array of numbers") from None
-    if not isinstance(value, np.ndarray):
-        raise OutputError(f"returned {type(value).__name__}, expected a (4, 4) numpy array")
-    if value.shape != (4, 4):
-        raise OutputError(f"returned shape {value.shape}, expected (4, 4)")
-    value = value.astype(float)
-    if not np.all(np.isfinite(value)):
-        raise OutputError("returned NaN or inf")
-    if np.abs(value[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-9:
-        raise OutputError(f"returned a last row {value[3]}, a pose's is [0, 0, 0, 1]")
-    return value
-
-
-def pose_errors(T: np.ndarray, truth: np.ndarray) -> dict[str, float]:
-    """rotation (deg) and translation (mm) errors of a returned pose; inf if R is no rotation."""
-    R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) <= 0:
-        rot = math.inf  # not a rotation: no angle to speak of
-    else:
-        nearest = geo.project_to_so3(R)
-        rot = float(geo.rotation_error_deg(nearest, truth[:3, :3]))
-        # project_to_so3 forgives a slightly non-orthonormal block; charge what it removed.
-        rot += float(np.degrees(np.abs(R - nearest).max()))
-    return {
-        "rotation": rot,
-        "translation": float(np.linalg.norm(T[:3, 3] - truth[:3, 3]) * 1000.0),
-    }
-
-
-def measure_pose(value, trial: Trial) -> dict[str, float]:
-    return pose_errors(as_output_pose(value), trial.truth)
-
-
-# Exact-arithmetic problems: any correct float64 formula lands within 1e-6 deg / 1e-6 mm
-# (about 1e7 times float64 rounding on metre-scale poses); float32 arithmetic lands near
-# 1e-4, which earns half; a wrong formula is off by degrees and millimetres.
-EXACT_TOL = {"rotation": 1e-6, "translation": 1e-6}
-EXACT_BANDS = ((1.0, 1.0), (1e3, 0.5))
-
-
-def pose_checks(what: str) -> tuple[Check, ...]:
-    return (
-        Check("rotation", "deg", 0.5, EXACT_BANDS, f"the rotation block of {what}"),
-        Check("translation", "mm", 0.5, EXACT_BANDS, f"the translation column of {what}"),
-    )
-
-
-def random_pose(rng: np.random.Generator, max_trans_m: float = 1.0) -> np.ndarray:
-    R = geo.rotation_from_rotvec(random_rotvec(rng))
-    return geo.make_pose(R, rng.uniform(-max_trans_m, max_trans_m, 3))
-
-
-def random_rotvec(rng: np.random.Generator, angle=None) -> np.ndarray:
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    return axis * (rng.uniform(0.05, np.pi - 0.05) if angle is None else angle)
 
 
 def _current_assignment() -> str | None:
@@ -590,9 +458,5 @@ def hidden_test(func, name: str | None = None, assignment: str | None = None) ->
     result = evaluate(func, name, KERNEL_SEEDS, assignment)
     assert result.fraction >= 1.0, result.summary()
 
-
-# Each lab's graded functions live in autograder/specs/<assignment>.py. Imported last: those
-# modules build on the classes and helpers defined above.
-from autograder.specs import collect_specs  # noqa: E402
 
 SPECS: dict[str, tuple[FunctionSpec, ...]] = collect_specs()

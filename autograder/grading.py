@@ -305,8 +305,8 @@ def sandbox_available() -> bool:
 _PKG = Path(__file__).resolve().parent
 _ROOT = _PKG.parent
 WORKER_PACKAGES = ("robots", "sim_backends", "autograder")
-WORKER_HIDDEN = ("autograder/specs", "autograder/checks.py", "autograder/course.py",
-                 "autograder/grading.py")
+WORKER_HIDDEN = ("autograder/specs", "autograder/spec_types.py", "autograder/checks.py",
+                 "autograder/course.py", "autograder/grading.py")
 
 
 def _worker_env(home: str) -> dict[str, str]:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from autograder.checks import (
+from autograder.spec_types import (
     EXACT_BANDS,
     EXACT_TOL,
     Check,

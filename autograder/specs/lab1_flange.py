@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from autograder import synthetic
-from autograder.checks import (
+from autograder.spec_types import (
     EXACT_BANDS,
     Check,
     FunctionSpec,

@@ -51,7 +51,7 @@ import math
 import numpy as np
 
 from autograder import synthetic
-from autograder.checks import Check, FunctionSpec, OutputError, Trial, measure_pose
+from autograder.spec_types import Check, FunctionSpec, OutputError, Trial, measure_pose
 from robots import geometry as geo
 
 ROT_K = 40.0

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder.checks import Check, FunctionSpec, OutputError, Trial
+from autograder.spec_types import Check, FunctionSpec, OutputError, Trial
 from robots import geometry as geo
 
 # --------------------------------------------------------------------------- helpers

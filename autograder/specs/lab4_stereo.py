@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from autograder import synthetic
-from autograder.checks import (
+from autograder.spec_types import (
     EXACT_BANDS,
     EXACT_TOL,
     Check,
