@@ -35,6 +35,7 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per worker: the machine is shared
 
 import argparse  # noqa: E402
+import contextlib
 import fcntl  # noqa: E402
 import inspect
 import json
@@ -777,17 +778,13 @@ def main(argv=None) -> int:
                      for s in range(0, draws, chunk)]
     started = time.perf_counter()
     parts = []
-    with tqdm(total=sum(j[3] - j[2] for j in jobs), unit="draw", desc="fairness",
-              file=sys.stderr, smoothing=0.05) as bar:
-        if args.workers > 1:
-            with mp.get_context("fork").Pool(args.workers) as pool:
-                for p in pool.imap_unordered(run_function, jobs):
-                    parts.append(p)
-                    bar.update(p["draws"])
-        else:
-            for j in jobs:
-                parts.append(run_function(j))
-                bar.update(parts[-1]["draws"])
+    pool = mp.get_context("fork").Pool(args.workers) if args.workers > 1 else None
+    with pool or contextlib.nullcontext(), tqdm(total=sum(j[3] - j[2] for j in jobs),
+                                                unit="draw", desc="fairness", file=sys.stderr,
+                                                smoothing=0.05) as bar:
+        for p in (pool.imap_unordered(run_function, jobs) if pool else map(run_function, jobs)):
+            parts.append(p)
+            bar.update(p["draws"])
     merged: dict[tuple, list] = {}
     for p in parts:
         merged.setdefault((p["assignment"], p["function"]), []).append(p)
