@@ -191,6 +191,9 @@ def main(argv: list[str]) -> int:
     _stub_checks()
     _stub_viewer()
     send, receive = wire.send, wire.receive  # bound now: student code may patch the module
+    # Before any student code: the grader knows the sandbox started (a failure until here
+    # is the grader's, retried in a fresh sandbox, never a student's zero).
+    send(rep_fd, {"op": "ready"})
 
     while True:
         try:

@@ -312,6 +312,10 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                                    nonce, limits, run_nbgrader, nbgrader_kernel,
                                    nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
                                    progress)
+    ungraded = [g.student_id for g in grades if not g.graded]
+    if ungraded:
+        run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
+                         f"the next run grades them again): {', '.join(ungraded)}")
     # 3. record from the trusted side
     rows = _record(root, assignment, frozen, nb_runs, grades, private, run_notes)
     _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs, run_notes)
@@ -360,6 +364,7 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
              run_notes, progress=None):
     """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
     a refused one gets an empty grade here (zero, with its flags)."""
+    sandbox.capabilities()   # probed here, once, before any worker thread starts
     template = known = None
     if run_nbgrader:
         try:
@@ -372,33 +377,51 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
     in_worker = (not nbgrader_kernel and known is not None
                  and len({name for name, _ in known}) == 1)
 
+    def attempts(grade_once):
+        """(grade_once()'s result or None, the errors of the attempts that failed): up to
+        GRADER_ATTEMPTS tries, each a fresh sandbox, worker and cgroup."""
+        errors = []
+        for _ in range(GRADER_ATTEMPTS):
+            try:
+                return grade_once(), errors
+            except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
+                errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
+        return None, errors
+
     def one(sub: freeze.Frozen):
         nb = grade = None
+        errors: list[str] = []
         if sub.accepted and sub.notebooks and template is not None:
+            def in_worker_grade(paths):
+                got, failed = attempts(lambda: grading.grade_notebook(
+                    paths, assignment, sub.student_id, secret, nonce, limits, run_tests=True))
+                errors.extend(failed)
+                if got is None:
+                    raise grading.GraderError("the grader failed on every attempt")
+                return got
+
             try:
                 if in_worker:   # one run of the cells for both nbgrader and the grader
-                    nb, grade = scratch.autograde_in_worker(
-                        sub, assignment, root, template, known,
-                        lambda paths: grading.grade_notebook(
-                            paths, assignment, sub.student_id, secret, nonce, limits,
-                            run_tests=True))
+                    nb, grade = scratch.autograde_in_worker(sub, assignment, root, template,
+                                                            known, in_worker_grade)
                 else:   # the in-worker run takes one notebook: nbgrader's own kernel
                     nb = scratch.autograde_one(sub, assignment, root, template, known,
                                                timeout_s=nbgrader_timeout_s,
                                                cell_timeout_s=nbgrader_cell_timeout_s)
             except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
                 nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
-        try:
-            if not sub.accepted or not sub.notebooks:
-                raise _NothingToGrade()
-            if grade is None:
-                grade = grading.grade_notebook(sub.notebooks, assignment, sub.student_id,
-                                               secret, nonce, limits)
-        except _NothingToGrade:
+        if not sub.accepted or not sub.notebooks:
             grade = _zero_grade(sub, assignment)
-        except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
-            grade = _zero_grade(sub, assignment, ["grader_error"],
-                                [f"grader error: {type(exc).__name__}: {printable(exc)}"])
+        elif grade is None:
+            if len(errors) < GRADER_ATTEMPTS:   # not already tried in nbgrader's run
+                grade, failed = attempts(lambda: grading.grade_notebook(
+                    sub.notebooks, assignment, sub.student_id, secret, nonce, limits))
+                errors += failed
+            if grade is None:
+                grade, nb = _ungraded(sub, assignment, errors), None
+        if errors and grade.graded:
+            grade.notes.append(f"graded after {len(errors)} grader error(s), each retried in a "
+                               f"fresh sandbox: {'; '.join(errors)}")
         grade.flags[:0] = sub.flags
         grade.notes[:0] = sub.notes
         if progress is not None:
@@ -424,8 +447,18 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
     return {sid: nb for sid, nb, _ in done if nb is not None}, [g for _, _, g in done]
 
 
-class _NothingToGrade(Exception):
-    pass
+# A grader error (its sandbox did not start, a bug) is tried again in a fresh sandbox; a
+# submission the grader fails on every time gets no score, never a zero.
+GRADER_ATTEMPTS = 2
+
+
+def _ungraded(sub: freeze.Frozen, assignment: str, errors: list[str]):
+    grade = _zero_grade(sub, assignment, ["grader_error"], [
+        f"not graded: the grader failed on each of {len(errors)} attempts ("
+        + "; ".join(errors) + "); no score is recorded, and the next `cobotlab grade` of "
+        "this assignment grades it again"])
+    grade.graded = False
+    return grade
 
 
 def _zero_grade(sub: freeze.Frozen, assignment: str, flags=(), notes=()):
@@ -473,7 +506,8 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
             result.notes.append(f"could not record nbgrader's result: {printable(exc)}")
     damaged = _check_gradebook(root, private, run_notes)
 
-    accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted]
+    # A submission the grader could not grade gets nothing in the gradebook, not a zero.
+    accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted and g.graded]
     ledger = _load_ledger(private)
     nb_own = {} if damaged else _nbgrader_own(
         _nbgrader_results(root, assignment, [g.student_id for g, _ in accepted]),
@@ -500,10 +534,11 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
         nb = nb_results.get(grade.student_id, {}) if sub.accepted else {}
         if damaged:
             grade.flags.append("gradebook_restored")
-        rows.append(grade_row(assignment, grade.student_id, nb, grade.score, grade.max_score,
+        rows.append(grade_row(assignment, grade.student_id, nb,
+                              grade.score if grade.graded else None, grade.max_score,
                               ";".join(printable(f, 120) for f in grade.flags),
                               sub.timestamp))
-        if sub.accepted:
+        if sub.accepted and grade.graded:
             try:
                 record.write_file(root, f"feedback_cobotlab/{grade.student_id}/{assignment}/"
                                   "feedback.html", feedback.feedback_html(grade).encode("utf-8"))
@@ -514,12 +549,16 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     return rows
 
 
-def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float, max_score: float,
-              flags: str, timestamp="") -> dict:
+def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | None,
+              max_score: float, flags: str, timestamp="") -> dict:
     """One grades.csv row (:data:`GRADE_COLUMNS`): the score cobotlab gave, with the names,
     due date, timestamp and late penalty as the gradebook has them now (``nb``: an entry of
-    ``_nbgrader_results``; the score less the penalty, never below 0)."""
+    ``_nbgrader_results``; the score less the penalty, never below 0). ``raw_score`` None:
+    not graded (the grader failed), so the score columns stay empty."""
     penalty = float(nb.get("penalty", 0.0))
+    if raw_score is None:
+        return {**grade_row(assignment, student_id, nb, 0.0, max_score, flags, timestamp),
+                "raw_score": "", "late_submission_penalty": "", "score": ""}
     who = nb.get("student", {})
     return {"assignment": assignment, "duedate": nb.get("duedate") or "",
             "timestamp": nb.get("timestamp") or timestamp, "student_id": student_id,
@@ -736,4 +775,10 @@ def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_no
         text = ", ".join(failed) or "-"
         if g.flags:
             text += "   FLAGS: " + ", ".join(printable(f, 80) for f in g.flags)
-        print(f"{name:<{width}}  {g.score:>5g} / {g.max_score:<3g}  {text}")
+        score = f"{g.score:>5g} / {g.max_score:<3g}" if g.graded else f"{'NOT GRADED':>11}"
+        print(f"{name:<{width}}  {score}  {text if g.graded else g.notes[-1]}")
+    ungraded = [n for n, g in zip(names, grades) if not g.graded]
+    if ungraded:
+        print(f"NOT GRADED ({len(ungraded)}): {', '.join(ungraded)}: the grader failed on every "
+              "attempt (see .cobotlab/last_run.log); no score was recorded for them, and the "
+              "next `cobotlab grade` grades them again")

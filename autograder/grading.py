@@ -65,6 +65,7 @@ __all__ = [
     "scan_for_tampering",
     "sandbox_available",
     "Worker",
+    "GraderError",
     "grade_notebook",
 ]
 
@@ -135,6 +136,9 @@ class SubmissionGrade:
     # and the verdict of each function's in-notebook hidden test (None: passed).
     cell_runs: list[CellRun] = field(default_factory=list)
     kernel_checks: dict[str, str | None] = field(default_factory=dict)
+    # False when the grader itself failed on every attempt: no score is recorded (not 0),
+    # the row says ``grader_error``, and the next run grades the submission again.
+    graded: bool = True
 
     @property
     def score(self) -> float:
@@ -329,6 +333,17 @@ class WorkerFailure(Exception):
     """The worker timed out, died or broke the protocol; it has been killed."""
 
 
+class GraderError(RuntimeError):
+    """The grader could not grade: its sandbox did not start, before any student code ran.
+    Never the submission's fault: :func:`autograder.course.grade_course` retries it in a
+    fresh sandbox and, if it persists, records no score."""
+
+
+# Wall clock for a fresh worker to say it is ready (interpreter start and the worker's
+# imports, on a machine busy with other graders).
+WORKER_START_S = 60.0
+
+
 class CellHang(WorkerFailure):
     """A notebook cell hung past its hard deadline while loading (``index`` says which)."""
 
@@ -378,7 +393,7 @@ class Worker:
 
     def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
                  cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
-                 budget: LoadBudget | None = None):
+                 budget: LoadBudget | None = None, first: bool = True):
         self.limits = limits
         budget = budget or LoadBudget.of(limits)
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
@@ -399,6 +414,7 @@ class Worker:
         os.close(rep_w)
         self.load_report: list[dict] = []
         self.tripped: set[str] = set()
+        self._wait_ready(first)
         for index, source in enumerate(cells):
             if index in skip:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
@@ -419,6 +435,47 @@ class Worker:
             elapsed = time.monotonic() - started
             budget.spend(_reported_cpu(reply, elapsed), elapsed)
             self.load_report.append(dict(reply, index=index))
+
+    def _wait_ready(self, first: bool) -> None:
+        """Wait for the worker's hello. A first worker that never says it (bubblewrap refused
+        to start, the interpreter is not in the sandbox's view) is the grader's failure; a
+        restarted one may be the submission's doing (processes it left in its cgroup), so
+        that counts as the worker stopping, as any other death does."""
+        try:
+            hello = wire.receive(self._rep_r, time.monotonic() + WORKER_START_S, 4096)
+            if hello.get("op") == "ready":
+                return
+            why = f"unexpected first message {str(hello)[:80]}"
+        except (wire.WireError, OSError) as exc:
+            why = str(exc)
+        self.close_quietly()
+        detail = self.stderr_tail()
+        self.close()
+        if first:
+            raise GraderError(f"the sandboxed worker did not start ({why}): "
+                              f"{detail or 'no message'}")
+        raise WorkerFailure(f"the worker process did not restart ({why})")
+
+    def stderr_tail(self, limit: int = 300) -> str:
+        """The last bytes the worker (or bubblewrap) wrote to stderr, as text."""
+        try:
+            self._stderr.flush()
+            self._stderr.seek(0)
+            return self._stderr.read()[-limit:].decode("utf-8", "replace").strip()
+        except (OSError, ValueError):
+            return ""
+
+    def close_quietly(self) -> None:
+        """Kill the process and close the pipes, keeping stderr readable (for the message)."""
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pass
 
     def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
         try:
@@ -534,21 +591,31 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
 
     caps = sandbox.capabilities()
-    cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes) \
-        if caps.bwrap and caps.cgroup else None
+    cgroup = None
+    if caps.bwrap and caps.cgroup:
+        try:
+            cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes)
+        except (OSError, RuntimeError) as exc:
+            # The run's header promised a cgroup: this row says it did not get one.
+            grade.flags.append("sandbox:no_cgroup")
+            grade.notes.append(f"no cgroup for this submission ({exc}): per-process limits "
+                               "only")
     worker: Worker | None = None
     skip: set[int] = set()
     load_budget = LoadBudget.of(limits)   # over every restart, not since the start: a worker
     worker_cpu_s = limits.worker_cpu_s(specs)  # that dies late must still be able to reload
     deadline = started + limits.deadline_s
 
+    starts = 0
+
     def loaded() -> Worker:
-        nonlocal worker
+        nonlocal worker, starts
         if worker is None or not worker.alive:
             if worker is not None:
                 worker.close()
+            starts += 1
             worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                   worker_cpu_s)
+                                   worker_cpu_s, first=starts == 1)
             _note_load(grade, worker.load_report, tests)
             if run_tests and not grade.cell_runs:
                 grade.cell_runs = _cell_runs(worker.load_report, grade.cell_origins, skip)
@@ -675,15 +742,18 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
 
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
-                  budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int) -> Worker:
-    """A loaded worker; cells that hang or time out are skipped on every later restart."""
+                  budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
+                  first: bool) -> Worker:
+    """A loaded worker; cells that hang or time out are skipped on every later restart.
+    ``first``: no worker of this submission has started yet (see :class:`GraderError`)."""
     while True:
         if budget.exhausted:
             raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s "
                                 "of CPU time")
         try:
-            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget)
+            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first)
         except CellHang as exc:
+            first = False
             skip.add(exc.index)
             grade.notes.append(f"  cell error: {exc} (skipped from then on)")
             continue

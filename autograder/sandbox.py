@@ -32,7 +32,6 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
@@ -377,7 +376,9 @@ def _probe_cgroup(evidence: list[str]) -> str | None:
         evidence.append(f"cgroup v2 at {parent}: memory/pids not delegated ({sorted(enabled)})")
     for controller in ("memory", "pids"):
         parent = _v1_parent(controller)
-        probe = parent / f"cobotlab-probe-{os.getpid()}"
+        # A name no other thread or process can hold: with the pid alone, two graders'
+        # threads probing at once met EEXIST and the run lost its memory cap.
+        probe = parent / f"cobotlab-probe-{uuid.uuid4().hex[:12]}"
         try:
             probe.mkdir()
             probe.rmdir()
@@ -389,9 +390,35 @@ def _probe_cgroup(evidence: list[str]) -> str | None:
     return "v1"
 
 
-@lru_cache(maxsize=1)
+_PROBE_LOCK = threading.Lock()
+_PROBED: list[Capabilities] = []
+
+
 def capabilities() -> Capabilities:
-    """Probe once: does bubblewrap run here (and with which identity), is there a cgroup?"""
+    """Probe once per process: does bubblewrap run here (and with which identity), is there
+    a cgroup?
+
+    Safe under threads (one probe; every caller waits for its answer) and processes (the
+    probe's cgroup has a random name). The grader probes before any worker starts, so every
+    submission of a run is graded under the isolation the run's header states.
+    """
+    if _PROBED:
+        return _PROBED[0]
+    with _PROBE_LOCK:
+        if not _PROBED:
+            _PROBED.append(_probe())
+        return _PROBED[0]
+
+
+def forget_capabilities() -> None:
+    """Probe again on the next :func:`capabilities` call (tests; a machine that changed)."""
+    with _PROBE_LOCK:
+        _PROBED.clear()
+
+
+
+
+def _probe() -> Capabilities:
     evidence: list[str] = []
     if os.environ.get("COBOTLAB_SANDBOX") == "rlimits":
         evidence.append("COBOTLAB_SANDBOX=rlimits: sandbox disabled on request")

@@ -45,6 +45,8 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
                          "shard first (cobotlab grade SHARD ASSIGNMENT --students @FILE)")
     max_points = sum(s.points for s in checks.SPECS[assignment])
     for row in rows:
+        if row.get("raw_score") == "" and "grader_error" in row.get("flags", "").split(";"):
+            continue   # the shard's grader failed on it: nothing to merge (see merge_shard)
         sid = row.get("student_id", "")
         problem = freeze.student_id_problem(sid)
         if problem:
@@ -151,6 +153,11 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     if assignment not in checks.SPECS:
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}")
     rows = _shard_rows(shard, assignment)
+    ungraded = [r["student_id"] for r in rows if r.get("raw_score") == ""]
+    rows = [r for r in rows if r.get("raw_score") != ""]
+    if not rows:
+        raise ValueError(f"the shard {shard} graded none of its students (grader errors: "
+                         f"{', '.join(ungraded)}): grade the shard again")
     students = [r["student_id"] for r in rows]
     cells = _shard_gradebook(shard, assignment, students)
     theirs = course._load_ledger(shard / grading.PRIVATE_DIR).get(assignment, {})
@@ -186,6 +193,9 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
                       key=("assignment", "student_id"))
     notes.append(f"merged {len(merged)} student(s) from the shard {shard}")
+    if ungraded:
+        notes.insert(0, f"not merged, the shard's grader failed on them (no score): "
+                        f"{', '.join(ungraded)}: grade them again")
     course._end_run(home, private, assignment, None, "merged", merged, [], {}, notes)
     if not quiet:
         print(f"{assignment}: merged {len(merged)} student(s) from {shard} into {home}")
