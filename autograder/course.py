@@ -12,6 +12,7 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import re
@@ -30,7 +31,19 @@ from autograder.freeze import printable
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
 
-LABS_DIR = Path(__file__).resolve().parent.parent / "labs"
+
+
+def _installed_labs() -> Path:
+    """The lab sources: the package ``cobotlab_labs`` (``labs/`` of the checkout in an
+    editable install, a copy in site-packages in a regular one). The student install has
+    none: the path returned then does not exist, and the commands that need it say so."""
+    spec = importlib.util.find_spec("cobotlab_labs")
+    if spec is not None and spec.submodule_search_locations:
+        return Path(list(spec.submodule_search_locations)[0])
+    return Path(__file__).resolve().parent.parent / "labs"
+
+
+LABS_DIR = _installed_labs()
 GRADE_COLUMNS = ["assignment", "duedate", "timestamp", "student_id", "last_name", "first_name",
                  "email", "raw_score", "late_submission_penalty", "score", "max_score", "flags"]
 
@@ -75,7 +88,9 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     root = Path(course_dir).resolve()
     labs = Path(labs_dir) if labs_dir else LABS_DIR
     if not labs.is_dir():
-        raise ValueError(f"labs directory {labs} not found; pass labs_dir=")
+        raise ValueError(f"labs directory {labs} not found: the lab sources come with the "
+                         "instructor's package (pip install cobotlab, not cobotlab-student); "
+                         "or pass labs_dir=")
     root.mkdir(parents=True, exist_ok=True)
     config = root / "nbgrader_config.py"
     if not config.exists():

@@ -283,6 +283,12 @@ _TAMPER_PATTERNS = {
     "secret_probe": r"COBOTLAB_GRADING_SECRET|\.cobotlab\b|os\.environ|getenv",
     "stack_inspection": r"_getframe|inspect\.(?:stack|currentframe)|f_back|f_locals",
     "signal_handling": r"\bsignal\.(?:signal|setitimer|alarm)|\bsetrlimit\b",
+    # A lab answer reads no other files' code: searching the disk and running what it finds
+    # is how a submission would reach an answer key (none is in the worker's view).
+    "file_search": r"\bos\.walk\b|\bos\.scandir\b|\bos\.listdir\b|\bglob\.i?glob\b|"
+                   r"\.rglob\(|\bsys\.path\b|\bsite\.getsitepackages\b",
+    "code_loading": r"(?<![\w.])(?:exec|compile)\s*\(|\brunpy\b|spec_from_file_location|"
+                    r"SourceFileLoader|\bimp\.load_source\b",
 }
 
 
@@ -303,16 +309,6 @@ def sandbox_available() -> bool:
     return sandbox.capabilities().bwrap
 
 
-# What the worker may see besides the interpreter: the packages a lab notebook imports.
-# Not solutions/ (the answer key), not the specs or checks (stubbed in the worker), not the
-# course, the checkout or $HOME.
-_PKG = Path(__file__).resolve().parent
-_ROOT = _PKG.parent
-WORKER_PACKAGES = ("robots", "sim_backends", "autograder")
-WORKER_HIDDEN = ("autograder/specs", "autograder/spec_types.py", "autograder/checks.py",
-                 "autograder/course.py", "autograder/grading.py")
-
-
 def _worker_env(home: str) -> dict[str, str]:
     """A clean environment: nothing of the grader's (no secret), one BLAS thread."""
     return {"PATH": "/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8", "MPLBACKEND": "Agg",
@@ -321,12 +317,14 @@ def _worker_env(home: str) -> dict[str, str]:
 
 
 def worker_jail(limits: Limits) -> sandbox.Jail:
-    """The worker's view: interpreter, venv and the lab packages read-only, a /tmp scratch."""
-    packages = tuple(str(_ROOT / p) for p in WORKER_PACKAGES if (_ROOT / p).exists())
-    hidden = tuple(str(_ROOT / p) for p in WORKER_HIDDEN if (_ROOT / p).exists())
-    return sandbox.Jail(ro=sandbox.python_paths() + packages, hide=hidden,
-                        scratch_mb=limits.scratch_mb, chdir="/tmp",
-                        env=_worker_env("/tmp"))
+    """The worker's view (:func:`autograder.views.worker_view`: an allow list of the
+    interpreter, a lab notebook's libraries and the worker's own modules; never
+    ``solutions/``, the specs, the checks, the course or $HOME), read-only, and a /tmp
+    scratch."""
+    from autograder.views import worker_view
+
+    return sandbox.Jail.of_view(worker_view(), scratch_mb=limits.scratch_mb, chdir="/tmp",
+                                env=_worker_env("/tmp"))
 
 
 class WorkerFailure(Exception):

@@ -27,7 +27,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import sysconfig
 import threading
 import time
 import uuid
@@ -35,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
-           "SANDBOX_UID", "python_paths", "remove_stale_scratch", "Interrupted", "stop_all",
+           "SANDBOX_UID", "remove_stale_scratch", "Interrupted", "stop_all",
            "stopping", "allow_starts"]
 
 # The unprivileged user student code runs as when the grader itself is root.
@@ -63,29 +62,27 @@ class Capabilities:
 class Jail:
     """What one sandboxed program may see: read-only host paths, read-write binds, limits.
 
-    ``ro`` paths are bound at the same place; ``ro_at`` and ``rw_at`` are (host, inside)
-    pairs; ``hide`` paths (inside) get an empty read-only tmpfs (a directory) or /dev/null
-    (a file) on top, after the binds.
+    ``ro`` paths are bound at the same place; ``masked`` directories show only the host
+    paths listed for them (:class:`autograder.views.View`); ``ro_at`` and ``rw_at`` are
+    (host, inside) pairs; ``hide`` paths (inside) get an empty read-only tmpfs (a directory)
+    or /dev/null (a file) on top, after the binds.
     """
 
+    @classmethod
+    def of_view(cls, view, **kwargs) -> Jail:
+        """A jail showing ``view`` (an :class:`autograder.views.View`) and ``kwargs``'s rest."""
+        return cls(ro=view.ro, masked=view.masked, **kwargs)
+
     ro: tuple[str, ...] = ()
+    # (directory, the host paths inside it that stay visible): the directory is replaced by
+    # an empty read-only one holding only those (an allow list inside a bound tree).
+    masked: tuple[tuple[str, tuple[str, ...]], ...] = ()
     ro_at: tuple[tuple[str, str], ...] = ()
     rw_at: tuple[tuple[str, str], ...] = ()
     hide: tuple[str, ...] = ()
     scratch_mb: int = 64
     chdir: str = "/tmp"
     env: dict[str, str] = field(default_factory=dict)
-
-
-def python_paths() -> tuple[str, ...]:
-    """Host directories the interpreter and the virtual environment live in."""
-    paths = {os.path.realpath(p) for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
-    paths.add(os.path.realpath(sysconfig.get_paths()["stdlib"]))
-    paths.add(os.path.realpath(os.path.dirname(sys.executable)))
-    paths.add(sys.prefix)  # the venv as named (its bin/python is a symlink out of it)
-    system = ("/usr", "/etc", "/lib", "/lib64", "/bin", "/sbin")
-    kept = sorted(p for p in paths if not p.startswith(system) and os.path.exists(p))
-    return tuple(p for p in kept if not any(p != q and p.startswith(q + "/") for q in kept))
 
 
 def _system_binds() -> list[str]:
@@ -121,22 +118,34 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     if _STOPPING.is_set():
         raise Interrupted("grading was interrupted: no new sandbox is started")
     caps = caps or capabilities()
-    inside = [p for p in jail.ro] + [dst for _, dst in jail.ro_at + jail.rw_at]
+    kept = [p for _, paths in jail.masked for p in paths]
+    inside = [*jail.ro, *(d for d, _ in jail.masked), *kept,
+              *(dst for _, dst in jail.ro_at + jail.rw_at)]
     args = ["bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
             "--unshare-cgroup-try", "--die-with-parent", "--new-session",
             "--tmpfs", "/"]
     args += _system_binds()
-    # Mount points above the binds: traversable (0711), not listable, so the sandbox user
-    # can reach a bound package without seeing what else its parent held on the host.
-    system = ("/usr", "/etc", "/tmp", "/proc", "/dev")
-    for parent in _parents(inside):
-        if not parent.startswith(system):
-            args += ["--perms", "0711", "--dir", parent]
-    for path in jail.ro:
-        args += ["--ro-bind", path, path]
+    # /tmp before the view: a virtual environment or checkout under /tmp is bound on top of
+    # the scratch tmpfs instead of disappearing under it.
     args += ["--proc", "/proc", "--dev", "/dev",
              "--size", str(int(jail.scratch_mb) * 1024 * 1024), "--perms", "1777",
              "--tmpfs", "/tmp"]
+    # Mount points above the binds: traversable (0711), not listable, so the sandbox user
+    # can reach a bound package without seeing what else its parent held on the host.
+    system = ("/usr", "/etc", "/proc", "/dev")
+    for parent in _parents(inside):
+        if not parent.startswith(system) and parent != "/tmp":
+            args += ["--perms", "0711", "--dir", parent]
+    for path in jail.ro:
+        args += ["--ro-bind", path, path]
+    # Each masked directory: an empty tmpfs with only its listed paths bound in (read-only
+    # once every mount point in it exists, nested masks included).
+    for directory, paths in jail.masked:
+        args += ["--perms", "0755", "--size", "1048576", "--tmpfs", directory]
+        for path in paths:
+            args += ["--ro-bind", path, path]
+    for directory, _ in reversed(jail.masked):
+        args += ["--remount-ro", directory]
     for src, dst in jail.rw_at:
         args += ["--bind", src, dst]
     for src, dst in jail.ro_at:  # after the read-write binds: may sit inside one
@@ -433,7 +442,9 @@ def _probe() -> Capabilities:
     cgroup = _probe_cgroup(evidence)
     caps = Capabilities(bwrap, root, cgroup, tuple(evidence))
     if bwrap:
-        jail = Jail(ro=python_paths(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
+        from autograder.views import interpreter_view
+
+        jail = Jail.of_view(interpreter_view(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
         probe = [sys.executable, "-I", "-c",
                  "import os,socket; open('/tmp/p','w').write('x'); "
                  "print(os.getuid(), len(socket.if_nameindex()))"]

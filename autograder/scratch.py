@@ -39,11 +39,6 @@ from autograder.grading import HIDDEN_MARK, hidden_tests_called
 __all__ = ["CellScore", "ScratchResult", "make_template", "autograde_one",
            "autograde_in_worker", "put_interpreter_on_path", "speed_up_new_gradebooks"]
 
-_PKG = Path(__file__).resolve().parent
-_ROOT = _PKG.parent
-# What nbgrader's kernel may import: the lab packages and the checks its hidden tests call.
-KERNEL_PACKAGES = ("robots", "sim_backends", "autograder")
-KERNEL_HIDDEN = ("autograder/course.py", "autograder/grading.py", "autograder/scratch.py")
 INSIDE = "/course"
 
 
@@ -113,6 +108,35 @@ def _env(home: str) -> dict[str, str]:
     return {"PATH": f"{bin_dir}:/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8",
             "MPLBACKEND": "Agg", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
             "PYTHONDONTWRITEBYTECODE": "1", "JUPYTER_PLATFORM_DIRS": "1"}
+
+
+def kernel_jail(course: Path, home: Path, source: Path, config: Path, assignment: str,
+                scratch_mb: int = 64) -> sandbox.Jail:
+    """nbgrader's view for one autograde: :func:`autograder.views.kernel_view` (an allow
+    list: the interpreter, nbgrader's and a lab notebook's libraries, the public scoring)
+    plus the throwaway ``course`` (read-write at /course), the assignment's ``source``
+    files without its notebooks (read-only; nbgrader copies them over the submission, and
+    they hold the practice data the hidden tests score on), and ``config``."""
+    from autograder.views import kernel_view
+
+    env = _env("/home/student")
+    env["COBOTLAB_PRACTICE_DIR"] = f"{INSIDE}/source/{assignment}"
+    return sandbox.Jail.of_view(
+        kernel_view(),
+        rw_at=((str(course), INSIDE), (str(home), "/home/student")),
+        ro_at=((str(source), f"{INSIDE}/source/{assignment}"),
+               (str(config), f"{INSIDE}/nbgrader_config.py")),
+        scratch_mb=scratch_mb, chdir=INSIDE, env=env)
+
+
+def copy_source_files(root: Path, assignment: str, dest: Path) -> Path:
+    """The assignment's source folder without its notebooks (the answers and hidden tests
+    are there: ``nbgrader autograde`` needs only the other files, and reads the notebooks'
+    locked and test cells from the gradebook)."""
+    shutil.copytree(root / "source" / assignment, dest, symlinks=False, dirs_exist_ok=True,
+                    ignore=shutil.ignore_patterns("*.ipynb", ".ipynb_checkpoints",
+                                                  "__pycache__"))
+    return dest
 
 
 def make_template(root: Path, assignment: str, work: Path, duedate=None) -> Path:
@@ -261,6 +285,7 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
         course = scratch.path / "course"
         _lay_out(course, frozen, assignment, template_db)
         (course / "source" / assignment).mkdir(parents=True)  # the read-only bind's mount point
+        source = copy_source_files(root, assignment, scratch.path / "source")
         shutil.copy2(root / "nbgrader_config.py", scratch.path / "nbgrader_config.py")
         (course / "nbgrader_config.py").touch()
         (scratch.path / "home").mkdir()
@@ -274,23 +299,15 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
             nbgrader.append(f"--Execute.timeout={int(cell_timeout_s)}")
         cgroup = None
         if caps.bwrap:
-            packages = tuple(str(_ROOT / p) for p in KERNEL_PACKAGES if (_ROOT / p).exists())
-            jail = sandbox.Jail(
-                ro=sandbox.python_paths() + packages,
-                rw_at=((str(course), INSIDE), (str(scratch.path / "home"), "/home/student")),
-                ro_at=((str(root / "source" / assignment), f"{INSIDE}/source/{assignment}"),
-                       (str(scratch.path / "nbgrader_config.py"),
-                        f"{INSIDE}/nbgrader_config.py")),
-                hide=tuple(str(_ROOT / p) for p in KERNEL_HIDDEN),
-                scratch_mb=64, chdir=INSIDE, env=_env("/home/student"))
+            jail = kernel_jail(course, scratch.path / "home", source,
+                               scratch.path / "nbgrader_config.py", assignment)
             if caps.cgroup:
                 cgroup = sandbox.Cgroup(memory_mb, max_processes)
             command = sandbox.command(nbgrader + [f"--CourseDirectory.root={INSIDE}"], jail,
                                       cgroup)
             env, cwd = {}, "/"
         else:  # rlimits only: the throwaway course still keeps the real one out of reach
-            shutil.copytree(root / "source" / assignment, course / "source" / assignment,
-                            dirs_exist_ok=True)
+            copy_source_files(root, assignment, course / "source" / assignment)
             shutil.copy2(root / "nbgrader_config.py", course / "nbgrader_config.py")
             command = nbgrader + [f"--CourseDirectory.root={course}"]
             env, cwd = _env(str(scratch.path / "home")), str(course)
