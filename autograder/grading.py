@@ -446,7 +446,7 @@ class Worker:
             why = f"unexpected first message {str(hello)[:80]}"
         except (wire.WireError, OSError) as exc:
             why = str(exc)
-        self.close_quietly()
+        self._kill()
         detail = self.stderr_tail()
         self.close()
         if first:
@@ -463,8 +463,8 @@ class Worker:
         except (OSError, ValueError):
             return ""
 
-    def close_quietly(self) -> None:
-        """Kill the process and close the pipes, keeping stderr readable (for the message)."""
+    def _kill(self) -> None:
+        """Kill the process group and reap it; stderr stays readable (for a message)."""
         if self.proc.poll() is None:
             try:
                 os.killpg(self.proc.pid, signal.SIGKILL)
@@ -527,15 +527,7 @@ class Worker:
         return self.proc.poll() is None
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            pass
+        self._kill()
         for fd in (self._req_w, self._rep_r):
             try:
                 os.close(fd)
