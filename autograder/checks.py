@@ -16,6 +16,13 @@ The same code scores three ways: :func:`check` on public seeds in the student's 
 (prints the score and why), :func:`hidden_test` inside nbgrader's kernel (only a cross-check:
 that kernel runs student code and can be tampered with), and :mod:`autograder.grading`, which
 scores outputs from an isolated worker against truth it never lets out of its own process.
+
+What a student's copy holds is the public half: the scoring of every graded function
+(:mod:`autograder.scoring`) and the practice problems as data (:mod:`autograder.practice`),
+so :func:`check` and :func:`hidden_test` score on those in every install. The generators
+and answer functions (:mod:`autograder.specs`) are the instructor's: :data:`SPECS`,
+:func:`make_trials` and :func:`public_trials` on a generator need them, and this module
+imports them only when asked for.
 """
 
 from __future__ import annotations
@@ -27,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from autograder import forbidden, mistakes, standin
+from autograder import forbidden, mistakes, practice, standin
+from autograder.scoring import collect_scoring
 
 # Re-exported where callers reach them as checks.<name> (tests, benchmarks, grading).
 from autograder.spec_types import EXACT_TOL, Check, FunctionSpec, OutputError, Trial, measure_pose  # noqa: F401
-from autograder.specs import collect_specs
 
 __all__ = [
     "Check",
@@ -40,7 +47,7 @@ __all__ = [
     "TrialOutcome",
     "CheckResult",
     "FunctionResult",
-    "SPECS",
+    "SCORING",
     "PUBLIC_SEEDS",
     "spec_for",
     "make_trials",
@@ -51,12 +58,47 @@ __all__ = [
     "run_trial",
     "StudentCallError",
     "forbidden_result",
+    "InstructorOnly",
 ]
 
 PUBLIC_SEEDS = (0, 1, 2)
 # The seeds nbgrader's in-kernel hidden tests use; not secret (the kernel is not trusted), just
 # different from the practice seeds. The authoritative grade uses secret per-student seeds.
 KERNEL_SEEDS = (1001, 1002)
+
+
+SCORING: dict[str, tuple[FunctionSpec, ...]] = collect_scoring()
+"""{assignment: public scoring entries}: what :func:`check` scores with, in every install."""
+
+
+class InstructorOnly(ImportError):
+    """What needs the private generators (autograder/specs), absent from a student install."""
+
+
+_private: dict | None = None
+
+
+def _private_specs() -> dict[str, tuple[FunctionSpec, ...]]:
+    """The full specs (generators included), imported on first use; InstructorOnly without."""
+    global _private
+    if _private is None:
+        if not practice.private_side_available():
+            raise InstructorOnly(
+                "the hidden-problem generators (autograder.specs) are only in the instructor's "
+                "install of cobotlab, not in the student package; check() and hidden_test() "
+                "score on the practice data shipped with each lab instead")
+        from autograder.specs import collect_specs
+
+        _private = collect_specs()
+    return _private
+
+
+def __getattr__(name: str):
+    # SPECS is lazy so that importing this module (every notebook does) never imports the
+    # private generators; the grader, the course tools and the benchmarks ask for it.
+    if name == "SPECS":
+        return _private_specs()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -144,47 +186,78 @@ def _current_assignment() -> str | None:
     import os
 
     name = os.path.basename(os.getcwd())
-    return name if name in SPECS else None
+    return name if name in SCORING else None
+
+
+def _locate(name: str, assignment: str | None = None) -> tuple[str, int]:
+    """(assignment, index in its SPECS) of graded function ``name`` (see :func:`spec_for`)."""
+    if assignment is not None and assignment not in SCORING:
+        raise ValueError(f"unknown assignment {assignment!r}; assignments are {sorted(SCORING)}")
+    here = assignment or _current_assignment()
+    if here is not None:
+        for i, spec in enumerate(SCORING[here]):
+            if spec.name == name:
+                return here, i
+        if assignment is not None:
+            known = sorted(s.name for s in SCORING[assignment])
+            raise ValueError(f"{assignment} grades no function named {name!r}; it grades {known}")
+    matches = [(lab, i) for lab, group in SCORING.items() for i, spec in enumerate(group)
+               if spec.name == name]
+    if len(matches) == 1:
+        return matches[0]
+    if matches:
+        labs = ", ".join(lab for lab, _ in matches)
+        raise ValueError(f"{name!r} is graded in several labs ({labs}); pass assignment=")
+    known = sorted(s.name for g in SCORING.values() for s in g)
+    raise ValueError(f"no graded function named {name!r}; graded functions are {known}")
 
 
 def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
-    """The spec of graded function ``name`` in ``assignment``.
+    """The spec of graded function ``name`` in ``assignment``: the full one (with its
+    generator) in an instructor's install, the public scoring entry in a student's.
 
     Without ``assignment``: the lab of the current folder if it grades ``name``, else the one
     lab that does; a name graded by several labs then needs ``assignment=``.
     """
-    if assignment is not None and assignment not in SPECS:
-        raise ValueError(f"unknown assignment {assignment!r}; assignments are {sorted(SPECS)}")
-    here = assignment or _current_assignment()
-    if here is not None:
-        for spec in SPECS[here]:
-            if spec.name == name:
-                return spec
-        if assignment is not None:
-            known = sorted(s.name for s in SPECS[assignment])
-            raise ValueError(f"{assignment} grades no function named {name!r}; it grades {known}")
-    matches = [(lab, spec) for lab, group in SPECS.items() for spec in group if spec.name == name]
-    if len(matches) == 1:
-        return matches[0][1]
-    if matches:
-        labs = ", ".join(lab for lab, _ in matches)
-        raise ValueError(f"{name!r} is graded in several labs ({labs}); pass assignment=")
-    known = sorted(s.name for g in SPECS.values() for s in g)
-    raise ValueError(f"no graded function named {name!r}; graded functions are {known}")
+    lab, index = _locate(name, assignment)
+    if practice.private_side_available():
+        return _private_specs()[lab][index]
+    return SCORING[lab][index]
+
+
+def _assignment_of(spec: FunctionSpec) -> str:
+    """The assignment whose spec (public or full) ``spec`` is."""
+    for lab, group in SCORING.items():
+        if any(s is spec for s in group):
+            return lab
+    if practice.private_side_available():
+        for lab, group in _private_specs().items():
+            if any(s is spec for s in group):
+                return lab
+    return _locate(spec.name)[0]
 
 
 # --------------------------------------------------------------------------- scoring
 
 
 def make_trials(spec: FunctionSpec, rng: np.random.Generator, n: int | None = None) -> list[Trial]:
-    """``n`` (default ``spec.n_trials``) problems drawn from ``rng``."""
+    """``n`` (default ``spec.n_trials``) problems drawn from ``rng`` by the spec's generator
+    (a full spec of :data:`SPECS`: the public scoring entries have none)."""
+    if spec.make_trial is None:
+        raise InstructorOnly(f"{spec.name}: drawing new problems needs the instructor's "
+                             "generators (checks.SPECS); a public scoring entry has none")
     return [spec.make_trial(rng, i) for i in range(spec.n_trials if n is None else n)]
 
 
 def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
-    """The practice problems of a public seed (the same generator as the hidden ones)."""
-    return make_trials(spec, np.random.default_rng([20240917, int(seed)]),
-                       spec.practice_trials or spec.n_trials)
+    """The practice problems of a public seed (the same generator as the hidden ones).
+
+    A full spec draws them; a public scoring entry reads them from the practice data
+    (:mod:`autograder.practice`), with their mistakes and stand-in tables precomputed.
+    """
+    if spec.make_trial is None:
+        return practice.practice_trials(_assignment_of(spec), spec.name, [seed])
+    return make_trials(spec, practice.practice_rng(seed), spec.practice_trials or spec.n_trials)
 
 
 def score_function(spec: FunctionSpec, trials: list[Trial],
@@ -258,9 +331,11 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
 
 
 def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
-    """The spec's own mistakes of this problem, then :func:`autograder.mistakes.diagnose` on
-    the answer (or on the first parts of a pair)."""
-    for words, predicted in (spec.mistakes(trial) if spec.mistakes else ()):
+    """The spec's own mistakes of this problem (precomputed with practice data), then
+    :func:`autograder.mistakes.diagnose` on the answer (or on the first parts of a pair)."""
+    predicted_mistakes = trial.mistakes if trial.mistakes is not None else (
+        spec.mistakes(trial) if spec.mistakes else ())
+    for words, predicted in predicted_mistakes:
         if mistakes.matches(value, predicted):
             return words
     truth = trial.truth
@@ -312,7 +387,10 @@ def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> Tr
     def once(args, timeout_s):
         # Fresh copies: a function that writes into its input must not corrupt the next check.
         args = tuple(standin.copy_value(a) for a in args)
-        tables = spec.substitutes(args) if spec is not None and spec.substitutes else None
+        if spec is not None and spec.drive is None and trial.substitutes is not None:
+            tables = trial.substitutes  # practice data: precomputed for trial.args
+        else:
+            tables = spec.substitutes(args) if spec is not None and spec.substitutes else None
         started, cpu_started = time.perf_counter(), time.process_time()
 
         def outcome(**kwargs) -> TrialOutcome:
@@ -370,8 +448,9 @@ def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,
     around one): the reference solvers may then be called, the spec's own forbidden routines
     still may not. A function defined in ``solutions`` itself is taken as a reference.
     """
-    spec = spec_for(name or getattr(func, "__name__", ""), assignment)
-    trials = [t for s in seeds for t in public_trials(spec, s)]
+    lab, index = _locate(name or getattr(func, "__name__", ""), assignment)
+    spec = SCORING[lab][index]  # public scoring on practice data, whatever the install
+    trials = practice.practice_trials(lab, spec.name, seeds)
     reference = reference or forbidden.is_reference_solver(func)
     always = () if reference else forbidden.ALWAYS_FORBIDDEN
     with forbidden.Tripwire(spec.forbidden, always) as tripwire:
@@ -445,5 +524,3 @@ def hidden_test(func, name: str | None = None, assignment: str | None = None) ->
     result = evaluate(func, name, KERNEL_SEEDS, assignment)
     assert result.fraction >= 1.0, result.summary()
 
-
-SPECS: dict[str, tuple[FunctionSpec, ...]] = collect_specs()

@@ -12,6 +12,7 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import os
@@ -28,6 +29,7 @@ from pathlib import Path
 
 from autograder import checks, feedback, freeze, grading, record, sandbox, scratch
 from autograder.freeze import printable
+from autograder.practice import build_practice, save_practice
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
 
@@ -110,8 +112,22 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
         if not target.exists():
             shutil.copytree(lab, target, ignore=shutil.ignore_patterns(
                 ".ipynb_checkpoints", "__pycache__"))
+        if lab.name in checks.SPECS:
+            # The practice problems, as data, beside the notebook: nbgrader copies them into
+            # the release (the students' check()) and the hidden tests score on them in
+            # nbgrader's kernel, which sees no generator. Written again on every init, so a
+            # changed spec reaches the next release.
+            save_practice(_practice_document(lab.name), target)
     grading.create_secret(root)
     return root
+
+
+@functools.cache
+def _practice_document(assignment: str) -> dict:
+    """The practice data of ``assignment``, built once per process (the generators' closed
+    loops and depth images take seconds; a process that lays out several courses, or the
+    same course again, pays once)."""
+    return build_practice(assignment)
 
 
 def run_nbgrader_autograde(course_dir, assignment: str, student_id,

@@ -1,8 +1,12 @@
 """The types a lab's spec is written in, and the output checks the specs share.
 
-Kept apart from :mod:`autograder.checks` so that the specs (``autograder/specs/<lab>.py``)
-and the scoring that collects them import in one direction: specs -> spec_types, and
-checks -> specs, spec_types.
+A graded function has two halves. Its public scoring (``autograder/scoring/<lab>.py``):
+points, checks, ``measure``, ``drive``, signature, limits; a :class:`FunctionSpec` with
+``make_trial=None``, shipped to students. Its private generation (``autograder/specs/<lab>.py``,
+instructors only): the generator that computes the truth, the answer functions, the mistakes
+predictors, which completes the same :class:`FunctionSpec` with ``dataclasses.replace``.
+Imports go one way: specs -> scoring -> spec_types, and checks -> scoring, spec_types (checks
+reaches specs only when the grader asks for them).
 """
 
 from __future__ import annotations
@@ -59,6 +63,12 @@ class Trial:
     # this exception (by class name, e.g. "ValueError"), which earns full credit; a returned
     # value earns none, whatever it is.
     raises: str | None = None
+    # Precomputed by the private side for practice data (autograder.practice), where the
+    # spec's own ``mistakes`` and ``substitutes`` are not shipped: this problem's
+    # [(words, predicted answer)], and the stand-in tables for a call with ``args``
+    # (functions without a ``drive`` only). None: ask the spec.
+    mistakes: list | None = None
+    substitutes: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -68,7 +78,8 @@ class FunctionSpec:
     name: str
     points: float
     n_trials: int   # hidden problems per student
-    make_trial: Callable[[np.random.Generator, int], Trial]
+    # The generator (private: autograder/specs); None in the public scoring entry.
+    make_trial: Callable[[np.random.Generator, int], Trial] | None
     measure: Callable[[Any, Trial], dict[str, float]]
     checks: tuple[Check, ...]
     signature: str

@@ -80,7 +80,14 @@ def _existing(paths) -> list[str]:
 
 def _interpreter() -> tuple[list[str], list[str]]:
     """(files and trees to bind whole, package directories inside them to empty)."""
-    ro = [sys.executable, os.path.realpath(sys.executable)]
+    ro = [sys.executable]
+    # Every link on the way to the binary: a view that binds the venv's bin/ whole (the
+    # kernel's) shows python -> python3 -> <base>/bin/python3 -> python3.11 as links.
+    path = sys.executable
+    while os.path.islink(path) and len(ro) < 16:
+        path = os.path.join(os.path.dirname(path), os.readlink(path))
+        ro.append(os.path.normpath(path))
+    ro.append(os.path.realpath(sys.executable))
     if sysconfig.get_config_var("Py_ENABLE_SHARED"):
         libdir, library = sysconfig.get_config_var("LIBDIR"), sysconfig.get_config_var(
             "LDLIBRARY")
@@ -121,12 +128,13 @@ def _distribution(name: str) -> metadata.Distribution | None:
     return None
 
 
-def _requirements(dist: metadata.Distribution) -> list[str]:
-    """Names of the distributions ``dist`` needs (no extras; markers evaluated here)."""
+def _requirements(dist: metadata.Distribution, extras=()) -> list[tuple[str, tuple]]:
+    """(name, extras asked for) of the distributions ``dist`` needs with ``extras`` (markers
+    evaluated here: nbconvert needs ``bleach[css]``, whose ``css`` extra brings tinycss2)."""
     try:
         from packaging.requirements import InvalidRequirement, Requirement
-    except ImportError:   # packaging comes with matplotlib; without it, names only
-        return [re.split(r"[\s;<>=!~\[(]", r, maxsplit=1)[0] for r in dist.requires or ()
+    except ImportError:   # packaging comes with matplotlib; without it, plain names only
+        return [(re.split(r"[\s;<>=!~\[(]", r, maxsplit=1)[0], ()) for r in dist.requires or ()
                 if "extra ==" not in r and "extra==" not in r]
     names = []
     for text in dist.requires or ():
@@ -134,24 +142,28 @@ def _requirements(dist: metadata.Distribution) -> list[str]:
             req = Requirement(text)
         except InvalidRequirement:
             continue
-        if req.marker is None or req.marker.evaluate({"extra": ""}):
-            names.append(req.name)
+        if req.marker is None or any(req.marker.evaluate({"extra": e})
+                                     for e in ("", *extras)):
+            names.append((req.name, tuple(sorted(req.extras))))
     return names
 
 
 def _closure(roots) -> dict[str, metadata.Distribution]:
-    """The installed distributions ``roots`` need, transitively, by canonical name."""
+    """The installed distributions ``roots`` (names) need, transitively, by canonical name."""
     seen: dict[str, metadata.Distribution] = {}
-    todo = list(roots)
+    done: set[tuple[str, tuple]] = set()
+    todo = [(name, ()) for name in roots]
     while todo:
-        name = _canonical(todo.pop())
-        if name in seen or name == "cobotlab":
+        name, extras = todo.pop()
+        key = (_canonical(name), extras)
+        if key in done or key[0] == "cobotlab":
             continue
-        dist = _distribution(name)
+        done.add(key)
+        dist = seen.get(key[0]) or _distribution(key[0])
         if dist is None:
             continue   # an optional library not installed here
-        seen[name] = dist
-        todo += _requirements(dist)
+        seen[key[0]] = dist
+        todo += _requirements(dist, extras)
     return seen
 
 
@@ -242,7 +254,8 @@ def _build(distributions, autograder_modules, extra_ro=()) -> View:
 
 def _roots() -> list[str]:
     own = _distribution("cobotlab")
-    return (_requirements(own) if own is not None else []) + list(NOTEBOOK_DISTRIBUTIONS)
+    return [name for name, _ in (_requirements(own) if own is not None else [])] + list(
+        NOTEBOOK_DISTRIBUTIONS)
 
 
 @lru_cache(maxsize=1)

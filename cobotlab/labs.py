@@ -5,7 +5,9 @@
 the preprocessors ``nbgrader generate_assignment`` uses (solutions replaced by the code stub,
 hidden tests and mark schemes removed, outputs cleared, cells locked and checksummed), checks
 that nothing of the answers is left, and writes it with the lab's other files into a folder
-students can be given. Only the gradebook step is left out: that belongs to the course.
+students can be given, with the lab's practice problems as data beside the notebook
+(``check()`` scores on them: the generators stay with the instructor, see
+:mod:`autograder.practice`). Only the gradebook step is left out: that belongs to the course.
 """
 
 from __future__ import annotations
@@ -13,9 +15,14 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-__all__ = ["LABS_DIR", "RELEASE_LEAKS", "lab_names", "release_notebook", "write_student_labs"]
+__all__ = ["RELEASE_LEAKS", "lab_names", "release_notebook", "write_student_labs"]
 
-LABS_DIR = Path(__file__).resolve().parent.parent / "labs"
+
+
+def _default_labs() -> Path:
+    from autograder.course import LABS_DIR
+
+    return LABS_DIR
 
 # Text that only an instructor's notebook holds. A release still carrying one is refused.
 RELEASE_LEAKS = ("BEGIN SOLUTION", "END SOLUTION", "BEGIN HIDDEN TESTS", "END HIDDEN TESTS",
@@ -40,7 +47,7 @@ hidden ones.
 
 
 def _labs_dir(labs_dir) -> Path:
-    labs = Path(labs_dir) if labs_dir is not None else LABS_DIR
+    labs = Path(labs_dir) if labs_dir is not None else _default_labs()
     if not labs.is_dir():
         raise FileNotFoundError(
             f"no lab sources at {labs}: `cobotlab labs student` turns the instructor's source "
@@ -97,10 +104,13 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
 
     ``dest/<lab>/<lab>.ipynb`` is the release notebook of ``labs_dir/<lab>/`` (default: the
     repository's ``labs/``), beside copies of that lab's other files (data a lab reads from
-    its own folder); ``dest/README.md`` says how to start. An existing notebook is never
-    overwritten unless ``force``: it may hold a student's work.
+    its own folder) and the lab's practice data (``practice_<lab>.json.gz``, what its
+    ``check()`` cells score on); ``dest/README.md`` says how to start. An existing notebook
+    is never overwritten unless ``force``: it may hold a student's work.
     """
     import nbformat
+
+    from autograder import checks, practice
 
     source_root = _labs_dir(labs_dir)
     names = list(labs) if labs else lab_names(source_root)
@@ -119,9 +129,12 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
         raise FileExistsError(f"{', '.join(existing)} {verb} and may hold your work; write "
                               "into a new folder, or pass --force to replace them")
     released = {source: release_notebook(source) for source in planned}  # all or nothing
+    data = {name: practice.build_practice(name) for name in names if name in checks.SCORING}
     written = []
     for name in names:
         shutil.copytree(source_root / name, dest / name, ignore=_SKIP, dirs_exist_ok=True)
+        if name in data:
+            practice.save_practice(data[name], dest / name)
     for source, target in planned.items():
         nbformat.write(released[source], target)
         written.append(target)

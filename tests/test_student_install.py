@@ -130,6 +130,8 @@ def test_the_wheel_holds_no_solutions(wheel):
     assert not any(n.startswith("solutions/") for n in names), names
     assert not any(n.endswith(".ipynb") for n in names)
     assert any(n.startswith("autograder/data/") and n.endswith(".npz") for n in names)
+    assert not any(n.startswith("autograder/specs/") for n in names), names
+    assert "autograder/scoring/__init__.py" in names and "autograder/practice.py" in names
     assert any(n.startswith("sim_backends/urdf/") for n in names)
 
 
@@ -148,6 +150,9 @@ def test_student_pyproject_keeps_up_with_the_main_one():
     assert student_data == {k: v for k, v in main_data.items() if k in PACKAGES}
     included = student["tool"]["setuptools"]["packages"]["find"]["include"]
     assert sorted(included) == sorted(f"{name}*" for name in PACKAGES)
+    # The private side (generators, truths, answer functions) stays out; the rest is kept.
+    excluded = student["tool"]["setuptools"]["packages"]["find"]["exclude"]
+    assert sorted(excluded) == ["autograder.specs", "autograder.specs.*"]
 
 
 def _lab_imports() -> set[str]:

@@ -1,27 +1,18 @@
-"""Lab 0 (frames and poses): the graded functions and how they are scored.
+"""Lab 0 (frames and poses), private side: the problem generators and the mistakes predictor.
 
-Noise-free problems, scored with the float64-rounding tolerances of ``checks.EXACT_TOL``.
-Each function gets three times the problems of one practice seed, as many as ``check()``
-shows over its three seeds. ``pose_from_rotvec`` puts 0.9 of its credit on the rotation
-(Rodrigues' formula, what it teaches) and 0.1 on the translation (copying ``t``): an
-identity rotation with the translation copied earns a tenth, not half.
+The scoring (points, checks, bands) is public, in :mod:`autograder.scoring.lab0_frames`; this
+module completes those entries with what computes an answer, and is never given to students.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from autograder.spec_types import (
-    EXACT_BANDS,
-    EXACT_TOL,
-    Check,
-    FunctionSpec,
-    Trial,
-    measure_pose,
-    pose_checks,
-    random_pose,
-    random_rotvec,
-)
+from autograder.scoring import lab0_frames as scoring
+from autograder.scoring.lab0_frames import ROTVEC_PRACTICE
+from autograder.spec_types import EXACT_TOL, Trial, random_pose, random_rotvec
 from robots import geometry as geo
 
 
@@ -50,35 +41,19 @@ def _trial_rotvec(rng, index: int) -> Trial:
                  label=label, all_or_nothing=edge in (0, 1, 2))
 
 
-ROTVEC_PRACTICE = 8  # problems per practice seed
+def _compose_mistakes(trial: Trial) -> list:
+    if len(trial.args[0]) < 2:
+        return []
+    return [("the poses are multiplied in reverse order (y_T_z @ ... @ a_T_b): a_T_z is "
+             "a_T_b @ b_T_c @ ... @ y_T_z, left to right", geo.compose(*trial.args[0][::-1]))]
 
 
-INVERT_POSE = FunctionSpec(
-    name="invert_pose", points=3.0, n_trials=18, practice_trials=6, make_trial=_trial_invert, measure=measure_pose,
-    checks=pose_checks("b_T_a = inv(a_T_b): R^T and -R^T t"),
-    signature="invert_pose(a_T_b: (4, 4) array) -> b_T_a (4, 4)",
-    forbidden=("robots.geometry.invert",),
-)
-COMPOSE_CHAIN = FunctionSpec(
-    name="compose_chain", points=3.0, n_trials=18, practice_trials=6, make_trial=_trial_compose,
-    measure=measure_pose,
-    checks=pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
-    signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
-    forbidden=("robots.geometry.compose",),
-    mistakes=lambda trial: [] if len(trial.args[0]) < 2 else [
-        ("the poses are multiplied in reverse order (y_T_z @ ... @ a_T_b): a_T_z is "
-         "a_T_b @ b_T_c @ ... @ y_T_z, left to right", geo.compose(*trial.args[0][::-1]))],
-)
-POSE_FROM_ROTVEC = FunctionSpec(
-    name="pose_from_rotvec", points=4.0, n_trials=3 * ROTVEC_PRACTICE,
-    practice_trials=ROTVEC_PRACTICE, make_trial=_trial_rotvec, measure=measure_pose,
-    checks=(
-        Check("rotation", "deg", 0.9, EXACT_BANDS,
-              "the rotation block: Rodrigues' formula, including a zero rotation vector"),
-        Check("translation", "mm", 0.1, EXACT_BANDS, "the translation column: t itself"),
-    ),
-    signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
-    forbidden=("cv2.Rodrigues", "robots.geometry.pose_from_rotvec"),
-)
+INVERT_POSE = replace(scoring.INVERT_POSE, make_trial=_trial_invert)
+COMPOSE_CHAIN = replace(scoring.COMPOSE_CHAIN, make_trial=_trial_compose,
+                        mistakes=_compose_mistakes)
+POSE_FROM_ROTVEC = replace(scoring.POSE_FROM_ROTVEC, make_trial=_trial_rotvec)
 
 SPECS = (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC)
+
+# What computes a graded quantity (a truth or a mistaken answer): never in a student's copy.
+ANSWERS = (_trial_invert, _trial_compose, _trial_rotvec, _compose_mistakes)

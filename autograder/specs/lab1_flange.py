@@ -1,42 +1,31 @@
-"""Lab 1 (camera intrinsics and flange calibration): the graded functions and their scoring.
+"""Lab 1 (camera intrinsics and flange calibration), private side: the problem generators.
 
-Three pure functions, all about the rigid fit ``dst ~= dst_T_src @ src`` of a flange
-calibration (src = camera frame, dst = robot base frame):
+The scoring is public, in :mod:`autograder.scoring.lab1_flange`; this module draws the
+problems and computes their truths, and is never given to students.
 
-* ``fit_rigid(src, dst) -> dst_T_src``: the SVD (Kabsch / Arun) fit. Scored by how far the
-  fitted map moves the measured points from where the true map puts them, with a tolerance
-  from the noise level. Of every six problems (:data:`FIT_LAYOUT`), one is degenerate and must
+* ``fit_rigid``: of every six problems (:data:`FIT_LAYOUT`), one is degenerate and must
   raise ``ValueError`` as the lab asks (exactly collinear points, or only two points; a fit
   without the check returns some pose and earns nothing there), three have *planar* flange
   positions (one height, as on one layer of the real Aubo capture) and two fill a volume. On
   a planar set the cross-covariance has rank 2 and a fit without the reflection fix returns
   a mirror image (det -1) on 71 % of problems (measured over 2000), so with 9 planar
   problems of 18 it keeps full credit on 0.29^9 ~ 1e-5 of draws.
-* ``per_point_residuals(dst_T_src, src, dst) -> (N,)``: |dst_T_src @ src_i - dst_i| (m).
-* ``per_axis_rmse(dst_T_src, src, dst) -> (3,)``: the RMS residual along each axis of the
-  *src* (camera) frame (m), where an RGB-D camera's depth error shows up on z.
-
-The last two are exact formulas on given inputs, so their tolerance is a small multiple of
-float64 rounding (``EXACT_TOL``, in mm).
+* ``per_point_residuals``: |dst_T_src @ src_i - dst_i| (m); ``per_axis_rmse``: the RMS
+  residual along each axis of the *src* (camera) frame (m), where an RGB-D camera's depth
+  error shows up on z. Exact formulas, so their tolerance is a small multiple of float64
+  rounding (``EXACT_MM``).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from autograder import synthetic
-from autograder.spec_types import (
-    EXACT_BANDS,
-    Check,
-    FunctionSpec,
-    OutputError,
-    Trial,
-    as_output_pose,
-    pose_errors,
-    random_pose,
-)
+from autograder.scoring import lab1_flange as scoring
+from autograder.spec_types import Trial, random_pose
 from robots import geometry as geo
 
 # fit_rigid's problems, by index % 6: degenerate (expects ValueError), 3 planar, 2 volume.
@@ -107,18 +96,6 @@ def _trial_fit_rigid(rng, index: int) -> Trial:
                  label=f"{shape} set of {n} points, {sigma_mm:.2f} mm noise")
 
 
-def _measure_fit(value, trial: Trial) -> dict[str, float]:
-    T = as_output_pose(value)
-    truth, cam_points = trial.truth
-    if not math.isfinite(pose_errors(T, truth)["rotation"]):
-        raise OutputError("returned a rotation block that is not a proper rotation (det +1): "
-                          "a mirror image? flip the last singular vector when det < 0")
-    mapped = cam_points @ T[:3, :3].T + T[:3, 3]
-    true_mapped = cam_points @ truth[:3, :3].T + truth[:3, 3]
-    rms = float(np.sqrt(np.mean(np.sum((mapped - true_mapped) ** 2, axis=1)))) * 1000.0
-    return {"mapping": rms}
-
-
 # --------------------------------------------------------------------------- residuals
 
 
@@ -140,66 +117,33 @@ def _true_residuals(T, src, dst) -> np.ndarray:
     return src @ T[:3, :3].T + T[:3, 3] - dst
 
 
+def _true_point_residuals(T, src, dst) -> np.ndarray:
+    return np.linalg.norm(_true_residuals(T, src, dst), axis=1)
+
+
+def _true_axis_rmse(T, src, dst) -> np.ndarray:
+    r_src = _true_residuals(T, src, dst) @ T[:3, :3]  # R^T r_i: along the src (camera) axes
+    return np.sqrt(np.mean(r_src**2, axis=0))
+
+
 def _trial_point_residuals(rng, index: int) -> Trial:
     T, src, dst, label = _residual_problem(rng)
-    truth = np.linalg.norm(_true_residuals(T, src, dst), axis=1)
-    return Trial(args=(T, src, dst), truth=truth, tol={"residuals": EXACT_MM}, label=label)
+    return Trial(args=(T, src, dst), truth=_true_point_residuals(T, src, dst),
+                 tol={"residuals": EXACT_MM}, label=label)
 
 
 def _trial_axis_rmse(rng, index: int) -> Trial:
     T, src, dst, label = _residual_problem(rng)
-    r_src = _true_residuals(T, src, dst) @ T[:3, :3]  # R^T r_i: along the src (camera) axes
-    truth = np.sqrt(np.mean(r_src**2, axis=0))
-    return Trial(args=(T, src, dst), truth=truth, tol={"rmse": EXACT_MM}, label=label)
+    return Trial(args=(T, src, dst), truth=_true_axis_rmse(T, src, dst),
+                 tol={"rmse": EXACT_MM}, label=label)
 
 
-def _as_output_vector(value, n: int) -> np.ndarray:
-    """A student's return value as a finite float vector of length ``n``, or OutputError."""
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise OutputError(f"returned {type(value).__name__}, expected a numpy array of "
-                          "numbers") from None
-    if v.shape != (n,):
-        raise OutputError(f"returned shape {v.shape}, expected ({n},)")
-    if not np.all(np.isfinite(v)):
-        raise OutputError("returned NaN or inf")
-    return v
-
-
-def _measure_vector(key: str):
-    def measure(value, trial: Trial) -> dict[str, float]:
-        v = _as_output_vector(value, len(trial.truth))
-        return {key: float(np.abs(v - trial.truth).max() * 1000.0)}
-    return measure
-
-
-FIT_RIGID = FunctionSpec(
-    name="fit_rigid", points=4.0, n_trials=18, practice_trials=6, make_trial=_trial_fit_rigid,
-    measure=_measure_fit,
-    checks=(
-        Check("mapping", "mm", 1.0, ((1.0, 1.0), (2.0, 0.5)),
-              "RMS distance between your map and the true one over the measured points; "
-              "planar sets need the reflection fix, collinear points or fewer than 3 a "
-              "ValueError"),
-    ),
-    signature="fit_rigid(src: (N, 3), dst: (N, 3)) -> dst_T_src (4, 4)",
-)
-PER_POINT_RESIDUALS = FunctionSpec(
-    name="per_point_residuals", points=2.0, n_trials=12, practice_trials=4, make_trial=_trial_point_residuals,
-    measure=_measure_vector("residuals"),
-    checks=(Check("residuals", "mm", 1.0, EXACT_BANDS,
-                  "|dst_T_src @ src_i - dst_i| per point, in metres"),),
-    signature="per_point_residuals(dst_T_src: (4, 4), src: (N, 3), dst: (N, 3)) -> (N,)",
-)
-PER_AXIS_RMSE = FunctionSpec(
-    name="per_axis_rmse", points=2.0, n_trials=12, practice_trials=4, make_trial=_trial_axis_rmse,
-    measure=_measure_vector("rmse"),
-    checks=(Check("rmse", "mm", 1.0, EXACT_BANDS,
-                  "RMS of the residuals along the x, y, z axes of the src (camera) frame: "
-                  "rotate each residual by R^T first"),),
-    signature="per_axis_rmse(dst_T_src: (4, 4), src: (N, 3), dst: (N, 3)) -> (3,) "
-              "along the src axes",
-)
+FIT_RIGID = replace(scoring.FIT_RIGID, make_trial=_trial_fit_rigid)
+PER_POINT_RESIDUALS = replace(scoring.PER_POINT_RESIDUALS, make_trial=_trial_point_residuals)
+PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_axis_rmse)
 
 SPECS = (FIT_RIGID, PER_POINT_RESIDUALS, PER_AXIS_RMSE)
+
+# What computes a graded quantity (a truth): never in a student's copy.
+ANSWERS = (_true_residuals, _true_point_residuals, _true_axis_rmse, _degenerate_fit,
+           _trial_fit_rigid, _trial_point_residuals, _trial_axis_rmse)

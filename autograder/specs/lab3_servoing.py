@@ -1,63 +1,27 @@
-"""Lab 3 (visual servoing to chess pieces): the graded functions and how they are scored.
+"""Lab 3 (visual servoing to chess pieces), private side: problems, truths and the
+reference control law.
 
-* ``interaction_matrix(x, y, Z)`` is compared with central finite differences of the point
-  projection under each of the six camera twist components, computed here.
-* ``ibvs_velocity(s, s_star, Z, gain)`` is graded in closed loop: the grader flies a free camera
-  (pure kinematics, no images) from a hidden offset, calls the student's law once per control
-  period with the features it sees, integrates the returned twist and scores where the camera
-  ends up (and the first twist against the law's formula).
-* ``piece_position(depth, uv, K)`` reads a noisy synthetic depth image with holes and is scored
-  against the true surface point seen at pixel ``uv``.
+The scoring is public, in :mod:`autograder.scoring.lab3_servoing`; this module draws the
+problems and computes their truths, and is never given to students:
+
+* ``interaction_matrix``: the truth is central finite differences of the point projection
+  under each of the six camera twist components;
+* ``ibvs_velocity``: a start the textbook law can reach, and the law's first twist from it,
+  which the public closed loop compares the student's first twist with;
+* ``piece_position``: a noisy synthetic depth image with holes and the true surface point.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder.spec_types import Check, FunctionSpec, OutputError, Trial
-from robots import geometry as geo
-
-# --------------------------------------------------------------------------- helpers
-
-
-def _move(T: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """Pose after a constant body twist for dt seconds (the exact SE(3) exponential, in
-    closed form: scipy's general expm costs milliseconds a call)."""
-    # Plain-float arithmetic where it is cheap: a closed-loop trial calls this ~70 times and
-    # numpy's per-call overhead on 3-vectors was most of the grader's time.
-    xi = np.asarray(twist, float) * dt
-    v, w = xi[:3], xi[3:]
-    wx, wy, wz = w.tolist()
-    theta = math.sqrt(wx * wx + wy * wy + wz * wz)
-    W = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-    if theta < 1e-8:
-        V = np.eye(3) + 0.5 * W
-    else:
-        V = (np.eye(3) + (1 - math.cos(theta)) / theta ** 2 * W
-             + (theta - math.sin(theta)) / theta ** 3 * W @ W)
-    step = np.eye(4)
-    step[:3, :3] = geo.rotation_from_rotvec(w)
-    step[:3, 3] = V @ v
-    return T @ step
-
-
-def _as_array(value, shape: tuple, what: str) -> np.ndarray:
-    if isinstance(value, (list, tuple)):
-        try:
-            value = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise OutputError(f"returned a list that is not a {shape} array of numbers") from None
-    if not isinstance(value, np.ndarray):
-        raise OutputError(f"returned {type(value).__name__}, expected {what}")
-    if value.shape != shape:
-        raise OutputError(f"returned shape {value.shape}, expected {shape} ({what})")
-    value = value.astype(float)
-    if not np.all(np.isfinite(value)):
-        raise OutputError("returned NaN or inf")
-    return value
+from autograder.scoring import lab3_servoing as scoring
+from autograder.scoring.lab3_servoing import _drive_ibvs, _features, _move
+from autograder.spec_types import Trial
 
 
 def _look_at_pose(rng, distance: float) -> np.ndarray:
@@ -98,37 +62,7 @@ def _trial_interaction(rng, index: int) -> Trial:
                  label=f"{n} point{'s' if n > 1 else ''}")
 
 
-def _measure_interaction(value, trial: Trial) -> dict[str, float]:
-    L = _as_array(value, trial.truth.shape, "the (2n, 6) interaction matrix, rows x1, y1, x2, ...")
-    err = np.abs(L - trial.truth)
-    return {"translation": float(err[:, :3].max()), "rotation": float(err[:, 3:].max())}
-
-
-INTERACTION_MATRIX = FunctionSpec(
-    name="interaction_matrix", points=4.0, n_trials=18, practice_trials=6, make_trial=_trial_interaction,
-    measure=_measure_interaction,
-    checks=(
-        Check("translation", "", 0.5, ((1.0, 1.0), (100.0, 0.5)),
-              "columns vx, vy, vz (the -1/Z and x/Z, y/Z terms) against finite differences"),
-        Check("rotation", "", 0.5, ((1.0, 1.0), (100.0, 0.5)),
-              "columns wx, wy, wz (the xy, 1 + x^2, 1 + y^2 terms and their signs)"),
-    ),
-    signature="interaction_matrix(x: (n,), y: (n,), Z: (n,)) -> L (2n, 6)",
-)
-
-
 # --------------------------------------------------------------------------- IBVS in closed loop
-
-SERVO_DT = 0.1             # s, one control period
-SERVO_ITERATIONS = 80
-SERVO_MAX_LINEAR = 0.5     # m/s: a saturation, as on any robot
-SERVO_MAX_ANGULAR = 1.5    # rad/s
-SERVO_FOV = 1.0            # |x|, |y| beyond this (a 90-degree view) and the target is lost
-
-
-def _features(T_cam, pts_world):
-    P = (pts_world - T_cam[:3, 3]) @ T_cam[:3, :3]  # rows of R^T (p - t): the camera frame
-    return P[:, :2] / P[:, 2:], P[:, 2]
 
 
 def _true_interaction(x, y, Z) -> np.ndarray:
@@ -142,14 +76,6 @@ def _true_interaction(x, y, Z) -> np.ndarray:
 
 def _reference_ibvs(s, s_star, Z, gain):
     return -gain * np.linalg.pinv(_true_interaction(s[:, 0], s[:, 1], Z)) @ (s - s_star).reshape(-1)
-
-
-def _ibvs_substitutes(args) -> dict:
-    # ibvs_velocity is scored on its own: its call of interaction_matrix(x, y, Z) gets the
-    # true matrix, so an error in L costs its points once, in interaction_matrix.
-    s, _, Z, _ = args
-    s, Z = np.asarray(s, dtype=float), np.asarray(Z, dtype=float)
-    return {"interaction_matrix": [((s[:, 0], s[:, 1], Z), _true_interaction(s[:, 0], s[:, 1], Z))]}
 
 
 def _trial_ibvs(rng, index: int) -> Trial:
@@ -168,9 +94,14 @@ def _trial_ibvs(rng, index: int) -> Trial:
         start = orbit @ goal
         start[:3, 3] += rng.uniform(0.03, 0.08) * direction / np.linalg.norm(direction)
         gain = float(rng.uniform(1.0, 2.5))
+        # The law's twist at the start, computed as the closed loop computes its first
+        # features, so the public drive compares the student's first twist without the law.
+        s, Z = _features(start, pts)
+        s_star, _ = _features(goal, pts)
         # A correct law reaches the goal to micrometres; the tolerance leaves room for any
         # sound variant (a different pseudo-inverse) and none for a law that stalls or diverges.
-        trial = Trial(args=(), truth={"pts": pts, "start": start, "goal": goal, "gain": gain},
+        trial = Trial(args=(), truth={"pts": pts, "start": start, "goal": goal, "gain": gain,
+                                      "first_twist": _reference_ibvs(s, s_star, Z, gain)},
                       tol={"position": 0.1, "rotation": 0.01, "velocity": 1e-6},
                       label=f"{n} points, offset {np.degrees(angle):.0f} deg, gain {gain:.2f}")
         if _within_reach(trial):
@@ -188,53 +119,6 @@ def _within_reach(trial: Trial) -> bool:
     fairness benchmark's ibvs_velocity row measures what the single check leaves.)"""
     reached = _drive_ibvs(lambda s, s_star, Z, gain: _reference_ibvs(s, s_star, Z, gain), trial)
     return reached["position"] < 0.01 and reached["rotation"] < 0.001
-
-
-def _drive_ibvs(call, trial: Trial) -> dict:
-    pts, goal, gain = trial.truth["pts"], trial.truth["goal"], trial.truth["gain"]
-    s_star, _ = _features(goal, pts)
-    T = trial.truth["start"].copy()
-    velocity_error = math.inf
-    for k in range(SERVO_ITERATIONS):
-        s, Z = _features(T, pts)
-        if np.any(Z <= 0.02) or np.any(np.abs(s) > SERVO_FOV):
-            break  # the target left the view: the servo is over, wherever the camera is
-        if np.sqrt(np.mean(np.sum((s - s_star) ** 2, axis=1))) < 1e-9:
-            break
-        v = _as_array(call(s.copy(), s_star.copy(), Z.copy(), gain), (6,),
-                      "the camera twist (vx, vy, vz, wx, wy, wz)")
-        if k == 0:
-            ref = _reference_ibvs(s, s_star, Z, gain)
-            velocity_error = float(np.linalg.norm(v - ref) / np.linalg.norm(ref))
-        nv, nw = np.linalg.norm(v[:3]), np.linalg.norm(v[3:])
-        v = v * min(1.0, SERVO_MAX_LINEAR / max(nv, 1e-300), SERVO_MAX_ANGULAR / max(nw, 1e-300))
-        T = _move(T, v, SERVO_DT)
-    delta = np.linalg.inv(goal) @ T
-    return {"position": float(np.linalg.norm(delta[:3, 3]) * 1000.0),
-            "rotation": float(np.degrees(Rotation.from_matrix(delta[:3, :3]).magnitude())),
-            "velocity": velocity_error}
-
-
-def _measure_ibvs(value, trial: Trial) -> dict[str, float]:
-    return value  # the closed loop above measured it
-
-
-IBVS_VELOCITY = FunctionSpec(
-    name="ibvs_velocity", points=4.0, n_trials=6, practice_trials=2, make_trial=_trial_ibvs,
-    measure=_measure_ibvs, drive=_drive_ibvs,
-    checks=(
-        Check("position", "mm", 0.35, ((1.0, 1.0), (10.0, 0.5)),
-              f"camera position error to the goal after {SERVO_ITERATIONS} periods of "
-              f"{SERVO_DT} s (does the law converge? check the sign of the gain)"),
-        Check("rotation", "deg", 0.35, ((1.0, 1.0), (10.0, 0.5)),
-              "camera rotation error to the goal at the end of the closed loop"),
-        Check("velocity", "", 0.3, ((1.0, 1.0),),
-              "relative error of the first twist against v = -gain pinv(L) (s - s*)"),
-    ),
-    signature="ibvs_velocity(s: (n, 2), s_star: (n, 2), Z: (n,), gain: float) -> v (6,)",
-    time_limit_s=20.0,
-    substitutes=_ibvs_substitutes,
-)
 
 
 # --------------------------------------------------------------------------- piece position
@@ -290,20 +174,12 @@ def _trial_piece(rng, index: int) -> Trial:
                  label=f"{1000 * sigma:.1f} mm noise" + (", hole at the pixel" if hole else ""))
 
 
-def _measure_piece(value, trial: Trial) -> dict[str, float]:
-    p = _as_array(value, (3,), "the point (X, Y, Z) in the camera frame, metres")
-    return {"position": float(np.linalg.norm(p - trial.truth) * 1000.0)}
-
-
-PIECE_POSITION = FunctionSpec(
-    name="piece_position", points=2.0, n_trials=6, practice_trials=2, make_trial=_trial_piece,
-    measure=_measure_piece,
-    checks=(
-        Check("position", "mm", 1.0, ((1.0, 1.0), (3.0, 0.5)),
-              "distance to the true surface point at the pixel (a depth hole there needs the "
-              "median of the valid neighbours; X = (u - cx) Z / fx)"),
-    ),
-    signature="piece_position(depth: (H, W) metres, uv: (2,) px, K: (3, 3)) -> p_cam (3,)",
-)
+INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction)
+IBVS_VELOCITY = replace(scoring.IBVS_VELOCITY, make_trial=_trial_ibvs)
+PIECE_POSITION = replace(scoring.PIECE_POSITION, make_trial=_trial_piece)
 
 SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)
+
+# What computes a graded quantity (a truth, the reference law): never in a student's copy.
+ANSWERS = (_true_interaction, _reference_ibvs, _within_reach, _trial_interaction, _trial_ibvs,
+           _trial_piece)

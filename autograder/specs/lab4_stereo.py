@@ -1,43 +1,30 @@
-"""Lab 4 (stereo single-shot hand-to-eye): the graded functions and how they are scored.
+"""Lab 4 (stereo single-shot hand-to-eye), private side: problems, truths and tolerances.
 
-Four pure functions:
+The scoring is public, in :mod:`autograder.scoring.lab4_stereo`; this module draws the problems
+and computes their truths, and is never given to students:
 
-* ``frame_from_three_points`` and ``per_axis_rmse`` are exact formulas, graded with the
-  float64-rounding tolerances of lab 0 on random frames and point sets; the frame puts 0.9
-  of its credit on the rotation (the cross products, what it teaches) and 0.1 on the
-  translation (``p_origin`` copied);
-* ``reproject`` is graded on points seen by random rectified stereo pairs (focal length,
-  principal points, baseline drawn per problem, the right principal point shifted as
+* ``frame_from_three_points`` and ``per_axis_rmse``: random frames and point sets, exact
+  formulas (float64-rounding tolerances of lab 0);
+* ``reproject``: points seen by random rectified stereo pairs (focal length, principal
+  points, baseline drawn per problem, the right principal point shifted as
   ``cv2.stereoRectify`` does without ``CALIB_ZERO_DISPARITY``), so both the homogeneous
   division and the ``(cx - cx') / Tx`` term of Q matter; float32 arithmetic is correct code
   and keeps full credit (the tolerance bounds its rounding, :func:`float32_bound_mm`);
-* ``per_axis_rmse`` is the RMS residual along each *camera* axis (where stereo's depth error
-  shows up on z), the same function and convention as in lab 1, so ``check(per_axis_rmse)``
-  scores it the same whichever lab's specification it finds;
-* ``hand_to_eye_from_three_points`` is graded on ``autograder.synthetic.make_three_point``
-  experiments (flat and inclined boards, camera and pointer noise): the RMS distance between
-  the returned map and the true one over the 12 check points, within a band set by the noise.
+* ``hand_to_eye_from_three_points``: ``autograder.synthetic.make_three_point`` experiments
+  (flat and inclined boards, camera and pointer noise), with a tolerance set by the noise;
+  its calls of ``frame_from_three_points`` get the true frames (:func:`_hand_to_eye_substitutes`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from autograder import synthetic
-from autograder.spec_types import (
-    EXACT_BANDS,
-    EXACT_TOL,
-    Check,
-    FunctionSpec,
-    OutputError,
-    Trial,
-    as_output_pose,
-    measure_pose,
-    pose_errors,
-    random_pose,
-)
+from autograder.scoring import lab4_stereo as scoring
+from autograder.spec_types import EXACT_TOL, Trial, random_pose
 from robots import geometry as geo
 
 # --------------------------------------------------------------------------- three-point frame
@@ -56,18 +43,6 @@ def _trial_frame(rng, index: int) -> Trial:
     return Trial(args=(p[0], p[1], p[2]), truth=parent_T_frame, tol=dict(EXACT_TOL),
                  label="on the y axis" if on_axis else "off the y axis")
 
-
-FRAME_FROM_THREE_POINTS = FunctionSpec(
-    name="frame_from_three_points", points=3.0, n_trials=18, practice_trials=6,
-    make_trial=_trial_frame, measure=measure_pose,
-    checks=(
-        Check("rotation", "deg", 0.9, EXACT_BANDS,
-              "x = unit(p_x - o), z = unit(x cross (p_xy - o)), y = z cross x: right-handed, "
-              "with p_xy on the +y side"),
-        Check("translation", "mm", 0.1, EXACT_BANDS, "the origin: p_origin itself"),
-    ),
-    signature="frame_from_three_points(p_origin (3,), p_x (3,), p_xy (3,)) -> parent_T_frame",
-)
 
 # --------------------------------------------------------------------------- Q reprojection
 
@@ -128,32 +103,6 @@ REPROJECT_TOL_MM = 1e-3
 FLOAT32_FACTOR = 2.0
 
 
-def _measure_point(value, trial: Trial) -> dict[str, float]:
-    p = _as_point(value)
-    return {"position": float(np.linalg.norm(p - trial.truth)) * 1000.0}
-
-
-def _as_point(value) -> np.ndarray:
-    try:
-        p = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise OutputError("returned something that is not a 3-vector of numbers") from None
-    if p.size != 3:
-        raise OutputError(f"returned shape {p.shape}, expected a 3-vector (x, y, z) in metres")
-    p = p.reshape(3)
-    if not np.all(np.isfinite(p)):
-        raise OutputError("returned NaN or inf")
-    return p
-
-
-REPROJECT = FunctionSpec(
-    name="reproject", points=3.0, n_trials=24, practice_trials=8, make_trial=_trial_reproject,
-    measure=_measure_point,
-    checks=(Check("position", "mm", 1.0, ((1.0, 1.0), (100.0, 0.5)),
-                  "Q @ [u, v, d, 1] = [X, Y, Z, W]; the point is [X, Y, Z] / W"),),
-    signature="reproject(u: float, v: float, d: float, Q: (4, 4)) -> p_cam (3,) metres",
-)
-
 # --------------------------------------------------------------------------- hand-to-eye
 
 
@@ -199,27 +148,12 @@ def _hand_to_eye_substitutes(args) -> dict:
         for points in args]}
 
 
-def _measure_hand_to_eye(value, trial: Trial) -> dict[str, float]:
-    T = as_output_pose(value)
-    truth, check_cam = trial.truth
-    if not math.isfinite(pose_errors(T, truth)["rotation"]):
-        raise OutputError("returned a rotation block that is not a proper rotation (det +1)")
-    diff = geo.transform_points(T, check_cam) - geo.transform_points(truth, check_cam)
-    return {"mapping": float(np.sqrt(np.mean(np.sum(diff**2, axis=1)))) * 1000.0}
-
-
-HAND_TO_EYE = FunctionSpec(
-    name="hand_to_eye_from_three_points", points=2.0, n_trials=18, practice_trials=6,
-    make_trial=_trial_hand_to_eye, measure=_measure_hand_to_eye,
-    checks=(Check("mapping", "mm", 1.0, ((1.0, 1.0), (2.0, 0.5)),
-                  "base_T_cam = base_T_world @ inv(cam_T_world); RMS error of the map over "
-                  "12 board points"),),
-    signature="hand_to_eye_from_three_points(cam_points (3, 3), base_points (3, 3)) -> "
-              "base_T_cam (4, 4)",
-    substitutes=_hand_to_eye_substitutes,
-)
-
 # --------------------------------------------------------------------------- per-axis RMSE
+
+
+def _true_rmse(T, cam, base) -> np.ndarray:
+    r_cam = (geo.transform_points(T, cam) - base) @ T[:3, :3]  # R^T r_i, row by row
+    return np.sqrt(np.mean(r_cam**2, axis=0))
 
 
 def _trial_rmse(rng, index: int) -> Trial:
@@ -230,30 +164,18 @@ def _trial_rmse(rng, index: int) -> Trial:
     # x and y, so an answer that uses the base axes or mixes up the axes shows.
     sigma = np.sort(rng.uniform(0.5, 5.0, 3)) / 1000.0
     base = geo.transform_points(T, cam + rng.normal(0.0, 1.0, (n, 3)) * sigma)
-    r_cam = (geo.transform_points(T, cam) - base) @ T[:3, :3]  # R^T r_i, row by row
-    return Trial(args=(T, cam, base), truth=np.sqrt(np.mean(r_cam**2, axis=0)),
+    return Trial(args=(T, cam, base), truth=_true_rmse(T, cam, base),
                  tol={"rmse": 1e-6}, label=f"{n} points")
 
 
-def _measure_rmse(value, trial: Trial) -> dict[str, float]:
-    try:
-        r = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise OutputError("returned something that is not 3 numbers") from None
-    if r.shape != (3,):
-        raise OutputError(f"returned shape {r.shape}, expected (3,): one RMSE per base axis")
-    if not np.all(np.isfinite(r)):
-        raise OutputError("returned NaN or inf")
-    return {"rmse": float(np.abs(r - trial.truth).max()) * 1000.0}
-
-
-PER_AXIS_RMSE = FunctionSpec(
-    name="per_axis_rmse", points=2.0, n_trials=18, practice_trials=6, make_trial=_trial_rmse, measure=_measure_rmse,
-    checks=(Check("rmse", "mm", 1.0, EXACT_BANDS,
-                  "r_i = base_T_cam @ cam_i - base_i, turned onto the camera axes (R^T r_i); "
-                  "sqrt(mean(r**2)) per camera axis"),),
-    signature="per_axis_rmse(base_T_cam (4, 4), cam_points (N, 3), base_points (N, 3)) -> (3,) m "
-              "along the camera axes",
-)
+FRAME_FROM_THREE_POINTS = replace(scoring.FRAME_FROM_THREE_POINTS, make_trial=_trial_frame)
+REPROJECT = replace(scoring.REPROJECT, make_trial=_trial_reproject)
+HAND_TO_EYE = replace(scoring.HAND_TO_EYE, make_trial=_trial_hand_to_eye,
+                      substitutes=_hand_to_eye_substitutes)
+PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_rmse)
 
 SPECS = (FRAME_FROM_THREE_POINTS, REPROJECT, HAND_TO_EYE, PER_AXIS_RMSE)
+
+# What computes a graded quantity (a truth, the true frames): never in a student's copy.
+ANSWERS = (_three_point_frame, _hand_to_eye_substitutes, _true_rmse, _trial_frame,
+           _trial_reproject, _trial_hand_to_eye, _trial_rmse)

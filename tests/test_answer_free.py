@@ -1,0 +1,291 @@
+"""Students' copies hold no code that computes an answer, and check() shows the same table.
+
+``check()`` scores on practice data (autograder/practice.py) with the public scoring
+(autograder/scoring/); the generators and answer functions (autograder/specs/) stay on the
+instructor's side. Here:
+
+* the practice data written to a file and loaded back holds exactly the problems the private
+  generators draw, with their mistakes and stand-in tables;
+* for every graded function of every lab, the notebook's solution and each correct variant
+  and classic mistake of the fairness benchmark get the same points, per-check verdicts and
+  errors from ``check()`` on that file as the grader's in-memory scoring on the generators
+  (with the analytic interaction matrix of before as IBVS's stand-in, and the reference law
+  run inside the loop as before);
+* no solution region of a source notebook and no private ``ANSWERS`` function, normalised
+  through ``ast``, appears in the student wheel or in ``cobotlab labs student``'s output;
+* and that search finds a renamed copy planted on purpose.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autograder import checks, forbidden, practice
+from autograder.specs import lab3_servoing as lab3
+
+TESTS = Path(__file__).resolve().parent
+sys.path.insert(0, str(TESTS))
+sys.path.insert(0, str(TESTS.parent / "benchmarks"))
+import answer_leaks  # noqa: E402
+import grading_fairness as fairness  # noqa: E402
+
+LABS = sorted(checks.SCORING)
+
+
+@pytest.fixture(scope="module")
+def practice_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("practice")
+    for lab in LABS:
+        practice.write_practice(lab, folder)
+    return folder
+
+
+# --------------------------------------------------------------------------- the data
+
+
+def _same_value(a, b) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype \
+            and a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+    if isinstance(a, (tuple, list)):
+        return type(a) is type(b) and len(a) == len(b) and all(map(_same_value, a, b))
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(
+            _same_value(a[k], b[k]) for k in a)
+    return type(a) is type(b) and (a == b or (a != a and b != b))
+
+
+@pytest.mark.parametrize("lab", LABS)
+def test_practice_file_holds_the_generators_problems(lab, practice_dir, monkeypatch):
+    monkeypatch.setenv(practice.ENV_DIR, str(practice_dir))
+    loaded = practice.load_practice(lab)
+    assert loaded.source == str(practice_dir / practice.practice_file_name(lab))
+    assert loaded.seeds == sorted(checks.PUBLIC_SEEDS + checks.KERNEL_SEEDS)
+    for spec in checks.SPECS[lab]:
+        for seed in loaded.seeds:
+            drawn = checks.public_trials(spec, seed)
+            read = loaded.trials(spec.name, seed)
+            assert len(read) == len(drawn) == (spec.practice_trials or spec.n_trials)
+            for a, b in zip(drawn, read):
+                assert _same_value(a.args, b.args), (spec.name, seed, a.label)
+                truth = a.truth
+                if spec.drive is not None:  # the loop's reference is part of the truth
+                    assert "first_twist" in truth
+                assert _same_value(truth, b.truth), (spec.name, seed)
+                assert (a.tol, a.label, a.all_or_nothing, a.raises) == \
+                    (b.tol, b.label, b.all_or_nothing, b.raises)
+                expected = [(w, v) for w, v in spec.mistakes(a)] if spec.mistakes else []
+                assert _same_value(expected, b.mistakes)
+                tables = spec.substitutes(a.args) if spec.substitutes and not spec.drive \
+                    else None
+                assert _same_value(tables, b.substitutes)
+
+
+def test_a_student_install_without_the_file_is_told_what_to_fetch(tmp_path, monkeypatch):
+    monkeypatch.delenv(practice.ENV_DIR, raising=False)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(practice, "private_side_available", lambda: False)
+    with pytest.raises(practice.PracticeDataError) as err:
+        checks.evaluate(lambda T: T, "invert_pose", assignment="lab0_frames")
+    message = str(err.value)
+    assert practice.practice_file_name("lab0_frames") in message
+    assert "download the whole lab folder" in message
+
+
+def test_a_damaged_file_is_refused_as_data(tmp_path, monkeypatch):
+    import gzip
+    import json
+
+    monkeypatch.setenv(practice.ENV_DIR, str(tmp_path))
+    path = practice.write_practice("lab0_frames", tmp_path)
+    document = json.loads(gzip.decompress(path.read_bytes()))
+    trial = document["functions"]["invert_pose"]["0"][0]
+    trial["args"] = {"__pickle__": "Y29zCnN5c3RlbQ=="}  # not a wire type: never unpickled
+    path.write_bytes(gzip.compress(json.dumps(document).encode()))
+    with pytest.raises(practice.PracticeDataError, match="damaged"):
+        practice.practice_trials("lab0_frames", "invert_pose", [0])
+
+
+def test_the_student_side_imports_no_private_module(practice_dir):
+    """Importing what a notebook imports, then check() and hidden_test() on the practice
+    file, never imports autograder.specs, even where it could be imported."""
+    import os
+    import subprocess
+
+    code = ("import sys, autograder.checks, autograder.scoring, autograder.practice, "
+            "autograder.synthetic, autograder.datasets, robots, sim_backends\n"
+            "from autograder.checks import check, hidden_test\n"
+            "from robots import geometry as geo\n"
+            "def invert_pose(T):\n"
+            "    R, t = T[:3, :3], T[:3, 3]\n"
+            "    out = geo.make_pose(R.T, -R.T @ t)\n"
+            "    return out\n"
+            "check(invert_pose, assignment='lab0_frames')\n"
+            "hidden_test(invert_pose, assignment='lab0_frames')\n"
+            "print(sorted(m for m in sys.modules if m.startswith('autograder.specs')))")
+    env = {**os.environ, practice.ENV_DIR: str(practice_dir)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=TESTS.parent, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "invert_pose: 3 / 3 points" in done.stdout, done.stdout
+    assert done.stdout.strip().endswith("[]"), done.stdout
+
+
+# --------------------------------------------------------------------------- the same table
+
+
+def _analytic_ibvs_substitutes(args) -> dict:
+    """Before: IBVS's stand-in answered with the analytic interaction matrix."""
+    s, _, Z, _ = args
+    s, Z = np.asarray(s, dtype=float), np.asarray(Z, dtype=float)
+    return {"interaction_matrix": [((s[:, 0], s[:, 1], Z),
+                                    lab3._true_interaction(s[:, 0], s[:, 1], Z))]}
+
+
+def _drive_with_the_law_inside(call, trial):
+    """Before: the closed loop ran the reference law on its own first features."""
+    truth = {k: v for k, v in trial.truth.items() if k != "first_twist"}
+    shadow = replace(trial, truth=truth)
+
+    def spy(s, s_star, Z, gain):
+        if "first_twist" not in truth:
+            truth["first_twist"] = lab3._reference_ibvs(s, s_star, Z, gain)
+        return call(s, s_star, Z, gain)
+
+    return lab3.IBVS_VELOCITY.drive(spy, shadow)
+
+
+def _before(spec, func, seeds) -> checks.FunctionResult:
+    """The grader's scoring of before: generators, spec-side mistakes and stand-ins."""
+    if spec.drive is not None:
+        spec = replace(spec, substitutes=_analytic_ibvs_substitutes,
+                       drive=_drive_with_the_law_inside)
+    trials = [t for s in seeds for t in checks.public_trials(spec, s)]
+    with forbidden.Tripwire(spec.forbidden, ()) as tripwire:
+        outcomes = [checks._call_in_process(func, t, spec) for t in trials]
+    used = set(tripwire.hits) | set(checks._static_forbidden(func, spec, ()))
+    if used:
+        return checks.forbidden_result(spec, used)
+    return checks.score_function(spec, trials, outcomes)
+
+
+def _close(a: float, b: float) -> bool:
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return abs(a - b) <= max(1e-12, 1e-9 * max(abs(a), abs(b)))
+
+
+def _assert_same(before: checks.FunctionResult, after: checks.FunctionResult, what: str):
+    assert after.points == before.points, (what, before.summary(), after.summary())
+    assert (after.n_problems, after.n_failed, after.forbidden) == \
+        (before.n_problems, before.n_failed, before.forbidden), what
+    assert after.errors == before.errors, what
+    assert after.error_counts == before.error_counts, what
+    assert [c.name for c in after.checks] == [c.name for c in before.checks], what
+    for b, a in zip(before.checks, after.checks):
+        assert (a.n_full, a.n_trials, a.credit, a.n_voided) == \
+            (b.n_full, b.n_trials, b.credit, b.n_voided), (what, b.name)
+        for field in ("worst_error", "median_error", "tolerance"):
+            assert _close(getattr(a, field), getattr(b, field)), \
+                (what, b.name, field, getattr(b, field), getattr(a, field))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("lab", LABS)
+def test_check_on_practice_data_gives_the_same_table(lab, practice_dir, monkeypatch):
+    monkeypatch.setenv(practice.ENV_DIR, str(practice_dir))
+    np.seterr(all="ignore")  # the mistakes divide by zero on purpose
+    table = fairness.variants(lab)
+    seen = 0
+    for spec in checks.SPECS[lab]:
+        assert table[spec.name][0].name == "notebook solution"
+        for variant in table[spec.name]:
+            for seeds in (checks.PUBLIC_SEEDS, checks.KERNEL_SEEDS):
+                what = f"{lab}.{spec.name} ({variant.name}) on seeds {seeds}"
+                before = _before(spec, variant.func, seeds)
+                after = checks.evaluate(variant.func, spec.name, seeds, lab, reference=True)
+                _assert_same(before, after, what)
+                seen += 1
+        assert practice.load_practice(lab).source.startswith(str(practice_dir))
+    assert seen >= 2 * 3 * len(checks.SPECS[lab])
+
+
+# --------------------------------------------------------------------------- no answer code
+
+
+@pytest.fixture(scope="module")
+def needles():
+    found = answer_leaks.answer_functions()
+    # every graded function of every lab has its solution among them
+    names = {n.origin.rsplit("def ", 1)[1] for n in found}
+    for lab, specs in checks.SCORING.items():
+        for spec in specs:
+            assert spec.name in names, f"{lab}.{spec.name}: no solution region found"
+    return found
+
+
+def test_the_leak_search_finds_a_renamed_copy(needles, tmp_path):
+    planted = tmp_path / "innocent.py"
+    planted.write_text('''
+import numpy as onp
+
+
+def helper_matrix(u: "array", v, depth) -> "array":
+    """Nothing to see here."""
+    # a comment
+    M = onp.zeros((len(u), 2, 6))
+    M[:, 0, 0], M[:, 0, 2], M[:, 0, 3], M[:, 0, 4], M[:, 0, 5] = -1 / depth, u / depth, u * v, -(1 + u * u), v
+    M[:, 1, 1], M[:, 1, 2], M[:, 1, 3], M[:, 1, 4], M[:, 1, 5] = -1 / depth, v / depth, 1 + v * v, -u * v, -u
+    return M.reshape(-1, 6)
+
+
+def unrelated(a, b):
+    return a + b
+''')
+    findings = answer_leaks.find_answers([planted], needles)
+    assert len(findings) == 1 and "_true_interaction" in findings[0], findings
+
+
+def test_the_student_wheel_holds_no_answer_code(needles, tmp_path_factory):
+    from test_student_install import _build_wheel
+
+    wheel = _build_wheel(tmp_path_factory)
+    names = zipfile.ZipFile(wheel).namelist()
+    assert not any(n.startswith("autograder/specs/") for n in names), names
+    assert any(n.startswith("autograder/scoring/") for n in names)
+    unpacked = tmp_path_factory.mktemp("wheel")
+    zipfile.ZipFile(wheel).extractall(unpacked)
+    assert answer_leaks.find_answers([unpacked], needles) == []
+
+
+def test_the_student_labs_hold_no_answer_code_and_carry_practice_data(needles, tmp_path):
+    from cobotlab.labs import write_student_labs
+
+    written = write_student_labs(tmp_path / "labs")
+    assert {p.parent.name for p in written} == set(LABS)
+    for lab in LABS:
+        assert (tmp_path / "labs" / lab / practice.practice_file_name(lab)).is_file()
+    assert answer_leaks.find_answers([tmp_path / "labs"], needles) == []
+
+
+@pytest.mark.parametrize("which", ["worker", "kernel"])
+def test_the_grading_views_hold_no_answer_code(needles, which):
+    """What the grading worker and nbgrader's kernel may read of cobotlab (the allow list of
+    autograder/views.py): no solution region, no private answer function. The third-party
+    libraries in the view are not searched: none of them holds a lab's answers."""
+    from autograder import views
+
+    view = views.worker_view() if which == "worker" else views.kernel_view()
+    own = [str(Path(__import__(name).__file__).parent)
+           for name in ("robots", "sim_backends", "autograder")]
+    shown = [p for p in view.paths() if any(p == d or p.startswith(d + "/") for d in own)]
+    assert any(p.endswith("_worker.py") for p in shown), shown   # the view was read
+    assert not any("/specs" in p or p.endswith(("course.py", "grading.py")) for p in shown)
+    assert answer_leaks.find_answers(shown, needles) == []
