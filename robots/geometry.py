@@ -13,6 +13,10 @@ Conventions (see the project's DESIGN notes):
 
 Every function that takes poses validates them and raises ``ValueError`` naming the index of
 the first bad one, so a student sees "pose 7 has det -1" rather than a wrong answer later.
+The exceptions, by design, are the fast paths the solvers call in their inner loops:
+``invert``, ``compose``, ``relative`` and ``transform_points`` check shapes (and refuse
+strings, None and complex values) but not rigidity or finiteness; validate untrusted poses
+once, at the public entry, with ``as_pose`` / ``as_poses``.
 """
 
 from __future__ import annotations
@@ -46,7 +50,9 @@ __all__ = [
     "relative",
     "transform_points",
     "project_to_so3",
+    "NEAREST_ROTATION_GAP",
     "skew",
+    "ROTVEC_MAX_ANGLE",
     "pose_from_rotvec",
     "rotation_from_rotvec",
     "rotvec_from_rotation",
@@ -67,6 +73,8 @@ __all__ = [
 
 # --------------------------------------------------------------------------- validation
 
+_F64 = np.dtype(np.float64)  # arrays of this dtype object skip conversion (fast paths)
+
 
 def as_real_array(x, name: str) -> np.ndarray:
     """``x`` as a float64 array; ``ValueError`` for complex input.
@@ -75,7 +83,17 @@ def as_real_array(x, name: str) -> np.ndarray:
     so a complex pose or point list (e.g. from ``np.linalg.eig`` or an FFT) would pass as
     its real part.
     """
-    raw = np.asarray(x)
+    if type(x) is np.ndarray and x.dtype is _F64:  # the common case: nothing to do
+        return x
+    if x is None:
+        raise ValueError(f"{name} is None; expected numbers (an array or a list of floats)")
+    if isinstance(x, (str, bytes)):
+        raise ValueError(f"{name} must be numeric, got the string {x!r}")
+    try:
+        raw = np.asarray(x)
+    except (TypeError, ValueError) as err:  # ragged nested lists
+        raise ValueError(f"{name} must be numeric (an array or nested lists of floats of one "
+                         f"shape), got {type(x).__name__}: {err}") from None
     if np.iscomplexobj(raw) or (raw.dtype == object and any(isinstance(v, complex)
                                                             for v in raw.ravel())):
         raise ValueError(
@@ -85,7 +103,8 @@ def as_real_array(x, name: str) -> np.ndarray:
     try:
         return np.asarray(raw, dtype=float)
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be numeric: {err}") from None
+        raise ValueError(f"{name} must be numeric (an array or nested lists of floats of one "
+                         f"shape), got {type(x).__name__}: {err}") from None
 
 
 def _orthonormal_message(label: str, gram_error: float) -> str:
@@ -237,15 +256,16 @@ def as_pose(T, name: str = "pose") -> np.ndarray:
 
 
 def make_pose(R=None, t=None) -> np.ndarray:
-    """Build a (4, 4) pose from a (3, 3) rotation (default identity) and a translation in metres."""
+    """Build a (4, 4) pose from a (3, 3) rotation (default identity) and a translation in metres.
+
+    ``R`` is validated (``as_rotation``); ``t`` is checked for shape only, not finiteness: a
+    constructor builds what it is given (tests build invalid poses with it), and every
+    function that takes a pose refuses NaN and inf through ``as_pose``."""
     T = np.eye(4)
     if R is not None:
-        T[:3, :3] = as_rotation(R)
+        T[:3, :3] = as_rotation(R, "R")
     if t is not None:
-        t = as_real_array(t, "translation")
-        if t.shape not in ((3,), (3, 1)):
-            raise ValueError(f"translation must have 3 elements, got shape {t.shape}")
-        T[:3, 3] = t.reshape(3)
+        T[:3, 3] = _translation(t, "t", finite=False)
     return T
 
 
@@ -253,10 +273,19 @@ def invert(T) -> np.ndarray:
     """Inverse of a pose or of each pose in an (N, 4, 4) stack: ``b_T_a = invert(a_T_b)``.
 
     Uses R^T rather than a general matrix inverse, so the result stays exactly rigid.
+
+    Fast path, unvalidated by design: solvers call this in their inner loops on poses they
+    validated once at their public entry (``as_pose`` / ``as_poses``). Only the shape is
+    checked (and strings, None, complex values are refused). The rotation block is NOT checked
+    to be a rotation, nor the bottom row, nor finiteness: NaN in gives NaN out, and a
+    non-rigid T gives the rigid reading ``[R^T, -R^T t]``, not ``np.linalg.inv(T)``. Validate
+    untrusted input first with ``as_pose(T)``.
     """
-    T = np.asarray(T, dtype=float)
+    if type(T) is not np.ndarray or T.dtype is not _F64:
+        T = as_real_array(T, "T")
     if T.shape[-2:] != (4, 4):
-        raise ValueError(f"invert expects (4, 4) or (N, 4, 4), got {T.shape}")
+        raise ValueError(f"invert: T must be a pose (4, 4) or a stack (N, 4, 4), got shape "
+                         f"{T.shape}")
     R_t = np.swapaxes(T[..., :3, :3], -1, -2)
     out = np.zeros_like(T)
     out[..., :3, :3] = R_t
@@ -269,45 +298,133 @@ def compose(*poses) -> np.ndarray:
     """Chain poses left to right: ``compose(a_T_b, b_T_c) == a_T_c``.
 
     Arguments may be (4, 4) or (N, 4, 4) stacks; stacks broadcast against single poses.
+
+    Fast path, unvalidated by design (it sits in the solvers' inner loops): each argument's
+    shape is checked, and strings, None and complex values are refused, but rotation blocks,
+    bottom rows and finiteness are not: NaN in gives NaN out and non-rigid matrices are
+    multiplied as they are. Validate untrusted poses with ``as_pose`` / ``as_poses`` once, at
+    the public entry.
     """
     if not poses:
         return np.eye(4)
-    out = np.asarray(poses[0], dtype=float)
-    for T in poses[1:]:
-        out = out @ np.asarray(T, dtype=float)
+    out = None
+    for i, T in enumerate(poses):
+        if type(T) is not np.ndarray or T.dtype is not _F64:
+            T = as_real_array(T, f"compose argument {i}")
+        if T.shape[-2:] != (4, 4):
+            raise ValueError(f"compose argument {i} must be a pose (4, 4) or a stack (N, 4, 4), "
+                             f"got shape {T.shape}")
+        if out is None:
+            out = T
+            continue
+        if out.ndim > 2 and T.ndim > 2 and out.shape[:-2] != T.shape[:-2]:
+            try:
+                np.broadcast_shapes(out.shape[:-2], T.shape[:-2])
+            except ValueError:
+                raise ValueError(
+                    f"compose argument {i} is a stack of shape {T.shape} but the poses before "
+                    f"it chain to shape {out.shape}: stacks must have the same length (single "
+                    "poses broadcast against stacks)") from None
+        out = out @ T
     return out
 
 
 def relative(a_T_b, a_T_c) -> np.ndarray:
-    """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a."""
-    return invert(a_T_b) @ np.asarray(a_T_c, dtype=float)
+    """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a.
+
+    A fast path like :func:`invert` and :func:`compose`: shapes are checked, rigidity and
+    finiteness are not."""
+    return compose(invert(a_T_b), a_T_c)
 
 
 def transform_points(a_T_b, points_b) -> np.ndarray:
-    """Map points (N, 3) or (3,) given in frame b into frame a. Metres in, metres out."""
-    T = np.asarray(a_T_b, dtype=float)
-    p = np.asarray(points_b, dtype=float)
+    """Map points (N, 3) or (3,) given in frame b into frame a. Metres in, metres out.
+
+    Fast path, unvalidated by design (it sits in inner loops: projections, residuals): the
+    shapes are checked -- ``a_T_b`` one (4, 4) pose, ``points_b`` (..., 3) -- and strings,
+    None and complex values are refused, but the pose is not checked to be rigid and NaN
+    passes through (NaN in, NaN out). Validate an untrusted pose with ``as_pose`` first.
+    """
+    T = a_T_b if type(a_T_b) is np.ndarray and a_T_b.dtype is _F64 else \
+        as_real_array(a_T_b, "a_T_b")
+    p = points_b if type(points_b) is np.ndarray and points_b.dtype is _F64 else \
+        as_real_array(points_b, "points_b")
+    if T.shape != (4, 4):
+        hint = (": for a stack of poses, loop or use np.einsum" if T.ndim == 3
+                and T.shape[1:] == (4, 4) else "")
+        raise ValueError(f"transform_points: a_T_b must be one pose of shape (4, 4), got shape "
+                         f"{T.shape}{hint}")
+    if p.ndim == 0 or p.shape[-1] != 3:
+        hint = (f"; transposed? pass points_b.T, shape {p.shape[::-1]}"
+                if p.ndim == 2 and p.shape[0] == 3 else "")
+        raise ValueError(f"transform_points: points_b must have shape (N, 3) or (3,) (metres), "
+                         f"got shape {p.shape}{hint}")
     return p @ T[:3, :3].T + T[:3, 3]
 
 
 def skew(v) -> np.ndarray:
     """The (3, 3) cross-product matrix: ``skew(a) @ b == np.cross(a, b)``."""
-    x, y, z = np.asarray(v, dtype=float).reshape(3)
+    v = as_real_array(v, "v")
+    if v.size != 3:
+        raise ValueError(f"skew: v must have 3 elements, got shape {v.shape}")
+    x, y, z = v.reshape(3)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def project_to_so3(M) -> np.ndarray:
-    """Nearest proper rotation to a (3, 3) matrix in the Frobenius norm (SVD, det forced to +1)."""
-    M = np.asarray(M, dtype=float)
-    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
-        what = f"shape {M.shape}" if M.shape != (3, 3) else "NaN or inf entries"
-        raise ValueError(f"project_to_so3 needs a finite (3, 3) matrix, got {what}")
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+#: ``project_to_so3`` refuses a matrix whose nearest rotation is not unique: when
+#: ``s2 + sign(det) s3 <= NEAREST_ROTATION_GAP * s1`` (singular values s1 >= s2 >= s3). At
+#: the limit a change of 1e-9 * s1 turns the answer by at most ~1e-3 rad (0.06 deg); an exact
+#: reflection (s = 1, 1, 1, det -1) or a matrix of rank <= 1 has gap 0, and a 1e-9 change can
+#: turn its "nearest rotation" by up to 180 deg.
+NEAREST_ROTATION_GAP = 1e-6
+
+
+def project_to_so3(M, name: str = "M") -> np.ndarray:
+    """Nearest proper rotation to a (3, 3) matrix in the Frobenius norm (SVD, det forced to +1).
+
+    Raises ``ValueError`` when that nearest rotation is not unique (or is on the verge of not
+    being, see ``NEAREST_ROTATION_GAP``): a reflection such as ``diag(1, 1, -1)`` (any axis may
+    be the one flipped back), a matrix of rank 0 or 1, or one whose two smallest singular
+    values tie with a negative determinant. Such a matrix has no meaningful nearest rotation;
+    it comes from a left-handed frame, a swapped axis, or degenerate data. ``name`` names the
+    matrix in the messages.
+    """
+    M = as_real_array(M, name)
+    if M.shape != (3, 3):
+        raise ValueError(f"project_to_so3: {name} must have shape (3, 3), got {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"project_to_so3: {name} contains NaN or inf")
+    U, s, Vt = np.linalg.svd(M)
+    sign = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    if not s[1] + sign * s[2] > NEAREST_ROTATION_GAP * s[0]:
+        det = np.linalg.det(M)
+        what = ("a reflection (det < 0 with its two smallest singular values equal): any of its "
+                "axes could be the one flipped back, e.g. a left-handed frame or a swapped axis"
+                if sign < 0 and s[2] > NEAREST_ROTATION_GAP * s[0] else
+                "rank-deficient (rank <= 1): it does not fix a rotation, e.g. degenerate data "
+                "such as all rotations about one axis, or a zero matrix")
+        raise ValueError(
+            f"{name} has no unique nearest rotation: singular values "
+            f"{', '.join(f'{v:.3g}' for v in s)}, det {det:+.3g}; it is {what}. A change of "
+            "1e-9 can turn the answer by up to 180 deg, so none is returned")
+    D = np.diag([1.0, 1.0, sign])
     return U @ D @ Vt
 
 
 # --------------------------------------------------------------------------- conversions
+
+
+def _translation(t, name: str = "t", finite: bool = True) -> list:
+    """A translation (3,) or (3, 1), metres, as 3 plain floats; ValueError naming ``name``
+    for a wrong shape, a non-number, and (if ``finite``) NaN or inf."""
+    t = as_real_array(t, name)
+    if t.shape not in ((3,), (3, 1)):
+        raise ValueError(f"{name} must be a translation of 3 numbers (metres), got shape "
+                         f"{t.shape}")
+    x, y, z = t.reshape(3).tolist()
+    if finite and not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}")
+    return [x, y, z]
 
 
 def _pose_from_rotation(R: np.ndarray, t) -> np.ndarray:
@@ -315,16 +432,50 @@ def _pose_from_rotation(R: np.ndarray, t) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = R
     if t is not None:
-        T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
+        T[:3, 3] = _translation(t)
     return T
+
+
+#: A rotation vector longer than this (radians) warns that it looks like degrees: no rotation
+#: needs more than a full turn (90 deg read as radians is 14 turns). Not an error: OpenCV's
+#: Levenberg-Marquardt refinement (``solvePnPRefineLM``) can return unwrapped vectors, e.g.
+#: 3e8 rad, that still encode the right rotation.
+ROTVEC_MAX_ANGLE = 2.0 * math.pi
+
+
+def _rotvec_components(rotvec, name: str) -> tuple[float, float, float, float]:
+    """(x, y, z, angle) of a rotation vector as plain floats: ValueError naming ``name`` for a
+    wrong shape, NaN or inf; a warning for an angle above ``ROTVEC_MAX_ANGLE`` (degrees?)."""
+    v = rotvec if type(rotvec) is np.ndarray and rotvec.dtype is _F64 else \
+        as_real_array(rotvec, name)
+    if v.size != 3 or v.ndim > 2:
+        raise ValueError(f"{name} must be a rotation vector of 3 numbers (axis * angle, "
+                         f"radians), got shape {v.shape}")
+    x, y, z = v.reshape(3).tolist()
+    theta = math.sqrt(x * x + y * y + z * z)
+    if not theta <= ROTVEC_MAX_ANGLE + 1e-9:  # also catches NaN and inf
+        if not math.isfinite(theta):
+            raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}")
+        warn_caller(
+            f"{name} {[x, y, z]} has angle {theta:.4g} rad ({math.degrees(theta):.4g} deg), more "
+            "than a full turn (2 pi): if it is in degrees, convert with np.radians(...) "
+            "(rotation vectors are radians); if it comes from an optimiser, wrap it with "
+            "rotvec_from_rotation(rotation_from_rotvec(v))")
+    return x, y, z, theta
 
 
 def pose_from_rotvec(rotvec, t=None) -> np.ndarray:
     """Pose from a rotation vector (axis * angle, radians) and a translation (metres).
 
-    This is the (rx, ry, rz) of UR controllers and OpenCV's ``Rodrigues``.
+    This is the (rx, ry, rz) of UR controllers and OpenCV's ``Rodrigues``, which report angles
+    in [0, pi]. NaN or inf raises ``ValueError``. An angle above 2 pi warns, naming degrees
+    (``[0, 0, 90]`` is 90 rad, 14 turns); it is not an error because OpenCV's LM refinement
+    can return such unwrapped vectors. Angles in (pi, 2 pi] are accepted silently: unusual
+    (the same rotation as angle 2 pi - theta about the opposite axis) but legitimate, e.g.
+    from random draws. ``t`` is checked: 3 finite numbers.
     """
-    return _pose_from_rotation(rotation_from_rotvec(rotvec), t)
+    x, y, z, theta = _rotvec_components(rotvec, "rotvec")
+    return _pose_from_rotation(_rotation_from_components(x, y, z, theta), t)
 
 
 # The conversions below sit in inner loops (IK iterations, grading and benchmark trials), where
@@ -332,9 +483,15 @@ def pose_from_rotvec(rotvec, t=None) -> np.ndarray:
 # ~10 us and agree with scipy to ~1e-15.
 
 def rotation_from_rotvec(rotvec) -> np.ndarray:
-    """(3, 3) rotation of a rotation vector (axis * angle, radians): Rodrigues' formula."""
-    x, y, z = (float(v) for v in np.asarray(rotvec, dtype=float).reshape(3))
-    theta = math.sqrt(x * x + y * y + z * z)
+    """(3, 3) rotation of a rotation vector (axis * angle, radians): Rodrigues' formula.
+
+    Raises ``ValueError`` for NaN or inf; warns for an angle above 2 pi (degrees, most
+    likely), as :func:`pose_from_rotvec`.
+    """
+    return _rotation_from_components(*_rotvec_components(rotvec, "rotvec"))
+
+
+def _rotation_from_components(x: float, y: float, z: float, theta: float) -> np.ndarray:
     if theta < 1e-4:  # Taylor series of sin(theta)/theta and (1 - cos(theta))/theta^2
         a, b = 1.0 - theta * theta / 6.0, 0.5 - theta * theta / 24.0
     else:
@@ -351,12 +508,13 @@ def rotvec_from_rotation(R) -> np.ndarray:
     A block that is not orthonormal to 1e-9 is projected onto SO(3) first (as scipy's
     ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector.
     """
-    R = np.asarray(R, dtype=float)
+    if type(R) is not np.ndarray or R.dtype is not _F64:
+        R = as_real_array(R, "R")
     if R.shape != (3, 3):
-        raise ValueError(f"rotvec_from_rotation needs a (3, 3) rotation, got shape {R.shape}")
+        raise ValueError(f"rotvec_from_rotation needs a (3, 3) rotation R, got shape {R.shape}")
     entries = _exact_rotation_entries(R)
     if entries is None:
-        entries = _exact_rotation_entries(project_to_so3(R))
+        entries = _exact_rotation_entries(project_to_so3(R, "R"))
     (a, b, c), (d, e, f), (g, h, i) = entries
     wx, wy, wz = h - f, c - g, d - b  # 2 sin(theta) * axis
     sin = math.sqrt(wx * wx + wy * wy + wz * wz) / 2.0
@@ -387,9 +545,11 @@ def rotvecs_from_rotations(R) -> np.ndarray:
     orthonormal to 1e-9, one by one through ``rotvec_from_rotation``. About 3x cheaper than
     scipy's ``Rotation.from_matrix(R).as_rotvec()`` on the ~200 motions of a 20-pose capture.
     """
-    R = np.asarray(R, dtype=float)
+    if type(R) is not np.ndarray or R.dtype is not _F64:
+        R = as_real_array(R, "R")
     if R.ndim != 3 or R.shape[1:] != (3, 3):
-        raise ValueError(f"rotvecs_from_rotations needs an (N, 3, 3) stack, got shape {R.shape}")
+        raise ValueError(f"rotvecs_from_rotations needs an (N, 3, 3) stack R, got shape "
+                         f"{R.shape}")
     w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
                  axis=1)  # 2 sin(theta) * axis
     sin = np.sqrt(np.sum(w * w, axis=1)) / 2.0
@@ -399,7 +559,7 @@ def rotvecs_from_rotations(R) -> np.ndarray:
         scale = np.where(theta < 1e-4, 0.5 + theta * theta / 12.0, theta / (2.0 * sin))
     out = w * scale[:, None]
     off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
-    for k in np.flatnonzero(~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL))):
+    for k in np.flatnonzero(~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))):
         out[k] = rotvec_from_rotation(R[k])
     return out
 
@@ -412,11 +572,15 @@ def rotvec_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
 
 def pose_from_quat_xyzw(quat_xyzw, t=None) -> np.ndarray:
     """Pose from a quaternion in (x, y, z, w) order (normalised here) and a translation (m)."""
-    q = np.asarray(quat_xyzw, dtype=float).reshape(4)
+    q = as_real_array(quat_xyzw, "quat_xyzw")
+    if q.size != 4 or q.ndim > 2:
+        raise ValueError(f"quat_xyzw must have 4 numbers (x, y, z, w), got shape {q.shape}")
+    q = q.reshape(4)
     x, y, z, w = q.tolist()
     norm = math.sqrt(x * x + y * y + z * z + w * w)
     if not math.isfinite(norm) or norm < 1e-12:
-        raise ValueError(f"quaternion {q} is not finite and non-zero")
+        raise ValueError(f"quat_xyzw {q} must be finite and non-zero (a unit quaternion, "
+                         "x, y, z, w)")
     x, y, z, w = x / norm, y / norm, z / norm, w / norm
     return _pose_from_rotation(np.array([
         [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
@@ -433,9 +597,32 @@ def quat_xyzw_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
     return q, T[:3, 3].copy()
 
 
+def _euler_angles(names, values, degrees: bool) -> list:
+    """Three angles as floats: ValueError naming a non-finite or non-numeric one; a warning
+    when radians are expected but an angle exceeds 2 pi (degrees, most likely)."""
+    out = []
+    for name, value in zip(names, values):
+        arr = as_real_array(value, name)
+        if arr.shape != ():
+            raise ValueError(f"{name} must be one angle, got shape {arr.shape}")
+        angle = float(arr)
+        if not math.isfinite(angle):
+            raise ValueError(f"{name} must be a finite angle, got {angle}")
+        out.append(angle)
+    big = [f"{n}={a:g}" for n, a in zip(names, out) if abs(a) > ROTVEC_MAX_ANGLE + 1e-9]
+    if big and not degrees:
+        warn_caller(f"{', '.join(big)}: more than a full turn in radians; these look like "
+                    "degrees: pass degrees=True or convert with np.radians(...)")
+    return out
+
+
 def pose_from_rpy(roll, pitch, yaw, t=None, degrees: bool = False) -> np.ndarray:
-    """Pose with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ = intrinsic ZYX)."""
-    rot = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=degrees)
+    """Pose with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (fixed-axis XYZ = intrinsic ZYX).
+
+    Radians unless ``degrees=True``; an angle above 2 pi in radians warns (degrees?), NaN
+    or inf raises ``ValueError``."""
+    angles = _euler_angles(("roll", "pitch", "yaw"), (roll, pitch, yaw), degrees)
+    rot = Rotation.from_euler("xyz", angles, degrees=degrees)
     return _pose_from_rotation(rot.as_matrix(), t)
 
 
@@ -450,7 +637,8 @@ def pose_from_euler_zyx(yaw, pitch, roll, t=None, degrees: bool = False) -> np.n
     The same rotation as ``pose_from_rpy(roll, pitch, yaw)``; offered because drivers such as
     Aubo's report (rz, ry, rx) in ZYX order.
     """
-    rot = Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=degrees)
+    angles = _euler_angles(("yaw", "pitch", "roll"), (yaw, pitch, roll), degrees)
+    rot = Rotation.from_euler("ZYX", angles, degrees=degrees)
     return _pose_from_rotation(rot.as_matrix(), t)
 
 
@@ -462,34 +650,39 @@ def euler_zyx_from_pose(T, degrees: bool = False) -> np.ndarray:
 # --------------------------------------------------------------------------- errors and averages
 
 
-def _rotation_block(X) -> np.ndarray:
-    X = np.asarray(X, dtype=float)
+def _rotation_block(X, name: str = "R") -> np.ndarray:
+    if type(X) is not np.ndarray or X.dtype is not _F64:
+        X = as_real_array(X, name)
     if X.shape[-2:] == (4, 4):
         return X[..., :3, :3]
     if X.shape[-2:] == (3, 3):
         return X
-    raise ValueError(f"expected a rotation (3, 3) or pose (4, 4), got shape {X.shape}")
+    raise ValueError(f"{name} must be a rotation (3, 3) or a pose (4, 4), or a stack of them, "
+                     f"got shape {X.shape}")
 
 
-def rotation_angle_deg(R) -> np.ndarray | float:
+def rotation_angle_deg(R, name: str = "R") -> np.ndarray | float:
     """Angle of a rotation (or of each in a stack), degrees, in [0, 180].
 
     Computed as atan2(sin, cos), with sin from the skew part (R - R^T) / 2 and cos from
     (trace - 1) / 2: acos of the trace alone loses precision near 0 degrees, where calibration
     errors live, and this is 20x cheaper than scipy's ``Rotation`` (it sits in every grading
     and benchmark loop). A block that is not orthonormal to 1e-9 is projected onto SO(3)
-    first, so a slightly-off matrix gets the angle of its nearest rotation.
+    first, so a slightly-off matrix gets the angle of its nearest rotation; a block with no
+    unique nearest rotation (a reflection, rank <= 1) raises ``ValueError`` (see
+    :func:`project_to_so3`). NaN raises too.
     """
-    Rb = _rotation_block(R)
+    Rb = _rotation_block(R, name)
     if Rb.ndim == 2:  # one matrix: plain floats, a tenth of numpy's small-array overhead
         angle = _one_rotation_angle_deg(Rb)
-        return angle if angle is not None else _one_rotation_angle_deg(project_to_so3(Rb))
+        return angle if angle is not None else _one_rotation_angle_deg(project_to_so3(Rb, name))
     stack = Rb.reshape(-1, 3, 3)
-    off = np.abs(np.swapaxes(stack, -1, -2) @ stack - np.eye(3)).max(axis=(1, 2))
-    if np.any(~(off <= _EXACT_ROTATION_TOL)):
+    off = np.abs(np.swapaxes(stack, -1, -2) @ stack - np.eye(3)).max(axis=(1, 2), initial=0.0)
+    inexact = ~((off <= _EXACT_ROTATION_TOL) & (_dets(stack) > 0))
+    if np.any(inexact):
         stack = stack.copy()
-        for k in np.flatnonzero(~(off <= _EXACT_ROTATION_TOL)):
-            stack[k] = project_to_so3(stack[k])
+        for k in np.flatnonzero(inexact):
+            stack[k] = project_to_so3(stack[k], f"{name}[{k}]")
     skew_part = np.stack([stack[:, 2, 1] - stack[:, 1, 2], stack[:, 0, 2] - stack[:, 2, 0],
                           stack[:, 1, 0] - stack[:, 0, 1]], axis=1)
     sin = np.linalg.norm(skew_part, axis=1) / 2.0
@@ -498,6 +691,14 @@ def rotation_angle_deg(R) -> np.ndarray | float:
 
 
 _EXACT_ROTATION_TOL = 1e-9
+
+
+def _dets(R: np.ndarray) -> np.ndarray:
+    """Determinants of an (N, 3, 3) stack, written out: 4x cheaper than np.linalg.det."""
+    a, b, c = R[:, 0, 0], R[:, 0, 1], R[:, 0, 2]
+    d, e, f = R[:, 1, 0], R[:, 1, 1], R[:, 1, 2]
+    g, h, i = R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def _gram_error(r0, r1, r2) -> float:
@@ -513,9 +714,13 @@ def _gram_error(r0, r1, r2) -> float:
 
 
 def _exact_rotation_entries(R) -> list | None:
-    """The rows of a (3, 3) block as plain floats; None unless orthonormal to 1e-9 (or NaN)."""
+    """The rows of a (3, 3) block as plain floats; None unless a proper rotation orthonormal
+    to 1e-9 (None for NaN and for reflections, whose det is -1)."""
     rows = R.tolist()
-    return rows if _gram_error(*rows) <= _EXACT_ROTATION_TOL else None
+    if not _gram_error(*rows) <= _EXACT_ROTATION_TOL:
+        return None
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return rows if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0 else None
 
 
 def _one_rotation_angle_deg(R) -> float | None:
@@ -529,15 +734,39 @@ def _one_rotation_angle_deg(R) -> float | None:
 
 
 def rotation_error_deg(A, B) -> np.ndarray | float:
-    """Geodesic angle between two rotations (or poses, or stacks of them), in degrees."""
-    Ra, Rb = _rotation_block(A), _rotation_block(B)
-    return rotation_angle_deg(np.swapaxes(Ra, -1, -2) @ Rb)
+    """Geodesic angle between two rotations (or poses, or stacks of them), in degrees.
+
+    The angle of ``A^T B`` (of its nearest rotation when it is not orthonormal to 1e-9, as
+    :func:`rotation_angle_deg`). Raises ``ValueError`` when that nearest rotation is not
+    unique: one of A and B is a reflection (det -1) or rank-deficient. Two reflections differ
+    by a proper rotation, whose angle is returned.
+    """
+    Ra, Rb = _rotation_block(A, "A"), _rotation_block(B, "B")
+    try:
+        product = np.swapaxes(Ra, -1, -2) @ Rb
+    except ValueError:
+        raise ValueError(f"rotation_error_deg: A (rotations of shape {Ra.shape}) and B "
+                         f"({Rb.shape}) must be stacks of the same length, or single "
+                         "rotations") from None
+    return rotation_angle_deg(product, "A^T B (the rotation from A to B)")
 
 
 def translation_error(A, B) -> np.ndarray | float:
     """Euclidean distance between the translations of two poses (or stacks), in metres."""
-    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
-    d = np.linalg.norm(A[..., :3, 3] - B[..., :3, 3], axis=-1)
+    arrays = []
+    for name, X in (("A", A), ("B", B)):
+        if type(X) is not np.ndarray or X.dtype is not _F64:
+            X = as_real_array(X, name)
+        if X.shape[-2:] != (4, 4):
+            raise ValueError(f"translation_error: {name} must be a pose (4, 4) or a stack "
+                             f"(N, 4, 4), got shape {X.shape}")
+        arrays.append(X)
+    A, B = arrays
+    try:
+        d = np.linalg.norm(A[..., :3, 3] - B[..., :3, 3], axis=-1)
+    except ValueError:
+        raise ValueError(f"translation_error: A (shape {A.shape}) and B ({B.shape}) must be "
+                         "stacks of the same length, or single poses") from None
     return float(d) if np.ndim(d) == 0 else d
 
 
@@ -546,7 +775,7 @@ def chordal_mean_rotation(rotations, weights=None) -> np.ndarray:
 
     ``rotations`` is a stack of (3, 3) rotations or (4, 4) poses; weights are non-negative.
     """
-    Rs = _rotation_block(as_real_array(rotations, "rotations"))
+    Rs = _rotation_block(rotations, "rotations")
     if Rs.ndim != 3 or len(Rs) == 0:
         raise ValueError("chordal_mean_rotation needs a non-empty stack of rotations")
     for i, R in enumerate(Rs):
@@ -554,4 +783,5 @@ def chordal_mean_rotation(rotations, weights=None) -> np.ndarray:
     w = np.ones(len(Rs)) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != (len(Rs),) or np.any(w < 0) or not np.isfinite(w).all() or w.sum() <= 0:
         raise ValueError("weights must be finite, non-negative, one per rotation, not all zero")
-    return project_to_so3(np.einsum("n,nij->ij", w, Rs))
+    return project_to_so3(np.einsum("n,nij->ij", w, Rs),
+                          "the weighted sum of the rotations (they cancel out)")

@@ -167,6 +167,9 @@ LOSSES = (None, "linear", "huber", "soft_l1", "cauchy")
 
 def loss_weights(z2: np.ndarray, loss: str | None) -> np.ndarray:
     """IRLS weights rho'(z^2) for a squared normalised residual z^2 (scipy's loss names)."""
+    # (Called in IRLS loops on arrays the solvers built: only the caller's choice is checked.)
+    if not any(loss is c or (isinstance(loss, str) and loss == c) for c in LOSSES):
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if loss in (None, "linear"):
         return np.ones_like(z2)
     if loss == "huber":

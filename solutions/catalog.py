@@ -20,8 +20,13 @@ def hand_eye_methods(problem, include_opencv: bool = True) -> list[tuple[str, Ca
     """(label, solve) for our methods on ``problem`` (an ``autograder.synthetic.HandEyeProblem``),
     then OpenCV's when ``include_opencv``. Methods needing corner pixels are left out when the
     problem has none."""
-    from solutions import handeye, mle, robot_world
+    from solutions import diagnostics, handeye, mle, robot_world
 
+    if not all(hasattr(problem, a) for a in ("base_T_flange", "cam_T_target", "mount")):
+        raise ValueError("problem must be an autograder.synthetic.HandEyeProblem (with "
+                         "base_T_flange, cam_T_target and mount), got "
+                         f"{diagnostics.describe(problem)}")
+    include_opencv = diagnostics.check_flag(include_opencv, "include_opencv")
     robot, cam, mount = problem.base_T_flange, problem.cam_T_target, problem.mount
     if mount == "eye_in_hand":
         report = handeye.calibrate_eye_in_hand_report
@@ -43,7 +48,7 @@ def hand_eye_methods(problem, include_opencv: bool = True) -> list[tuple[str, Ca
 
     rows += [(f"ax_yb {m}", lambda m=m: ax_yb(m)) for m in ("shah", "li", "nonlinear")]
 
-    if problem.pixels is not None and problem.noise.pixel_px > 0:
+    if getattr(problem, "pixels", None) is not None and problem.noise.pixel_px > 0:
         def reprojection():
             start = mle.refine_hand_eye(robot, cam, mount=mount)
             return mle.refine_reprojection(

@@ -27,19 +27,26 @@ Two kinds of check live here, both judged from the data themselves:
   data cannot say which of the three happened; the message lists them, with a hint from the
   camera poses (a board in front of the camera has z > 0 in ``cam_T_target``).
 
+A third, small kind: the argument checks every solver module shares (``check_choice``,
+``check_flag``, ``check_number``, ``as_array``, ``describe``), so that a refused argument is
+named with what was expected and what came (None, a string, a shape and dtype), in the same
+words everywhere.
+
 Frames and names follow the project conventions (``a_T_b`` maps b-coordinates into a;
-metres, radians inside, degrees in messages). This module imports only ``robots.geometry``,
-so every solver module can use it without an import circle.
+metres, radians inside, degrees in messages). This module imports only ``robots.geometry`` and
+``solutions.units``, so every solver module can use it without an import circle.
 """
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from robots import geometry as geo
+from solutions import units
 
 __all__ = [
     "INCONSISTENT_RATIO",
@@ -48,11 +55,16 @@ __all__ = [
     "MIN_AXIS_SPREAD_DEG",
     "MIN_MOTION_DEG",
     "PairingDiagnosis",
+    "as_array",
     "axis_spread_deg",
     "check_ax_yb",
+    "check_choice",
+    "check_flag",
     "check_hand_eye_poses",
     "check_motion_pairing",
     "check_motion_residuals",
+    "check_number",
+    "describe",
     "diagnose_ax_yb",
     "diagnose_hand_eye",
     "mounts_indistinguishable",
@@ -92,6 +104,104 @@ _NOISE_FLOOR_DEG = 0.01
 # captures with pose noise under about 0.3 deg never need the search's few milliseconds
 # (it runs too when the fit is inconsistent: a partly shuffled capture of precise poses).
 _PAIRING_SEARCH_DEG = 0.3
+
+
+# --------------------------------------------------------------------------- arguments
+# Shared by the solver modules so that every refused argument is named with what was expected
+# and what came, in the same words; validation happens once, at the public entry.
+
+
+def describe(value) -> str:
+    """A short account of what a caller passed, for error messages: None, a string, an array's
+    shape and dtype, a list's length, or the type."""
+    if value is None:
+        return "None"
+    if isinstance(value, (str, bytes)):
+        text = repr(value)
+        return f"the string {text if len(text) <= 40 else text[:37] + '...'}"
+    if isinstance(value, (bool, np.bool_)):
+        return f"the boolean {bool(value)}"
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape} and dtype {value.dtype}"
+    if isinstance(value, numbers.Number):
+        return f"the number {value!r}"
+    if isinstance(value, (list, tuple)):
+        return f"a {type(value).__name__} of {len(value)} item{'s' if len(value) != 1 else ''}"
+    kind = type(value)
+    if kind.__module__ == "builtins":
+        return f"{'an' if kind.__name__[0] in 'aeiou' else 'a'} {kind.__name__}"
+    return f"a {kind.__module__}.{kind.__qualname__} object"
+
+
+def check_choice(value, name: str, choices, label: str | None = None):
+    """``value`` if it is one of ``choices`` (strings, or None), else ``ValueError`` naming
+    ``name``, the choices and what came (``label`` names an unknown string, e.g. "unknown
+    hand-eye method 'horaud'")."""
+    for choice in choices:
+        if value is choice or (isinstance(value, str) and isinstance(choice, str)
+                               and value == choice):
+            return value
+    if isinstance(value, str) and label:
+        raise ValueError(f"unknown {label} {value!r}: {name} must be one of {tuple(choices)}")
+    raise ValueError(f"{name} must be one of {tuple(choices)}, got {describe(value)}")
+
+
+def check_flag(value, name: str, allow_none: bool = False):
+    """``value`` as a bool (True, False, numpy booleans, 0 or 1; also None if ``allow_none``),
+    else ``ValueError``: a string such as "no" would otherwise count as True."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)) and value in (0, 1):
+        return bool(value)
+    expected = "True, False or None" if allow_none else "True or False"
+    raise ValueError(f"{name} must be {expected}, got {describe(value)}")
+
+
+def check_number(value, name: str, *, minimum: float | None = None, above: float | None = None,
+                 integer: bool = False, unit: str = "", allow_none: bool = False):
+    """``value`` as a finite float (an int if ``integer``), at least ``minimum`` or strictly
+    above ``above``; ``ValueError`` naming ``name``, the expectation and what came otherwise.
+    Numpy scalars and 0-d arrays count as numbers; booleans and strings do not."""
+    if value is None and allow_none:
+        return None
+    what = "an integer" if integer else "a finite number"
+    bound = ""
+    if minimum is not None:
+        bound = f" >= {minimum:g}"
+    elif above is not None:
+        bound = f" > {above:g}"
+    expected = f"{name} must be {what}{bound}{' (' + unit + ')' if unit else ''}"
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{expected}, got {describe(value)}")
+    if integer:
+        if not (isinstance(value, numbers.Integral) or float(value).is_integer()):
+            raise ValueError(f"{expected}, got {describe(value)}")
+        out = int(value)
+    else:
+        out = float(value)
+    if not np.isfinite(out) or (minimum is not None and out < minimum) or (
+            above is not None and not out > above):
+        raise ValueError(f"{expected}, got {value!r}")
+    return out
+
+
+def as_array(value, name: str, expected: str) -> np.ndarray:
+    """``value`` as a float64 array (lists, tuples and integer arrays welcome); ``ValueError``
+    naming ``name``, ``expected`` (e.g. "an (N, 3) array of points in metres") and what came
+    for None, strings, dicts and other non-numeric input."""
+    if value is None or isinstance(value, (str, bytes, dict)):
+        raise ValueError(f"{name} must be {expected}, got {describe(value)}")
+    try:
+        return geo.as_real_array(value, name)
+    except ValueError as err:
+        if "complex" in str(err):
+            raise
+        raise ValueError(f"{name} must be {expected}, got {describe(value)} that is not "
+                         "numeric (or whose rows differ in length)") from None
 
 
 # --------------------------------------------------------------------------- motion screening
@@ -308,8 +418,7 @@ def diagnose_ax_yb(A: np.ndarray, B: np.ndarray, full: bool = False) -> PairingD
 def _to_ax_yb(F: np.ndarray, C: np.ndarray, mount: str):
     """Hand-eye poses in the ``A_i X = Y B_i`` form: A = base_T_flange and B = target_T_cam
     (eye_in_hand) or cam_T_target (eye_to_hand)."""
-    if mount not in ("eye_in_hand", "eye_to_hand"):
-        raise ValueError(f"mount must be 'eye_in_hand' or 'eye_to_hand', got {mount!r}")
+    check_choice(mount, "mount", ("eye_in_hand", "eye_to_hand"))
     return F, (geo.invert(C) if mount == "eye_in_hand" else C)
 
 
@@ -319,6 +428,7 @@ def diagnose_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
     mount; "flipped" then means the poses fit the other mount, or one side inverted."""
     F = geo.as_poses(base_T_flange, "base_T_flange")
     C = geo.as_poses(cam_T_target, "cam_T_target")
+    full = check_flag(full, "full")
     if len(F) != len(C) or len(F) < 3:
         raise ValueError(f"need the same number (>= 3) of base_T_flange and cam_T_target "
                          f"poses, got {len(F)} and {len(C)}")
@@ -382,9 +492,13 @@ def _numbers(d: PairingDiagnosis) -> str:
             f"motion angles agree to {d.angle_mismatch_deg:.3g} deg)")
 
 
-def check_hand_eye_poses(F: np.ndarray, C: np.ndarray, mount: str) -> PairingDiagnosis:
+def check_hand_eye_poses(F: np.ndarray, C: np.ndarray, mount: str,
+                         camera_name: str = "cam_T_target",
+                         camera_fix: str | None = None) -> PairingDiagnosis:
     """Raise ``ValueError`` (or warn) when validated robot and camera poses do not fit
-    ``mount`` (see the module docstring); returns the diagnosis for reports."""
+    ``mount`` (see the module docstring), or are in different length units
+    (``solutions.units.check_pose_units``, which ``camera_name`` and ``camera_fix`` go to);
+    returns the diagnosis for reports."""
     d = diagnose_ax_yb(*_to_ax_yb(F, C, mount))
     other = "eye_to_hand" if mount == "eye_in_hand" else "eye_in_hand"
     where = ("the camera is fixed in the cell and the board rides on the flange"
@@ -400,6 +514,9 @@ def check_hand_eye_poses(F: np.ndarray, C: np.ndarray, mount: str) -> PairingDia
             "robots.geometry.invert(base_T_flange); (2) camera poses given as target_T_cam "
             "(cam2target): pass invert(cam_T_target); (3) the wrong mount: if "
             f"{where}, call calibrate_{other}.{_flip_hint(C)}")
+    # Millimetres among metres leave the rotations (all the checks above look at) intact and
+    # the translations hundreds of metres off: the scale of the two sides' translations.
+    units.check_pose_units(*_to_ax_yb(F, C, mount), "base_T_flange", camera_name, camera_fix)
     if d.verdict == "inconsistent":
         geo.warn_caller(
             f"base_T_flange and cam_T_target fit an {mount} calibration poorly: {_numbers(d)}. "
@@ -422,6 +539,7 @@ def check_ax_yb(A: np.ndarray, B: np.ndarray, a_name: str = "A",
             "(the inverse of what solvePnP gives); for eye-to-hand {b_name} = cam_T_target. "
             f"Inverting {a_name} instead (flange_T_base given) has the same effect: invert "
             "whichever of the two is in the wrong convention")
+    units.check_pose_units(A, B, a_name, b_name)
     if d.verdict == "inconsistent":
         geo.warn_caller(
             f"{a_name} and {b_name} fit A_i X = Y B_i poorly: {_numbers(d)}; inverting either "

@@ -60,8 +60,10 @@ Residual metrics (the course's definitions), over n motions:
 
 Degenerate input raises ``ValueError`` naming the problem and the fix: fewer than 3 poses,
 mismatched lengths, non-rotations or NaN, all rotation axes parallel, motions A[k], B[k] whose
-rotation angles disagree by degrees (not the same motion), and motions that rotate by less than
-``MIN_MOTION_DEG`` (dropped with a warning when enough others remain). No
+rotation angles disagree by degrees (not the same motion), robot and camera translations in
+different units (millimetres among metres: ``solutions.units``, which names the unit and the
+fix), and motions that rotate by less than ``MIN_MOTION_DEG`` (dropped with a warning when
+enough others remain). No
 function here returns a default pose or NaN. Motions of nearly 180 degrees are ambiguous for
 every method here (log map and quaternion sign); calibration motions of 15-45 degrees are
 far from that.
@@ -83,7 +85,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
-from solutions import diagnostics
+from solutions import diagnostics, units
 from solutions.diagnostics import MIN_AXIS_SPREAD_DEG, MIN_MOTION_DEG
 from solutions.registration import calibrate_flange  # re-exported: see the docstring
 
@@ -250,6 +252,7 @@ def motion_pairs(poses, strategy: str = "all", name: str = "poses"):
     Returns ``(motions (M, 4, 4), pairs (M, 2) int)``.
     """
     P = geo.as_poses(poses, name=name, min_count=2)
+    diagnostics.check_choice(strategy, "strategy", PAIR_STRATEGIES, "pair strategy")
     return _motion_pairs(P, strategy)
 
 
@@ -296,6 +299,8 @@ def hand_eye_motions(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
     match and n >= 3. Returns ``(A (M, 4, 4), B (M, 4, 4), pairs (M, 2))``.
     """
     F, C = _check_pose_lists(base_T_flange, cam_T_target)
+    diagnostics.check_choice(mount, "mount", MOUNTS)
+    diagnostics.check_choice(strategy, "strategy", PAIR_STRATEGIES, "pair strategy")
     return _hand_eye_motions(F, C, mount, strategy)
 
 
@@ -346,6 +351,9 @@ def _prepare(A, B, pairs=None, validate: bool = True, from_poses: bool = False) 
     # poses were checked as poses, with a message about the poses.)
     if not from_poses:
         diagnostics.check_motion_pairing(rvA, rvB, pairs)
+        # Robot translations in millimetres and camera ones in metres (or the reverse) give a
+        # right rotation and a translation hundreds of metres off; poses were checked whole.
+        units.check_motion_units(A, B, rvA, rvB)
     keep = diagnostics.screen_motions(rvA, rvB, pairs)
     rvA, rvB = rvA[keep], rvB[keep]
     return _Motions(A[keep, :3, :3], A[keep, :3, 3], B[keep, :3, :3], B[keep, :3, 3],
@@ -676,6 +684,7 @@ def solve_nonlinear(A, B, robust: bool = True) -> np.ndarray:
     its residual is written in, so reversing a motion or reordering poses changes nothing.
     See ``solve_ax_xb_report`` for the down-weighted motions. Returns X (4, 4).
     """
+    robust = diagnostics.check_flag(robust, "robust")
     m = _prepare(A, B)
     X, *_ = _nonlinear(m, robust)
     return _solved(m, X, "nonlinear")
@@ -726,9 +735,28 @@ def _flagged_poses(down: np.ndarray, used_pairs: np.ndarray) -> tuple[int, ...]:
     return tuple(int(p) for p in np.flatnonzero(2 * flagged > touching))
 
 
+def _check_options(method, robust):
+    """The method and robust arguments of the solvers, checked (robust as a bool or None)."""
+    diagnostics.check_choice(method, "method", METHODS, "hand-eye method")
+    return diagnostics.check_flag(robust, "robust", allow_none=True)
+
+
+def _check_pairs(pairs, n_motions: int):
+    """``pairs`` given to ``solve_ax_xb_report``: None or (M, 2) non-negative pose indices."""
+    if pairs is None:
+        return None
+    P = diagnostics.as_array(pairs, "pairs", f"an ({n_motions}, 2) array of pose indices (i, j) "
+                                             "of each motion, or None")
+    if P.shape != (n_motions, 2) or not np.all(np.isfinite(P)) or np.any(P < 0) or np.any(
+            P != np.round(P)):
+        raise ValueError(f"pairs must be an ({n_motions}, 2) array of non-negative integer pose "
+                         f"indices (i, j), one row per motion in A and B, or None; got "
+                         f"{diagnostics.describe(pairs if isinstance(pairs, np.ndarray) else P)}")
+    return P.astype(int)
+
+
 def _report(A, B, method, robust, pairs, validate, mount=None) -> HandEyeResult:
-    if method not in METHODS:
-        raise ValueError(f"unknown hand-eye method {method!r}; choose one of {METHODS}")
+    robust = _check_options(method, robust)
     if robust is None:
         robust = method == "nonlinear"
     if robust and method != "nonlinear":
@@ -738,6 +766,7 @@ def _report(A, B, method, robust, pairs, validate, mount=None) -> HandEyeResult:
         )
     if validate:
         A, B = geo.as_poses(A, name="A"), geo.as_poses(B, name="B")
+        pairs = _check_pairs(pairs, len(A)) if len(A) == len(B) else pairs
     m = _prepare(A, B, pairs, validate=False, from_poses=not validate)
     start = None
     if method == "nonlinear":
@@ -800,11 +829,10 @@ def _absolute_refinement():
 
 
 def _calibrate(base_T_flange, cam_T_target, mount, method, pairs, robust) -> HandEyeResult:
-    if method not in METHODS:
-        raise ValueError(f"unknown hand-eye method {method!r}; choose one of {METHODS}")
+    robust = _check_options(method, robust)
+    diagnostics.check_choice(pairs, "pairs", PAIR_STRATEGIES, "pair strategy")
     F, C = _check_pose_lists(base_T_flange, cam_T_target)
-    if mount not in MOUNTS:
-        raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
+    diagnostics.check_choice(mount, "mount", MOUNTS)
     A, B, pose_pairs = _hand_eye_motions(F, C, mount, pairs)
     refine = _absolute_refinement() if method == "nonlinear" else None
     if refine is None:

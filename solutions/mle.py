@@ -48,7 +48,7 @@ from scipy.stats import f as f_dist
 
 from robots import geometry as geo
 from solutions import ax_yb_closed_forms as closed_forms
-from solutions import diagnostics
+from solutions import diagnostics, units
 
 __all__ = [
     "MOUNTS",
@@ -150,8 +150,7 @@ class HandEyeRefinement:
 
 
 def _check_mount(mount: str) -> None:
-    if mount not in MOUNTS:
-        raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
+    diagnostics.check_choice(mount, "mount", MOUNTS)
 
 
 def _validate(base_T_flange, cam_T_target, mount: str) -> tuple[np.ndarray, np.ndarray]:
@@ -162,6 +161,29 @@ def _validate(base_T_flange, cam_T_target, mount: str) -> tuple[np.ndarray, np.n
                                        "cam_T_target")
     diagnostics.check_hand_eye_poses(A, C, mount)
     return A, C
+
+
+def _rotation_sigma(value, name: str, allow_none: bool = False):
+    """A rotation noise level in radians: a finite number >= 0 (None if ``allow_none``), and no
+    more than pi (a larger one was given in degrees)."""
+    value = diagnostics.check_number(value, name, minimum=0.0, unit="radians",
+                                     allow_none=allow_none)
+    return value if value is None else units.check_radians(value, name)
+
+
+def _sigma_pair(value, name: str, positive: bool) -> np.ndarray:
+    """(rotation_rad, translation_m) noise levels: finite, > 0 (``positive``) or >= 0, and the
+    rotation no more than pi."""
+    bound = "> 0" if positive else ">= 0"
+    expected = (f"(rotation_rad, translation_m), both finite and {bound}, e.g. "
+                "(np.radians(0.1), 0.0005)")
+    sigma = diagnostics.as_array(value, name, expected)
+    if sigma.shape != (2,) or not np.all(np.isfinite(sigma)) or np.any(
+            sigma <= 0 if positive else sigma < 0):
+        raise ValueError(f"{name} must be {expected}; or None to estimate them from the data; "
+                         f"got {value!r}")
+    units.check_radians(float(sigma[0]), f"{name}[0] (rotation)")
+    return sigma
 
 
 def _chain(A: np.ndarray, mount: str) -> np.ndarray:
@@ -730,25 +752,21 @@ def refine_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand", X0=
         rotation noise is not estimated (too few residuals to tell it apart).
 
     Returns a ``HandEyeRefinement``. Raises ``ValueError`` for malformed or degenerate input
-    (fewer than 3 poses, mismatched lengths, rotations about one axis only).
+    (fewer than 3 poses, mismatched lengths, rotations about one axis only), for robot and
+    camera translations in different units (``solutions.units``: e.g. the robot's in
+    millimetres) and for a rotation noise level above pi (given in degrees).
     """
     A, C = _validate(base_T_flange, cam_T_target, mount)
-    if max_iter < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-    if robust and loss not in ("huber", "soft_l1", "cauchy"):
-        raise ValueError(f"loss must be 'huber', 'soft_l1' or 'cauchy', got {loss!r}")
-    if noise_model not in NOISE_MODELS:
-        raise ValueError(f"noise_model must be one of {NOISE_MODELS}, got {noise_model!r}")
-    if robot_rotation_sigma_rad is not None and not (np.isfinite(robot_rotation_sigma_rad)
-                                                     and robot_rotation_sigma_rad >= 0):
-        raise ValueError("robot_rotation_sigma_rad must be a finite value >= 0 (radians) or None")
+    max_iter = diagnostics.check_number(max_iter, "max_iter", minimum=1, integer=True)
+    robust = diagnostics.check_flag(robust, "robust")
+    if robust:
+        diagnostics.check_choice(loss, "loss", ("huber", "soft_l1", "cauchy"), "robust loss")
+    diagnostics.check_choice(noise_model, "noise_model", NOISE_MODELS, "noise model")
+    robot_rotation_sigma_rad = _rotation_sigma(robot_rotation_sigma_rad,
+                                               "robot_rotation_sigma_rad", allow_none=True)
     estimate = sigma is None
     if not estimate:
-        sigma = np.asarray(sigma, dtype=float)
-        if sigma.shape != (2,) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
-            raise ValueError(
-                "sigma must be (rotation_rad, translation_m), both finite and > 0, e.g. "
-                "(np.radians(0.1), 0.0005); or None to estimate them from the data")
+        sigma = _sigma_pair(sigma, "sigma", positive=True)
     shape = None
     if estimate and noise_model != "isotropic":
         shape = _planar_target_shape(C)
@@ -919,9 +937,13 @@ def cramer_rao_covariance(X, Y, base_T_flange, mount: str = "eye_in_hand", *,
     information matrix is singular: e.g. rotations about one axis only).
     """
     _check_mount(mount)
-    A = geo.as_poses(base_T_flange, "base_T_flange")
+    A = geo.as_poses(base_T_flange, "base_T_flange", min_count=3)
     X, Y = geo.as_pose(X, "X"), geo.as_pose(Y, "Y")
-    sigmas = np.array([rotation_sigma_rad, translation_sigma_m, robot_rotation_sigma_rad], float)
+    sigmas = np.array([diagnostics.check_number(v, name) for v, name in (
+        (rotation_sigma_rad, "rotation_sigma_rad"), (translation_sigma_m, "translation_sigma_m"),
+        (robot_rotation_sigma_rad, "robot_rotation_sigma_rad"))])
+    units.check_radians(sigmas[0], "rotation_sigma_rad")
+    units.check_radians(sigmas[2], "robot_rotation_sigma_rad")
     if not np.all(np.isfinite(sigmas)) or np.any(sigmas[:2] <= 0) or sigmas[2] < 0:
         raise ValueError("rotation_sigma_rad and translation_sigma_m must be finite and > 0 "
                          "(radians, metres); robot_rotation_sigma_rad finite and >= 0")
@@ -947,23 +969,46 @@ def _clean(T: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- reprojection MLE
 
 
-def _check_camera(board_points, pixels, K, dist, n_views):
-    P = np.asarray(board_points, dtype=float)
+def _check_board(board_points) -> np.ndarray:
+    expected = ("a finite (N, 3) array of board corners in the target frame (metres), N >= 4, "
+                "e.g. Board.object_points()")
+    P = diagnostics.as_array(board_points, "board_points", expected)
     if P.ndim != 2 or P.shape[1] != 3 or len(P) < 4 or not np.all(np.isfinite(P)):
-        raise ValueError(f"board_points must be a finite (N, 3) array with N >= 4 (metres, target "
-                         f"frame), got shape {P.shape}")
-    px = np.asarray(pixels, dtype=float)
+        what = f"shape {P.shape}" if P.ndim != 2 or P.shape[1] != 3 or len(P) < 4 else "NaN or inf"
+        raise ValueError(f"board_points must be {expected}, got {what}")
+    return P
+
+
+def _check_intrinsics(K, dist) -> tuple[np.ndarray, np.ndarray]:
+    if hasattr(K, "fx") and hasattr(K, "K"):
+        raise ValueError(
+            f"K must be the (3, 3) camera matrix, got {diagnostics.describe(K)}: pass "
+            "intrinsics.K and intrinsics.dist (K and dist are separate arguments)")
+    K = diagnostics.as_array(K, "K", "a finite (3, 3) camera matrix in pixels")
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K must be a finite 3x3 camera matrix with positive focal lengths, got {K}")
+    dist = np.zeros(5) if dist is None else diagnostics.as_array(
+        dist, "dist", "4, 5, 8, 12 or 14 OpenCV distortion coefficients, or None")
+    if dist.ndim > 2 or (dist.ndim == 2 and min(dist.shape) != 1):
+        raise ValueError(f"dist must be a vector of OpenCV distortion coefficients (k1, k2, p1, "
+                         f"p2[, k3, ...]), got shape {dist.shape}")
+    dist = dist.ravel()
+    if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
+        raise ValueError(f"dist must hold 4, 5, 8, 12 or 14 finite OpenCV distortion "
+                         f"coefficients (or be None), got {dist.size}")
+    return K, dist
+
+
+def _check_camera(board_points, pixels, K, dist, n_views):
+    P = _check_board(board_points)
+    px = diagnostics.as_array(pixels, "pixels", "an (n_views, N, 2) array of corner pixels")
     if px.shape != (n_views, len(P), 2):
         raise ValueError(f"pixels must have shape (n_views, N, 2) = ({n_views}, {len(P)}, 2) to "
                          f"match base_T_flange and board_points, got {px.shape}; mark a corner "
                          "or view that was not seen with NaN")
-    K = np.asarray(K, dtype=float)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"K must be a finite 3x3 camera matrix with positive focal lengths, got {K}")
-    dist = np.zeros(5) if dist is None else np.asarray(dist, dtype=float).ravel()
-    if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
-        raise ValueError(f"dist must hold 4, 5, 8, 12 or 14 finite OpenCV distortion "
-                         f"coefficients, got {dist.size}")
+    K, dist = _check_intrinsics(K, dist)
+    # Normalised image coordinates (x/z, y/z) passed as pixels fit "converged" to a wrong pose.
+    units.check_normalised_pixels(px, np.all(np.isfinite(px), axis=2), K)
     return P, px, K, dist
 
 
@@ -1108,6 +1153,12 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     robot-error correction), ``pixel_sigma_px``, ``robot_rotation_sigma_rad``,
     ``board_scale``; its ``translation_sigma_m`` is the robot translation noise and
     ``rotation_sigma_rad`` 0.
+
+    Refused with a ``ValueError`` naming the unit and the fix (``solutions.units``): normalised
+    image coordinates passed as ``pixels`` with a pixel ``K``; a board and poses in different
+    length units (the board's size in the image against its distance from X0, Y0 and the
+    robot poses); a fitted board scale further than 30 times from 1; a rotation noise in
+    ``robot_sigma`` above pi (degrees).
     """
     _check_mount(mount)
     A = geo.as_poses(base_T_flange, "base_T_flange")
@@ -1116,16 +1167,21 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
         raise ValueError("refine_reprojection needs a start X0 and Y0; get them from "
                          "refine_hand_eye(base_T_flange, cam_T_target, mount) on the solvePnP poses")
     X0, Y0 = geo.as_pose(X0, "X0"), geo.as_pose(Y0, "Y0")
+    robust = diagnostics.check_flag(robust, "robust")
+    max_iter = diagnostics.check_number(max_iter, "max_iter", minimum=1, integer=True)
+    fit_board_scale = diagnostics.check_flag(fit_board_scale, "fit_board_scale")
+    fit_intrinsics = diagnostics.check_flag(fit_intrinsics, "fit_intrinsics")
     if robot_sigma is not None:
-        robot_sigma = np.asarray(robot_sigma, dtype=float)
-        if robot_sigma.shape != (2,) or not np.all(np.isfinite(robot_sigma)) or np.any(robot_sigma < 0):
-            raise ValueError("robot_sigma must be (rotation_rad, translation_m), finite and >= 0")
+        robot_sigma = _sigma_pair(robot_sigma, "robot_sigma", positive=False)
     valid = np.all(np.isfinite(px), axis=2)
     views = np.flatnonzero(valid.sum(axis=1) >= 4)
     if len(views) < 3:
         raise ValueError(f"only {len(views)} views have at least 4 corners seen; capture at least "
                          "3 views with the board (10-20 is typical)")
     closed_forms.check_rotation_variety(A[views, :3, :3], "base_T_flange (views with corners)")
+    # A board in millimetres, or robot poses (or the start) in millimetres, against the rest in
+    # metres: the board's size in the image says how far it is, the poses say it too.
+    units.check_board_distance(P, px, valid, K, geo.invert(X0) @ _chain(A, mount) @ Y0)
     if fit_intrinsics and len(views) < _MIN_VIEWS_INTRINSICS:
         raise ValueError(f"fit_intrinsics needs at least {_MIN_VIEWS_INTRINSICS} views with "
                          f"corners, got {len(views)}: capture more views, or keep K and dist "
@@ -1205,6 +1261,8 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
         if moved < 0.01:
             break
 
+    if fit_board_scale:
+        units.check_board_scale(scale)
     rms_view = np.zeros(len(A))
     rms_view[views] = np.sqrt(raw[views] / (2 * counts[views]))
     median_rms = float(np.median(rms_view[views]))
@@ -1283,17 +1341,28 @@ def predicted_corners(result: HandEyeRefinement, board_points, K, dist, base_T_f
     poses: ``project(K, dist, inv(X) @ H_i @ Y @ (board_scale * board_points))`` with H_i as in
     the module docstring (``inv(base_T_flange_i @ X) @ Y`` for eye-in-hand). ``K`` and ``dist``
     are replaced by the result's ``camera_matrix`` / ``dist_coeffs`` when it refined them."""
+    if not isinstance(result, HandEyeRefinement):
+        raise ValueError("result must be a HandEyeRefinement (from refine_hand_eye, "
+                         f"refine_reprojection or calibrate_from_corners), got "
+                         f"{diagnostics.describe(result)}")
     A = geo.as_poses(base_T_flange, "base_T_flange")
+    P = _check_board(board_points)
     if result.camera_matrix is not None:
         K, dist = result.camera_matrix, result.dist_coeffs
+    K, dist = _check_intrinsics(K, dist)
     C = geo.invert(result.X) @ _chain(A, result.mount) @ result.Y
-    P = result.board_scale * np.asarray(board_points, dtype=float)
+    P = result.board_scale * P
     return np.array([_project_view(P, K, dist, c) for c in C])
 
 
 def view_rms_px(predicted: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """RMS pixel distance per view (n,) between predicted and detected corners (NaN skipped)."""
-    d2 = np.sum((np.asarray(predicted) - np.asarray(pixels)) ** 2, axis=2)
+    predicted = diagnostics.as_array(predicted, "predicted", "an (n, N, 2) array of pixels")
+    pixels = diagnostics.as_array(pixels, "pixels", "an (n, N, 2) array of pixels")
+    if predicted.ndim != 3 or predicted.shape[2] != 2 or pixels.shape != predicted.shape:
+        raise ValueError(f"predicted and pixels must both have shape (n_views, N, 2), got "
+                         f"{predicted.shape} and {pixels.shape}")
+    d2 = np.sum((predicted - pixels) ** 2, axis=2)
     return np.sqrt(np.nanmean(d2, axis=1))
 
 
@@ -1333,6 +1402,17 @@ def _fit_choice(choice: CornerNoiseChoice, P, px, K, dist, A, C, mount, start):
                                robot_sigma=choice.robot_sigma,
                                fit_board_scale=choice.fit_board_scale,
                                fit_intrinsics=choice.fit_intrinsics)
+
+
+def _options(value, name: str, what: str) -> tuple:
+    """A tuple of candidate settings from a tuple, list or 1-d array; ``ValueError`` naming
+    ``name`` for anything else (a bare True or 0.1: wrap it, e.g. (True,))."""
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        return tuple(value.tolist())
+    if not isinstance(value, (tuple, list)):
+        raise ValueError(f"{name} must be a tuple of {what}, e.g. {name}=(...,), got "
+                         f"{diagnostics.describe(value)}")
+    return tuple(value)
 
 
 def _simplest_within_noise(choices, log_rms) -> int:
@@ -1404,24 +1484,38 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
     _check_mount(mount)
     A = geo.as_poses(base_T_flange, "base_T_flange")
     P, px, K, dist = _check_camera(board_points, pixels, K, dist, len(A))
-    if folds < 2 or folds > len(A):
+    folds = diagnostics.check_number(folds, "folds", minimum=2, integer=True)
+    if folds > len(A):
         raise ValueError(f"folds must be between 2 and the number of views ({len(A)}), got {folds}")
-    weights = tuple(float(w) for w in robot_weights)
-    scales = tuple(bool(b) for b in fit_board_scale)
-    cameras = tuple(bool(b) for b in fit_intrinsics)
+    weights = tuple(diagnostics.check_number(w, f"robot_weights[{i}]", minimum=0.0)
+                    for i, w in enumerate(_options(robot_weights, "robot_weights", "fractions")))
+    scales = tuple(diagnostics.check_flag(b, f"fit_board_scale[{i}]") for i, b in
+                   enumerate(_options(fit_board_scale, "fit_board_scale", "booleans")))
+    cameras = tuple(diagnostics.check_flag(b, f"fit_intrinsics[{i}]") for i, b in
+                    enumerate(_options(fit_intrinsics, "fit_intrinsics", "booleans")))
     if weights and not cameras:
         raise ValueError("fit_intrinsics must be a non-empty tuple of booleans, e.g. (False,)")
-    if any(not np.isfinite(w) or w < 0 for w in weights) or (weights and not scales):
+    if weights and not scales:
         raise ValueError("robot_weights must be fractions >= 0 and fit_board_scale a "
                          "non-empty tuple of booleans")
-    pose_methods = tuple(pose_candidates)
-    unknown = [m for m in pose_methods if m not in POSE_CANDIDATES]
+    pose_methods = _options(pose_candidates, "pose_candidates", "method names")
+    unknown = [m for m in pose_methods if not isinstance(m, str) or m not in POSE_CANDIDATES]
     if unknown:
         raise ValueError(f"unknown pose candidates {unknown}; choose from {POSE_CANDIDATES}")
     if not weights and not pose_methods:
         raise ValueError("no candidates: give robot_weights or pose_candidates")
-    C = _pnp_poses(P, px, K, dist) if cam_T_target is None else geo.as_poses(cam_T_target,
-                                                                              "cam_T_target")
+    if cam_T_target is None:
+        C = _pnp_poses(P, px, K, dist)
+        camera_name, camera_fix = "cam_T_target (solvePnP on board_points)", "divide board_points by {n}"
+    else:
+        C = geo.as_poses(cam_T_target, "cam_T_target")
+        camera_name, camera_fix = "cam_T_target", None
+    if len(C) != len(A):
+        raise ValueError(f"cam_T_target has {len(C)} poses but base_T_flange has {len(A)}; "
+                         "give one camera pose per view")
+    # Checked here, naming what the caller passed (refine_hand_eye below checks it too).
+    diagnostics.check_hand_eye_poses(A, C, mount, camera_name=camera_name,
+                                     camera_fix=camera_fix)
     start = refine_hand_eye(A, C, mount)
     # The pose-based fit's REML noise split (camera translation and robot translation share one
     # term there) sets the robot prior's scale; the candidates rescale it.

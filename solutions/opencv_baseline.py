@@ -35,6 +35,19 @@ def _split(poses: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return [T[:3, :3].copy() for T in poses], [T[:3, 3].reshape(3, 1).copy() for T in poses]
 
 
+def _opencv_rotation(R, routine: str) -> np.ndarray:
+    """OpenCV's rotation block, cleaned of rounding; a reflection (det < 0, which PARK's
+    closed form returns on poses in the wrong convention) is refused, not projected onto one
+    of its equally near rotations at random."""
+    R = np.asarray(R, dtype=float)
+    det = float(np.linalg.det(R))
+    if not np.isfinite(det) or det <= 0.0:
+        raise ValueError(f"{routine} returned a matrix that is not a rotation (det {det:.3g}): "
+                         "its answer means nothing on these poses (the wrong pose convention, "
+                         "or motions it cannot solve)")
+    return geo.project_to_so3(R)
+
+
 def opencv_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
                     method: str = "PARK") -> np.ndarray:
     """X by ``cv2.calibrateHandEye``: ``flange_T_cam`` (eye_in_hand) or ``base_T_cam`` (eye_to_hand)."""
@@ -47,7 +60,7 @@ def opencv_hand_eye(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
     R_r, t_r = _split(robot)
     R_c, t_c = _split(cam)
     R, t = cv2.calibrateHandEye(R_r, t_r, R_c, t_c, method=HAND_EYE_METHODS[method])
-    return geo.make_pose(geo.project_to_so3(R), t.ravel())
+    return geo.make_pose(_opencv_rotation(R, f"cv2.calibrateHandEye ({method})"), t.ravel())
 
 
 def opencv_robot_world(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
@@ -70,6 +83,7 @@ def opencv_robot_world(base_T_flange, cam_T_target, mount: str = "eye_in_hand",
     R_b, t_b = _split(base2gripper)
     R_bw, t_bw, R_gc, t_gc = cv2.calibrateRobotWorldHandEye(
         R_w, t_w, R_b, t_b, method=ROBOT_WORLD_METHODS[method])
-    target_T_base = geo.make_pose(geo.project_to_so3(R_bw), t_bw.ravel())
-    cam_T_flange = geo.make_pose(geo.project_to_so3(R_gc), t_gc.ravel())
+    routine = f"cv2.calibrateRobotWorldHandEye ({method})"
+    target_T_base = geo.make_pose(_opencv_rotation(R_bw, routine), t_bw.ravel())
+    cam_T_flange = geo.make_pose(_opencv_rotation(R_gc, routine), t_gc.ravel())
     return geo.invert(cam_T_flange), geo.invert(target_T_base)

@@ -32,6 +32,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
+from solutions import diagnostics, units
 
 __all__ = [
     "COLLINEAR_TOL",
@@ -104,7 +105,7 @@ class RigidFit:
 
 
 def _as_points(points, name: str) -> np.ndarray:
-    p = geo.as_real_array(points, name)
+    p = diagnostics.as_array(points, name, "an (N, 3) array of points in metres")
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3) (metres), got {p.shape}")
     bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
@@ -129,7 +130,7 @@ def _as_pair(src, dst, src_name: str, dst_name: str) -> tuple[np.ndarray, np.nda
 def _as_weights(weights, n: int) -> np.ndarray:
     if weights is None:
         return np.ones(n)
-    w = geo.as_real_array(weights, "weights")
+    w = diagnostics.as_array(weights, "weights", f"({n},) non-negative weights, one per point")
     if w.shape != (n,):
         raise ValueError(f"weights must have shape ({n},), one per point, got {w.shape}")
     bad = np.flatnonzero(~np.isfinite(w) | (w < 0))
@@ -245,11 +246,10 @@ def fit_rigid_report(src, dst, weights=None, robust: bool = False, *, k: float =
     w = _as_weights(weights, n)
     used = w > 0
     fit_mask = used.copy()
-    if robust:
-        if threshold_m is not None and not (np.isfinite(threshold_m) and threshold_m > 0):
-            raise ValueError(f"threshold_m must be a positive number of metres, got {threshold_m}")
-        if not (np.isfinite(k) and k > 0):
-            raise ValueError(f"k must be a positive number of robust scales, got {k}")
+    if diagnostics.check_flag(robust, "robust"):
+        threshold_m = diagnostics.check_number(threshold_m, "threshold_m", above=0.0,
+                                               unit="metres", allow_none=True)
+        k = diagnostics.check_number(k, "k", above=0.0, unit="robust scales")
         n_used = int(used.sum())
         if n_used < 5:
             raise ValueError(
@@ -318,18 +318,18 @@ def _check_fit_is_meaningful(src, dst, w, norms, src_name, dst_name) -> None:
     sse_scaled = max(var_dst - trace_rh**2 / max(var_src, 1e-300), 0.0)
     if (not SCALE_MISMATCH ** -1 < scale < SCALE_MISMATCH
             and sse_rigid > 25.0 * max(sse_scaled, 1e-30 * var_dst)):
-        if 300.0 < scale < 3000.0:
-            cause = f"{dst_name} look like millimetres and {src_name} like metres"
-        elif 1.0 / 3000.0 < scale < 1.0 / 300.0:
-            cause = f"{src_name} look like millimetres and {dst_name} like metres"
+        named = units.describe_scale(scale if scale > 1 else 1.0 / max(scale, 1e-300))
+        if named is not None:
+            big, small = (dst_name, src_name) if scale > 1 else (src_name, dst_name)
+            cause = f"{big} look like {named[0]} and {small} like metres"
         else:
             cause = ("they are in different units, or are not the same points in the same "
                      "order")
         geo.warn_caller(
             f"{dst_name} match {src_name} scaled by {scale:.4g} (RMS spread {spread_dst:.4g} vs "
             f"{spread_src:.4g}), but a rigid motion keeps distances: {cause}. Convert both to "
-            f"metres (divide millimetres by 1000); the rigid fit leaves {np.sqrt(sse_rigid):.4g} "
-            "RMS in the units given")
+            f"metres (divide millimetres by 1000, centimetres by 100); the rigid fit leaves "
+            f"{np.sqrt(sse_rigid):.4g} RMS in the units given")
         return  # the residual is the unit error, not noise: no noise-based test below
     if min(spread_src, spread_dst) > MAX_PLAUSIBLE_SPREAD_M:
         geo.warn_caller(
@@ -389,7 +389,8 @@ def _frame_rotation(expressed_in, dst_T_src: np.ndarray) -> np.ndarray | None:
         if expressed_in == "src":
             return dst_T_src[:3, :3]
         raise ValueError(f"expressed_in must be 'dst', 'src' or a pose, got {expressed_in!r}")
-    M = np.asarray(expressed_in, dtype=float)
+    M = diagnostics.as_array(expressed_in, "expressed_in",
+                             "'dst', 'src', a (4, 4) pose or a (3, 3) rotation")
     if M.shape == (4, 4):
         return geo.as_pose(M, "expressed_in")[:3, :3]
     return geo.as_rotation(M, "expressed_in")
@@ -441,9 +442,13 @@ def frame_from_three_points(p_origin, p_x, p_xy, *, min_distance_m: float = 1e-6
     (collinear points: the x-y plane is undetermined); the message gives the distance or
     angle.
     """
+    min_distance_m = diagnostics.check_number(min_distance_m, "min_distance_m", minimum=0.0,
+                                              unit="metres")
+    min_angle_deg = diagnostics.check_number(min_angle_deg, "min_angle_deg", minimum=0.0,
+                                             unit="degrees")
     points = []
     for name, p in (("p_origin", p_origin), ("p_x", p_x), ("p_xy", p_xy)):
-        a = geo.as_real_array(p, name)
+        a = diagnostics.as_array(p, name, "a 3-vector (m)")
         if a.shape != (3,):
             raise ValueError(f"{name} must be a 3-vector (m), got shape {a.shape}")
         if not np.isfinite(a).all():
@@ -489,6 +494,7 @@ def calibrate_flange_report(cam_points, base_points, robust: bool = False, **opt
     the RMSE along the camera axes, ``outlier_indices`` the poses flagged in robust mode.
     """
     cam, base = _as_pair(cam_points, base_points, "cam_points", "base_points")
+    robust = diagnostics.check_flag(robust, "robust")
     n = len(cam)
     if n < _FLANGE_MIN_POINTS:
         raise ValueError(
@@ -569,6 +575,8 @@ def calibrate_flange_with_offset(cam_points, base_T_flange, *, min_spread_deg: f
     """
     cam = _as_points(cam_points, "cam_points")
     poses = geo.as_poses(base_T_flange, "base_T_flange")
+    min_spread_deg = diagnostics.check_number(min_spread_deg, "min_spread_deg", minimum=0.0,
+                                              unit="degrees")
     if len(poses) != len(cam):
         raise ValueError(
             f"cam_points has {len(cam)} points but base_T_flange has {len(poses)} poses; give "
@@ -592,6 +600,8 @@ def calibrate_flange_with_offset(cam_points, base_T_flange, *, min_spread_deg: f
             f"{min_spread_deg:g} deg (ideally 10-30 deg) about two or more different axes, or, "
             "if the marker really is on the flange centre, use calibrate_flange"
         )
+    # The zero-offset start; it warns about mixed units and mirror images (its base_points
+    # are the translations of base_T_flange).
     start = calibrate_flange(cam, t_F)
     R0 = start[:3, :3]
 

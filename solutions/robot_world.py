@@ -133,14 +133,13 @@ def solve_ax_yb(A, B, method: str = "li", loss: str | None = None) -> tuple[np.n
     residual is many noise levels out. At least 3 poses with rotations about two or more
     axes are required (``ValueError`` otherwise, saying what to capture).
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if loss not in LOSSES:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    diagnostics.check_choice(method, "method", METHODS, "AX = YB method")
+    diagnostics.check_choice(loss, "loss", LOSSES, "robust loss")
     A, B = validate_ax_yb(A, B)
     # The motion-size screen of the AX = XB calibrations, on the motions between every two
-    # poses: both refuse the same captures. Then refuse inverted or mis-paired poses, which
-    # every method would turn into a wrong X and Y without an error.
+    # poses: both refuse the same captures. Then refuse inverted or mis-paired poses, and
+    # robot and camera translations in different units, which every method would turn into a
+    # wrong X and Y without an error.
     rvA, rvB, pairs = diagnostics.pose_pair_rotvecs(A, B)
     diagnostics.screen_motions(rvA, rvB, pairs, what="pose pairs", warn_dropped=False)
     diagnostics.check_ax_yb(A, B)

@@ -111,8 +111,11 @@ def test_noise_derived_tolerance_passes_reference_and_fails_wrong_methods():
     assert ref.fraction == 1.0, ref.summary()
 
     def no_centroid(src, dst):  # SVD of the raw cross-covariance: a classic slip
+        # (with the reflection fix: the slip is the centring, and a reflection has no unique
+        # nearest rotation for project_to_so3 to return)
         U, _, Vt = np.linalg.svd(src.T @ dst)
-        R = geo.project_to_so3(Vt.T @ U.T)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+        R = Vt.T @ D @ U.T
         return geo.make_pose(R, dst.mean(0) - R @ src.mean(0))
 
     wrong = checks.score_function(spec, trials, [checks._call_in_process(no_centroid, t)
