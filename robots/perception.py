@@ -289,7 +289,10 @@ def _square_pose(objp, corners, intrinsics) -> np.ndarray:
         err = float(np.sum((proj.reshape(-1, 2) - corners) ** 2))
         if best is None or err < best[0]:
             best = (err, rvec, tvec)
-    return pose_from_rotvec(best[1].ravel(), best[2].ravel())
+    # cv2.Rodrigues, not pose_from_rotvec: LM may return its rotation vector unwrapped (a
+    # length of 3e8 rad was seen), a right rotation that pose_from_rotvec would rightly
+    # question as degrees.
+    return make_pose(cv2.Rodrigues(best[1])[0], best[2].ravel())
 
 
 def detect_aruco(frame: Frame, intrinsics: Intrinsics, marker_m: float,
