@@ -7,8 +7,9 @@ created. ``robots.backends`` finds the factory by name ("sim" ->
 ``create_workcell`` attribute below is the same function, imported on first use.
 
 Modules: ``world`` (the workcell factory and ground truth), ``arms``/``ik``/``tools`` (the
-simulated robots), ``camera`` (pinhole RGB-D rendering), ``scene`` and ``textures`` (table,
-calibration targets, chess set).
+simulated robots), ``flanges`` (their ISO 9409-1 flange faces), ``camera`` (pinhole RGB-D
+rendering), ``depth_noise`` (a RealSense D4xx's depth artefacts, off by default), ``scene``
+and ``textures`` (table, calibration targets, chess set).
 """
 
 from sim_backends import _pybullet  # noqa: F401  (loads PyBullet without its banner)

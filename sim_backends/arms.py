@@ -23,6 +23,8 @@ slightly wrong, as on a real robot whose joint zeros are off.
 
 from __future__ import annotations
 
+import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,24 +73,67 @@ class ArmSpec:
         return len(self.joint_names)
 
 
-def _light_panda_urdf() -> Path:
-    """pybullet_data's Panda with its collision meshes drawn as the visuals.
+def _write_if_changed(path: Path, text: str) -> Path:
+    if not path.exists() or path.read_text() != text:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")  # atomic: parallel workers share it
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    return path
 
-    The visual meshes carry ~100k triangles, and TinyRenderer's time goes almost all into them:
-    drawn with the (coarser, same-shaped) collision meshes a 640 x 480 RGB-D frame renders ~35 %
-    faster. Kinematics and collisions are untouched. Written once into the texture cache, with
-    absolute mesh paths since "package://" resolves next to the URDF file.
+
+def _with_flange_face(text: str, link: str, arm: str, material: str) -> str:
+    """URDF text with the arm's ISO 9409-1 flange face (``sim_backends.flanges``) added to
+    ``link`` as a visual (its face on the link's xy plane): visual only, so kinematics,
+    collisions and tool mounting are untouched."""
+    from sim_backends.flanges import flange_face_obj
+
+    found = re.search(rf'<link name="{link}"\s*(/>|>.*?</link>)', text, re.S)
+    if found is None:
+        raise RuntimeError(f"URDF of {arm}: no link {link!r} to put the flange face on")
+    face = (f'<visual><origin rpy="0 0 0" xyz="0 0 0"/><geometry>'
+            f'<mesh filename="{flange_face_obj(arm).as_posix()}"/></geometry>'
+            f'<material name="{material}"/></visual>')
+    body = found.group(0)
+    if body.endswith("/>"):
+        drawn = f'<link name="{link}">{face}</link>'
+    else:
+        drawn = body[:-len("</link>")] + face + "</link>"
+    return text[:found.start()] + drawn + text[found.end():]
+
+
+def _render_urdf(spec: ArmSpec) -> Path:
+    """The URDF the simulator draws ``spec``'s arm from: its own, plus the flange face.
+
+    Written into the texture cache (meshes need absolute paths there). The Panda's is
+    pybullet_data's with its collision meshes drawn as the visuals: the visual meshes carry
+    ~100k triangles, and TinyRenderer's time goes almost all into them; drawn with the
+    (coarser, same-shaped) collision meshes a 640 x 480 RGB-D frame renders ~35 % faster.
+    The Panda's link7 mesh ends in a flat face on panda_link8's xy plane whose rounded rim
+    (63-70 mm across) has no clean edge in depth, so link7 is drawn ``FLANGE_PROUD_M``
+    further back along its axis (``generate_urdfs.py`` does the same for the other arms'
+    last links). Kinematics and collisions are untouched.
     """
+    from sim_backends.flanges import FLANGE_PROUD_M
     from sim_backends.textures import cache_dir
 
-    source = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
+    if spec.name != "panda":
+        text = _with_flange_face(spec.urdf.read_text(), spec.flange_link, spec.name, "flange")
+        text = text.replace('<material name="accent">', '<material name="flange"><color rgba='
+                            '"0.62 0.63 0.66 1"/></material>\n  <material name="accent">', 1)
+        return _write_if_changed(cache_dir() / f"{spec.name}_render.urdf", text)
+    source = spec.urdf
     meshes = (source.parent / "meshes" / "collision").as_posix()
-    target = cache_dir() / "panda_light.urdf"
-    text = source.read_text().replace("package://meshes/visual/", meshes + "/")
+    text = source.read_text()
+    link7 = re.search(r'<link name="panda_link7">.*?</link>', text, re.S)
+    if link7 is None:
+        raise RuntimeError(f"{source}: no panda_link7")
+    drawn7 = link7.group(0).replace(
+        "<visual>", f'<visual>\n      <origin rpy="0 0 0" xyz="0 0 {-FLANGE_PROUD_M}"/>', 1)
+    text = text[:link7.start()] + drawn7 + text[link7.end():]
+    text = _with_flange_face(text, "panda_link8", "panda", "panda_white")
+    text = text.replace("package://meshes/visual/", meshes + "/")
     text = text.replace("package://meshes/collision/", meshes + "/")
-    if not target.exists() or target.read_text() != text:
-        target.write_text(text)
-    return target
+    return _write_if_changed(cache_dir() / "panda_light.urdf", text)
 
 
 def _limits(lo_hi) -> np.ndarray:
@@ -185,7 +230,7 @@ class SimArm:
             self.ik_seed = 0 if rng is None else int(rng)
 
         pos, quat = self.world_T_base[:3, 3], quat_xyzw_from_pose(self.world_T_base)[0]
-        visual_urdf = _light_panda_urdf() if name == "panda" else spec.urdf
+        visual_urdf = _render_urdf(spec)
         self.body_id = p.loadURDF(str(visual_urdf), list(pos), list(quat), useFixedBase=True,
                                   physicsClientId=client)
         index = {}

@@ -72,6 +72,7 @@ import pybullet as p
 
 from robots.geometry import as_pose, compose, invert, make_pose
 from robots.interfaces import Camera, Frame, Intrinsics, RobotDisconnectedError
+from sim_backends.depth_noise import depth_model_from
 
 __all__ = [
     "LIGHTING_PRESETS",
@@ -302,6 +303,11 @@ class SimCamera(Camera):
     pixel_noise : std of Gaussian noise added to each RGB channel, in 0..255 units.
     depth_noise : k in ``sigma_z = k * z**2`` (1/m), the RealSense-like growth of depth noise
         with range; 0.001 gives 1 mm at 1 m and 4 mm at 2 m.
+    depth_model : a ``sim_backends.depth_noise.RealSenseDepthModel`` (or "d435", a dict of its
+        fields): the whole D4xx depth behaviour instead of ``depth_noise`` (noise growing
+        with z**2, dropouts at depth edges, grazing angles and out of range, 1 mm steps).
+        None (the default): exact depth. ``depth_scale`` is then its depth unit (m), as on
+        ``robots.drivers.realsense.RealSenseCamera``.
     with_depth : False makes ``capture`` return ``depth=None``.
     lighting : a ``Lighting`` or a preset name.
     rng : ``numpy.random.Generator`` for the noise (seed it for repeatable frames).
@@ -321,6 +327,7 @@ class SimCamera(Camera):
         far: float = 10.0,
         pixel_noise: float = 0.0,
         depth_noise: float = 0.0,
+        depth_model=None,
         with_depth: bool = True,
         lighting="default",
         rng: np.random.Generator | None = None,
@@ -339,6 +346,11 @@ class SimCamera(Camera):
                 raise ValueError(f"{label} must be finite and >= 0, got {x!r}")
         if not (0 < near < far):
             raise ValueError(f"need 0 < near < far (metres), got near={near}, far={far}")
+        self.depth_model = depth_model_from(depth_model)
+        if self.depth_model is not None and depth_noise > 0:
+            raise ValueError("give depth_noise or depth_model, not both: the RealSense model "
+                             "has its own noise (its subpixel field)")
+        self.depth_scale = None if self.depth_model is None else self.depth_model.depth_unit
         self.client = client
         self.near, self.far = float(near), float(far)
         self.pixel_noise = float(pixel_noise)
@@ -429,6 +441,10 @@ class SimCamera(Camera):
             rgb = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         if not self.with_depth:
             depth = None
+        elif self.depth_model is not None:
+            # K of the undistorted canvas would be exact for the normals; with distortion the
+            # image's own K is a close enough guide to which surfaces are grazing.
+            depth = self.depth_model.apply(depth, self.intrinsics.K, self.rng)
         elif self.depth_noise > 0:
             z = depth.astype(np.float64)
             noisy = z + self.rng.normal(0.0, 1.0, z.shape) * (self.depth_noise * z**2)

@@ -16,12 +16,19 @@ the origin facing +x. Scenes:
 * ``chess``: a chess board on the table (White on the robot's side, a1 to the robot's left)
   with the pieces in their starting squares, or a seeded random position.
 
+Options for depth-camera work (lab 5), all off by default: ``flange_target=False`` leaves the
+flange bare, so the arm's ISO 9409-1 flange face (``sim_backends.flanges``, in ``truth.flange``)
+is what a camera sees there; ``depth_model="d435"`` gives every camera a RealSense D4xx's depth
+(``sim_backends.depth_noise``); ``rectangle_mark=True`` lays a dark 100 mm x 100 mm square on
+the table beside the work area (``truth.base_T_rectangle``, ``truth.rectangle_size``).
+
 Frames in ``truth`` (all 4x4, metres): ``base`` is the robot base, ``flange`` tool0 as the
 simulation really has it (without encoder offsets), ``cam`` the OpenCV optical frame of the
 main (left) camera, ``board`` the calibration target's OpenCV frame (see
 ``sim_backends.textures``), ``world`` the scene's reference frame (the board's origin corner
 in ``calibration``, the a1 corner of the chess board in ``chess``), ``pybullet`` the
-simulator's own world frame.
+simulator's own world frame, ``rectangle`` the rectangle mark's centre on its top face (x, y
+along its edges, z up out of the table, as OpenCV's marker frame: out of the print).
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from robots.geometry import (
     compose,
@@ -44,6 +52,8 @@ from robots.interfaces import Intrinsics, UnreachableError, Workcell
 from sim_backends import scene as scn
 from sim_backends import textures
 from sim_backends.camera import SimCamera, lighting_from
+from sim_backends.depth_noise import depth_model_from
+from sim_backends.flanges import FLANGES, FlangeSpec
 
 __all__ = [
     "MOUNTS",
@@ -64,7 +74,10 @@ TIME_STEP = 1.0 / 240.0
 
 # Published reach (m) of each arm, used to lay the scene out where the arm can work.
 ARM_REACH = {"panda": 0.855, "ur5e": 0.85, "ur10e": 1.3, "aubo_i5": 0.886, "cobotta": 0.342}
-
+# The approach-to-grasp chapter's rectangular mark, (width, height) m, and its thickness (a
+# card on a backing plate, like the calibration board: a step the depth image shows).
+RECTANGLE_MARK_SIZE = (0.1, 0.1)
+RECTANGLE_MARK_THICKNESS = 0.003
 
 
 def nominal_flange_T_cam(arm: str) -> np.ndarray:
@@ -104,7 +117,9 @@ class SimTruth:
     ``base_T_cam`` is set for a fixed camera (eye-to-hand) and ``flange_T_cam`` for a camera on
     the flange (eye-in-hand); the other is None. ``nominal_*`` is the mount a naive user would
     assume (the design values, before ``mount_error``). ``pieces`` is live: read it again after
-    the arm moves a piece.
+    the arm moves a piece. ``flange`` is the arm's ISO 9409-1 flange (its face, radius
+    ``flange.radius`` m, is centred on tool0 with normal +z); ``base_T_rectangle`` and
+    ``rectangle_size`` (width, height) m the rectangle mark, None without one.
     """
 
     mount: str
@@ -121,6 +136,9 @@ class SimTruth:
     encoder_offsets: np.ndarray | None = None
     board: textures.Target | None = None
     flange_target: textures.Target | None = None
+    flange: FlangeSpec | None = None
+    base_T_rectangle: np.ndarray | None = None
+    rectangle_size: tuple[float, float] | None = None
     _chess: scn.ChessSet | None = field(default=None, repr=False)
     _arm: object = field(default=None, repr=False)
 
@@ -291,6 +309,9 @@ def create_workcell(
     chess_position: str | dict = "start",
     safety=None,
     overview_camera: bool = False,
+    flange_target: bool = True,
+    depth_model=None,
+    rectangle_mark: bool = False,
 ) -> SimWorkcell:
     """Build the simulated workcell. Every random choice comes from ``seed``.
 
@@ -317,6 +338,15 @@ def create_workcell(
         (``cell.cameras["overview"]``, same intrinsics and noise) on the far side of the board,
         looking down at it, for the coarse stage of the staged approach-to-grasp. It sits
         exactly where ``truth.base_T_overview_cam`` says (its calibration is not the point).
+    flange_target : calibration scene: False leaves the flange bare (no marker or board on
+        it), so with ``tool=None`` the camera sees the arm's ISO 9409-1 flange face; with a
+        fixed camera the arm then starts with the face turned to the camera.
+    depth_model : None (exact depth, plus ``depth_noise``), "d435" or a dict of fields or a
+        ``sim_backends.depth_noise.RealSenseDepthModel``: every camera's depth as a RealSense
+        D4xx streams it (z**2 noise, edge and grazing dropouts, range, 1 mm steps), seeded.
+        Not together with ``depth_noise``.
+    rectangle_mark : True lays a dark 100 mm x 100 mm square (3 mm thick) on the table beside
+        the board, at a seeded position and yaw (``truth.base_T_rectangle``).
     """
     from sim_backends import arms as arms_mod
     from sim_backends import tools as tools_mod
@@ -352,14 +382,21 @@ def create_workcell(
     if overview_camera and not (scene == "chess" and mount == "eye_in_hand"):
         raise ValueError("overview_camera=True needs scene='chess' and mount='eye_in_hand' (a "
                          "fixed camera over the board next to the wrist camera)")
+    for label, flag in (("flange_target", flange_target), ("rectangle_mark", rectangle_mark)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise ValueError(f"{label} must be True or False, got {flag!r}")
+    depth_model = depth_model_from(depth_model)
+    if depth_model is not None and depth_noise > 0:
+        raise ValueError("give depth_noise or depth_model, not both: the RealSense model has its "
+                         "own noise")
     if not (chess_position in ("start", "random") or isinstance(chess_position, dict)):
         raise ValueError("chess_position must be 'start', 'random' or a dict "
                          f"square -> (kind, colour), got {chess_position!r}")
 
     # Independent streams, so turning one knob never reshuffles another's draws.
-    # (spawn(7)[:6] equals spawn(6): adding a stream left the others' draws as they were.)
-    rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess, rng_overview = (
-        np.random.default_rng(seed).spawn(7))
+    # (spawn(8)[:7] equals spawn(7): adding a stream left the others' draws as they were.)
+    (rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess, rng_overview,
+     rng_mark) = np.random.default_rng(seed).spawn(8)
     reach = ARM_REACH[arm]
     client = p.connect(p.DIRECT)
     try:
@@ -389,12 +426,17 @@ def create_workcell(
                 position = chess_position
             chess = _add_chess_set(client, reach, rng_scene, position)
             world_T_world = chess.world_T_chess
+        world_T_rectangle = None
+        if rectangle_mark:
+            world_T_rectangle = _add_rectangle_mark(client, reach, rng_mark, board,
+                                                    world_T_board, chess)
 
         # The tool first: "no tool" hides the Panda's built-in hand, which the flange target
         # below must then not make room for.
         robot_tool = tools_mod.make_tool(tool, client, sim_arm)
+        want_flange_target = flange_target
         flange_target = flange_T_marker = None
-        if scene == "calibration":
+        if scene == "calibration" and want_flange_target:
             flange_target, flange_T_marker = _target_on_flange(mount, sim_arm, reach)
             body = scn.add_target(client, flange_target,
                                   compose(sim_arm.world_T_flange(), flange_T_marker),
@@ -402,7 +444,8 @@ def create_workcell(
             sim_arm.attach(body, flange_T_marker)  # carried kinematically, exactly
 
         # ----- cameras: the true mount is the nominal one times the mounting error
-        cam_kw = {"pixel_noise": pixel_noise, "depth_noise": depth_noise, "lighting": light,
+        cam_kw = {"pixel_noise": pixel_noise, "depth_noise": depth_noise,
+                  "depth_model": depth_model, "lighting": light,
                   "clock": lambda: float(sim_arm.motion_time)}
         error = _random_pose_error(rng_mount, mount_mm, mount_deg)
         cam_T_right = None if stereo_baseline is None else make_pose(t=[stereo_baseline, 0, 0])
@@ -461,6 +504,10 @@ def create_workcell(
             encoder_offsets=None if offsets is None else offsets.copy(),
             board=board,
             flange_target=flange_target,
+            flange=FLANGES[arm],
+            base_T_rectangle=(None if world_T_rectangle is None
+                              else compose(base_T_pybullet, world_T_rectangle)),
+            rectangle_size=None if world_T_rectangle is None else RECTANGLE_MARK_SIZE,
             _chess=chess,
             _arm=sim_arm,
         )
@@ -481,6 +528,47 @@ def _add_table_target(client, kind, reach, rng):
         world_T_board = compose(world_T_centre, make_pose(t=-board.centre))
     scn.add_target(client, board, world_T_board)
     return board, world_T_board
+
+
+def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.ndarray:
+    """Lay the dark rectangle mark on the table to the robot's right of the board (or chess
+    set), clear of it and of the robot's base, at a seeded position and yaw. Returns
+    world_T_rectangle (centre of the top face, z up)."""
+    w, h = RECTANGLE_MARK_SIZE
+    if chess is not None:
+        side = 8 * chess.square + 2 * chess.texture.params["border"]
+        centre = transform_points(chess.world_T_chess, [[4 * chess.square] * 2 + [0.0]])[0]
+        keep_out = (centre[:2], np.hypot(side, side) / 2)
+    elif board is not None:
+        centre = transform_points(world_T_board, [board.centre])[0]
+        keep_out = (centre[:2], np.hypot(*board.size) / 2)
+    else:
+        keep_out = (np.zeros(2), 0.0)
+    mark_radius = np.hypot(w, h) / 2
+    jitter = rng.uniform(-0.01, 0.01, 2)
+    yaw = rng.uniform(-np.deg2rad(15), np.deg2rad(15))
+    for frac in (0.5, 0.6, 0.7):
+        for angle in (-55.0, -70.0, -90.0):
+            xy = frac * reach * np.array([np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))])
+            xy = xy + jitter
+            clear = np.linalg.norm(xy - keep_out[0]) > keep_out[1] + mark_radius + 0.02
+            if clear and np.linalg.norm(xy) > 0.12 + mark_radius:  # off the robot's base
+                break
+        else:
+            continue
+        break
+    world_T_rectangle = make_pose(pose_from_rpy(0, 0, yaw)[:3, :3],
+                                  [xy[0], xy[1], RECTANGLE_MARK_THICKNESS])
+    half = [w / 2, h / 2, RECTANGLE_MARK_THICKNESS / 2]
+    below = [0.0, 0.0, -RECTANGLE_MARK_THICKNESS / 2]  # the body frame is the top face
+    vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, visualFramePosition=below,
+                              rgbaColor=[0.06, 0.06, 0.07, 1.0], physicsClientId=client)
+    col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, collisionFramePosition=below,
+                                 physicsClientId=client)
+    quat = Rotation.from_matrix(world_T_rectangle[:3, :3]).as_quat()
+    p.createMultiBody(0, col, vis, world_T_rectangle[:3, 3].tolist(), quat.tolist(),
+                      physicsClientId=client)
+    return world_T_rectangle
 
 
 def _overview_camera_pose(chess: scn.ChessSet) -> np.ndarray:
@@ -551,7 +639,10 @@ def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, fl
         # the arm allows, for a large image of a small target), facing the camera with its
         # axes along the camera's (its z, into the print, along the optical axis).
         look = np.array([0.5 * reach, 0.0, 0.25 * reach])
-        centre = flange_target.centre
+        if flange_target is None:  # the bare flange face, its normal (+z) towards the camera
+            centre, flange_T_marker = np.zeros(3), make_pose(np.diag([1.0, -1.0, -1.0]))
+        else:
+            centre = flange_target.centre
         for f in (0.4, 0.3, 0.2, 0.1, 0.0):
             pos = look + f * (world_T_cam[:3, 3] - look)
             world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)

@@ -76,8 +76,12 @@ def test_the_scene_holds_the_arm_camera_board_and_frames_at_their_true_poses(cel
 
 
 def test_drawn_links_end_at_the_flange_the_kinematics_report(cell):
-    """The last link's cylinder, as drawn, must end on tool0 (0.0996 m beyond link_6's frame
-    in the URDF) and run along the flange's z axis: this checks the visual-frame convention."""
+    """The last link's cylinder, as drawn, must end where the ISO 9409 flange face begins
+    (FLANGE_PROUD_M behind tool0, 0.0996 m beyond link_6's frame in the URDF), and the face,
+    drawn on tool0, must end on tool0, both along the flange's z axis: this checks the
+    visual-frame convention."""
+    from sim_backends.flanges import FLANGE_PROUD_M, FLANGES
+
     view = make_view(cell)
     for q_change in (None, [0.3, -0.2, 0.25, 0.4, -0.5, 0.6]):
         if q_change is not None:
@@ -86,10 +90,18 @@ def test_drawn_links_end_at_the_flange_the_kinematics_report(cell):
         flange = cell.truth.base_T_flange()
         points = drawn_vertices_in_base(scene_tree(view)["arm/link_6"])
         in_flange = transform_points(np.linalg.inv(flange), points)
-        assert np.abs(in_flange[:, 2]).min() < POSE_TOL  # the cylinder's end face is on tool0
-        assert in_flange[:, 2].min() > -0.0996 - POSE_TOL and in_flange[:, 2].max() < POSE_TOL
+        # the cylinder's end face is where the flange face's rim begins
+        assert np.abs(in_flange[:, 2] + FLANGE_PROUD_M).min() < POSE_TOL
+        assert in_flange[:, 2].min() > -0.0996 - POSE_TOL
+        assert in_flange[:, 2].max() < -FLANGE_PROUD_M + POSE_TOL
         radial = np.linalg.norm(in_flange[:, :2], axis=1)
         assert radial.max() == pytest.approx(0.036, abs=1e-5)  # link_6's radius, about z
+        face = transform_points(np.linalg.inv(flange),
+                                drawn_vertices_in_base(scene_tree(view)["arm/tool0"]))
+        assert np.abs(face[:, 2]).min() < POSE_TOL and face[:, 2].max() < POSE_TOL
+        assert face[:, 2].min() == pytest.approx(-FLANGE_PROUD_M, abs=POSE_TOL)
+        assert np.linalg.norm(face[:, :2], axis=1).max() == pytest.approx(
+            FLANGES["ur5e"].radius, abs=1e-5)
 
 
 def test_drawn_panda_meshes_lie_on_the_simulators_collision_surfaces():
@@ -98,6 +110,8 @@ def test_drawn_panda_meshes_lie_on_the_simulators_collision_surfaces():
     A vertex never lies outside the convex hull PyBullet uses for a mesh, so a signed distance
     above the probe's radius plus the collision margin means the drawing is misplaced."""
     import pybullet as p
+
+    from sim_backends.flanges import FLANGE_PROUD_M
 
     with connect("sim", arm="panda", seed=0, width=96, height=72) as cell:
         cell.robot.move_joints(cell.robot.joint_positions() + 0.3, 0.5)
@@ -111,6 +125,12 @@ def test_drawn_panda_meshes_lie_on_the_simulators_collision_surfaces():
             info = (p.getBodyInfo(body, physicsClientId=client)[0] if link == -1
                     else p.getJointInfo(body, link, physicsClientId=client)[12])
             points = drawn_vertices_in_base(scene_tree(view)[f"arm/{info.decode()}"])
+            if info.decode() == "panda_link7":
+                # drawn FLANGE_PROUD_M back along its axis, so the flange face on link 8
+                # stands proud of it in depth (sim_backends.arms._render_urdf): undone here
+                axis = p.getLinkState(body, link, physicsClientId=client)[5]
+                z = np.array(p.getMatrixFromQuaternion(axis)).reshape(3, 3)[:, 2]
+                points = points + FLANGE_PROUD_M * z
             distances = []
             for point in points[rng.choice(len(points), 30, replace=False)]:
                 p.resetBasePositionAndOrientation(probe, point.tolist(), [0, 0, 0, 1],
