@@ -20,6 +20,7 @@ import re
 import secrets
 import shutil
 import stat
+import sys
 import tempfile
 import threading
 import time
@@ -269,7 +270,7 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                  limits: grading.Limits = grading.Limits(),
                  caps: freeze.Caps = freeze.Caps(),
                  fresh: bool = False, nonce: str | None = None, quiet: bool = False,
-                 students=None, progress=None) -> list[dict]:
+                 students=None, progress=None, cluster=None) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
     Three stages, so that no submission can damage or fool the grade:
@@ -316,6 +317,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     ``;``-separated string), also written to ``course_dir/grades.csv``, one per submission
     whatever it did, with feedback in
     ``course_dir/feedback_cobotlab/<student>/<assignment>/feedback.html``.
+
+    ``cluster``: an :class:`autograder.cluster.ClusterGrader`: stage 2 grades each
+    submission on a worker of its Dask cluster, in the same sandbox, instead of here
+    (``workers`` submissions in flight at once); freezing, nbgrader's converter and
+    recording stay in this process, which validates what each worker returns.
     """
     root = Path(course_dir).resolve()
     if workers < 1:
@@ -334,7 +340,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     nonce = secrets.token_hex(16) if fresh else nonce
     private = _private_dir(root)
     started = time.monotonic()
+    # a cluster whose workers would grade differently (secret, lab version) is refused here
+    cluster_note = cluster.check(assignment, secret) if cluster is not None else None
     run_notes = _begin_run(root, private)
+    if cluster_note:
+        run_notes.append(cluster_note)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         # 1. freeze
         frozen = _freeze(root, assignment, Path(store), caps, students)
@@ -342,7 +352,7 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         nb_runs, grades = _execute(root, assignment, frozen, Path(store), workers, secret,
                                    nonce, limits, run_nbgrader, nbgrader_kernel,
                                    nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
-                                   progress)
+                                   progress, cluster)
     ungraded = [g.student_id for g in grades if not g.graded]
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
@@ -392,10 +402,13 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
 
 def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limits,
              run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-             run_notes, progress=None):
+             run_notes, progress=None, cluster=None):
     """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
-    a refused one gets an empty grade here (zero, with its flags)."""
+    a refused one gets an empty grade here (zero, with its flags). With ``cluster``, each
+    grading runs on a worker of that Dask cluster (:mod:`autograder.cluster`)."""
     sandbox.capabilities()   # probed here, once, before any worker thread starts
+    _announce_fallback()
+    grade_notebook = grading.grade_notebook if cluster is None else cluster.grade_notebook
     template = known = None
     if run_nbgrader:
         try:
@@ -424,7 +437,7 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
         errors: list[str] = []
         if sub.accepted and sub.notebooks and template is not None:
             def in_worker_grade(paths):
-                got, failed = attempts(lambda: grading.grade_notebook(
+                got, failed = attempts(lambda: grade_notebook(
                     paths, assignment, sub.student_id, secret, nonce, limits, run_tests=True))
                 errors.extend(failed)
                 if got is None:
@@ -445,7 +458,7 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
             grade = _zero_grade(sub, assignment)
         elif grade is None:
             if len(errors) < GRADER_ATTEMPTS:   # not already tried in nbgrader's run
-                grade, failed = attempts(lambda: grading.grade_notebook(
+                grade, failed = attempts(lambda: grade_notebook(
                     sub.notebooks, assignment, sub.student_id, secret, nonce, limits))
                 errors += failed
             if grade is None:
@@ -782,6 +795,14 @@ def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
             log.append("  nbgrader: " + nb_runs[g.student_id].log[-1500:])
     record.write_file(private, "last_run.log", "\n".join(log).encode("utf-8"))
     (private / record.RUN_MARKER).unlink(missing_ok=True)
+
+
+def _announce_fallback() -> None:
+    """Before any submission is graded: say on stderr (whatever ``quiet``) that student code
+    will run without bubblewrap, why, and what to install or enable."""
+    warning = sandbox.fallback_warning()
+    if warning:
+        print(f"cobotlab: {warning}", file=sys.stderr, flush=True)
 
 
 def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes,

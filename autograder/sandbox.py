@@ -35,7 +35,7 @@ from pathlib import Path
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
            "SANDBOX_UID", "remove_stale_scratch", "Interrupted", "stop_all",
-           "stopping", "allow_starts"]
+           "stopping", "allow_starts", "fallback_warning"]
 
 # The unprivileged user student code runs as when the grader itself is root.
 SANDBOX_UID = 65534
@@ -50,6 +50,8 @@ class Capabilities:
     drop_to_uid: bool          # root: run student code as SANDBOX_UID with no capabilities
     cgroup: str | None         # "v1", "v2" or None
     evidence: tuple[str, ...] = ()
+    # Without bubblewrap: why not, and what would bring it back (see fallback_warning()).
+    why: str = ""
 
     @property
     def mode(self) -> str:
@@ -287,9 +289,9 @@ class Interrupted(KeyboardInterrupt):
     """Raised by :func:`command` after :func:`stop_all`: grading is being interrupted."""
 
 
-def _children(pid: int) -> list[int]:
-    """The direct children of ``pid`` (from /proc; empty where there is none)."""
-    found = []
+def _parents_of_all() -> dict[int, int]:
+    """{pid: parent pid} of every process (from /proc; empty where there is none)."""
+    found = {}
     for entry in os.listdir("/proc") if os.path.isdir("/proc") else ():
         if not entry.isdigit():
             continue
@@ -298,9 +300,39 @@ def _children(pid: int) -> list[int]:
                 fields = f.read().rsplit(b")", 1)[1].split()
         except (OSError, IndexError):
             continue
-        if len(fields) > 1 and int(fields[1]) == pid:
-            found.append(int(entry))
+        if len(fields) > 1:
+            found[int(entry)] = int(fields[1])
     return found
+
+
+def _children(pid: int) -> list[int]:
+    """The direct children of ``pid`` (from /proc; empty where there is none)."""
+    return [child for child, parent in _parents_of_all().items() if parent == pid]
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every process below ``pid``, whatever session or process group it is in."""
+    below: dict[int, list[int]] = {}
+    for child, parent in _parents_of_all().items():
+        below.setdefault(parent, []).append(child)
+    found, todo = set(), [pid]
+    while todo:
+        for child in below.get(todo.pop(), ()):
+            if child not in found:
+                found.add(child)
+                todo.append(child)
+    return found
+
+
+def _signal(pids, sig: int) -> int:
+    sent = 0
+    for pid in pids:
+        try:
+            os.kill(pid, sig)
+            sent += 1
+        except (ProcessLookupError, PermissionError):
+            pass
+    return sent
 
 
 def stop_all() -> int:
@@ -308,12 +340,24 @@ def stop_all() -> int:
 
     Kills every live :class:`Cgroup` (nbgrader, its kernels, workers and their children)
     and the process group of each direct child (bubblewrap: its PID namespace dies with
-    it). Call :func:`allow_starts` once the interrupted work has unwound. Returns how many
-    processes were signalled.
+    it), and every process below this one, whatever its session: without bubblewrap and a
+    cgroup (the rlimits-only fallback, an unprivileged grader) nbgrader's kernel, which
+    jupyter_client starts in a session of its own, is reached only through its parent. The
+    tree is stopped (SIGSTOP: it forks no more) before it is killed, so a child forked
+    meanwhile is not orphaned out of reach. Call :func:`allow_starts` once the interrupted
+    work has unwound. Returns how many processes were signalled.
     """
     _STOPPING.set()
+    me = os.getpid()
+    tree: set[int] = set()
+    for _ in range(10):   # until no new process appears below a stopped one
+        new = _descendants(me) - tree
+        if not new:
+            break
+        _signal(new, signal.SIGSTOP)
+        tree |= new
     killed = 0
-    for pid in _children(os.getpid()):
+    for pid in _children(me):
         try:
             os.killpg(pid, signal.SIGKILL)   # each sandbox leads a session of its own
         except (ProcessLookupError, PermissionError):
@@ -322,6 +366,7 @@ def stop_all() -> int:
             except (ProcessLookupError, PermissionError):
                 continue
         killed += 1
+    killed += _signal(tree, signal.SIGKILL)
     with _LIVE_LOCK:
         live = list(_LIVE_CGROUPS)
     for group in live:
@@ -425,22 +470,26 @@ def forget_capabilities() -> None:
         _PROBED.clear()
 
 
-
-
 def _probe() -> Capabilities:
     evidence: list[str] = []
     if os.environ.get("COBOTLAB_SANDBOX") == "rlimits":
         evidence.append("COBOTLAB_SANDBOX=rlimits: sandbox disabled on request")
-        return Capabilities(False, False, None, tuple(evidence))
+        return Capabilities(False, False, None, tuple(evidence),
+                            "the sandbox was turned off (COBOTLAB_SANDBOX=rlimits); unset it")
     root = os.geteuid() == 0
     bwrap = shutil.which("bwrap") is not None
+    why = ""
     if not bwrap:
         evidence.append("bwrap not found (Debian/Ubuntu: apt-get install bubblewrap)")
+        why = ("bubblewrap is not installed (bwrap is not on PATH); install it: apt-get "
+               "install bubblewrap (Debian, Ubuntu), dnf install bubblewrap (Fedora, RHEL)")
     if bwrap and root and not shutil.which("setpriv"):
         evidence.append("setpriv not found: cannot drop root inside the sandbox")
+        why = ("setpriv is not installed, so root cannot be dropped inside the sandbox; "
+               "install util-linux (apt-get install util-linux), or grade as a regular user")
         bwrap = False
     cgroup = _probe_cgroup(evidence)
-    caps = Capabilities(bwrap, root, cgroup, tuple(evidence))
+    caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why)
     if bwrap:
         from autograder.views import interpreter_view
 
@@ -448,20 +497,57 @@ def _probe() -> Capabilities:
         probe = [sys.executable, "-I", "-c",
                  "import os,socket; open('/tmp/p','w').write('x'); "
                  "print(os.getuid(), len(socket.if_nameindex()))"]
+        said = ""
         try:
             done = subprocess.run(command(probe, jail, caps=caps), capture_output=True,
                                   text=True, timeout=30, check=False)
             ok = done.returncode == 0
+            said = done.stderr.strip()
             evidence.append(f"bwrap probe: exit {done.returncode}, uid and interfaces "
-                            f"{done.stdout.strip()!r} {done.stderr.strip()[:200]!r}")
+                            f"{done.stdout.strip()!r} {said[:200]!r}")
         except (OSError, subprocess.SubprocessError) as exc:
             ok = False
+            said = str(exc)
             evidence.append(f"bwrap probe failed: {exc}")
         if not ok:
-            caps = Capabilities(False, False, cgroup, tuple(evidence))
+            caps = Capabilities(False, False, cgroup, tuple(evidence), _why_bwrap_failed(
+                said, root))
         else:
             caps = Capabilities(True, root, cgroup, tuple(evidence))
     return caps
+
+
+# What bubblewrap says when the kernel (a sysctl, AppArmor, a container's seccomp profile)
+# refuses an unprivileged user namespace.
+_USERNS_REFUSED = ("namespace", "uid map", "ENOSPC", "No permissions to creat",
+                   "Operation not permitted", "setting up uid map")
+
+
+def _why_bwrap_failed(said: str, root: bool) -> str:
+    """One sentence: why the probe's sandbox did not start, and what would make it start."""
+    first = " ".join(said.split())[:200] or "no message"
+    if not root and any(s.lower() in said.lower() for s in _USERNS_REFUSED):
+        return (f"bubblewrap cannot create a user namespace for this user (bwrap: {first}); "
+                "enable unprivileged user namespaces (sysctl user.max_user_namespaces=15000 "
+                "and, on Debian before 11, kernel.unprivileged_userns_clone=1; on Ubuntu "
+                "23.10 or later, kernel.apparmor_restrict_unprivileged_userns=0 or an "
+                "AppArmor profile for bwrap; in a container, a seccomp profile that allows "
+                "them), or grade as root")
+    return (f"bubblewrap could not start a sandbox here (bwrap: {first}); see "
+            ".cobotlab/last_run.log for the probe, and the bubblewrap documentation")
+
+
+def fallback_warning(caps: Capabilities | None = None) -> str | None:
+    """The line to show before grading starts when student code will run without
+    bubblewrap (None when it runs in it): why, what that means, what to install or
+    enable."""
+    caps = caps or capabilities()
+    if caps.bwrap:
+        return None
+    why = caps.why or "bubblewrap is not usable here (see .cobotlab/last_run.log)"
+    return ("WARNING: no sandbox: student code will run with resource limits only, as "
+            "yourself, able to read what you can read, and every row of grades.csv is "
+            f"flagged sandbox:rlimits_only. Why: {why}.")
 
 
 def mode() -> str:

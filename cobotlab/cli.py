@@ -166,7 +166,8 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     grade.add_argument("course_dir", metavar="COURSE", help="course directory (from `course init`)")
     grade.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
-    grade.add_argument("--workers", type=int, default=1, help="parallel graders (default 1)")
+    grade.add_argument("--workers", type=int, default=None,
+                       help="parallel graders (default 1; with --cluster, the cluster's)")
     grade.add_argument("--no-nbgrader", action="store_true",
                        help="skip nbgrader's autograde; use the results gradebook.db already has")
     grade.add_argument("--nbgrader-kernel", action="store_true",
@@ -181,6 +182,21 @@ def _build_parser() -> argparse.ArgumentParser:
                             "shard of the class, e.g. one job of many")
     grade.add_argument("--no-progress", action="store_true",
                        help="no progress bar on stderr")
+    grade.add_argument("--cluster", default=None, metavar="ADDRESS",
+                       help="grade on a Dask cluster (the `cluster` extra): tls://HOST:PORT "
+                            "(a scheduler with TLS client certificates), `gateway` (a new "
+                            "dask-gateway cluster of --workers workers, shut down after) or "
+                            "gateway:NAME / gateway://HOST:PORT/NAME (an existing one); each "
+                            "worker grades in its own sandbox with $COBOTLAB_GRADING_SECRET; "
+                            "tcp:// is refused. --workers: submissions in flight (default: "
+                            "the cluster's threads)")
+    grade.add_argument("--tls-ca-file", default=None, metavar="PEM",
+                       help="with --cluster tls://: the cluster's CA (default: Dask's config "
+                            "distributed.comm.tls.ca-file)")
+    grade.add_argument("--tls-cert", default=None, metavar="PEM",
+                       help="with --cluster tls://: this client's certificate, signed by the CA")
+    grade.add_argument("--tls-key", default=None, metavar="PEM",
+                       help="with --cluster tls://: its key (if not in --tls-cert's file)")
     redraw = grade.add_mutually_exclusive_group()
     redraw.add_argument("--fresh", action="store_true",
                         help="draw new hidden problems for this run (its nonce goes to "
@@ -621,16 +637,32 @@ def _grade(args) -> None:
         if done == total:   # before the summary is printed below it
             bar.close()
 
+    cluster = None
+    if args.cluster is None:
+        if args.tls_ca_file or args.tls_cert or args.tls_key:
+            raise ValueError("--tls-ca-file, --tls-cert and --tls-key go with --cluster tls://")
+    else:
+        from autograder import cluster as dask_cluster
+
+        security = None
+        if args.cluster.strip().startswith("tls://"):
+            security = dask_cluster.security_from(args.tls_ca_file, args.tls_cert,
+                                                  args.tls_key)
+        cluster = dask_cluster.connect(args.cluster, security=security, workers=args.workers)
     try:
-        grade_course(args.course_dir, args.assignment, workers=args.workers,
+        workers = args.workers if args.workers is not None else (
+            cluster.slots() if cluster is not None else 1)
+        grade_course(args.course_dir, args.assignment, workers=workers,
                      run_nbgrader=not args.no_nbgrader, nbgrader_kernel=args.nbgrader_kernel,
                      nbgrader_timeout_s=args.nbgrader_timeout,
                      students=_student_ids(args.students),
                      progress=None if args.no_progress else progress,
-                     fresh=args.fresh, nonce=args.replay)
+                     fresh=args.fresh, nonce=args.replay, cluster=cluster)
     finally:
         if bar is not None:
             bar.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def main(argv: list[str] | None = None) -> int:
