@@ -283,10 +283,6 @@ def assert_out_of_reach(seen: dict, install: str) -> None:
         assert found["named"] == [], (install, view, found["named"])
 
 
-def _probe_reads_checks_py(paths) -> str:
-    return next(p for p in paths if p.endswith("checks.py"))
-
-
 def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, tmp_path):
     env_dir, env = regular
     run([str(env_dir / "bin" / "cobotlab"), "course", "init", "course"], env=env, cwd=tmp_path)
@@ -294,7 +290,7 @@ def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, tmp_path):
     paths, modules = plant_markers(package_root, tmp_path / "course")
     # checks.py has no token: what matters is that the worker cannot open it (its stub
     # stands in); the kernel may, as its hidden tests score through it.
-    checks_py = _probe_reads_checks_py(paths)
+    checks_py = next(p for p in paths if p.endswith("checks.py"))
     with open(checks_py, "a") as f:
         f.write(f"# {TOKEN}\n")
     try:

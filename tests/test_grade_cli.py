@@ -75,6 +75,32 @@ def _still_running(seen: dict[int, str]) -> list[str]:
     return left
 
 
+def interrupt_once_running(cli: subprocess.Popen, runner: str, seen: dict[int, str]) -> str:
+    """Wait until a process named ``runner`` runs below the grading CLI (the notebook is
+    then inside its sleep), send the CLI alone SIGINT, as a terminal's Ctrl-C reaches it,
+    and wait for it to exit; returns its stderr. ``seen`` gets every process seen below it.
+    The CLI is killed if it outlives this."""
+    try:
+        deadline = time.monotonic() + 180
+        sleeper = None
+        while sleeper is None and time.monotonic() < deadline and cli.poll() is None:
+            seen.update(_descendants(cli.pid))
+            sleeper = next((p for p in seen if runner in _cmdline(p)), None)
+            time.sleep(0.3)
+        assert sleeper is not None, (f"{runner} never started",
+                                     cli.poll(), cli.stderr.read() if cli.poll() else "")
+        time.sleep(2.0)   # the notebook is now inside time.sleep(600)
+        seen.update(_descendants(cli.pid))
+        assert _still_running(seen), "nothing to interrupt"
+        cli.send_signal(signal.SIGINT)
+        _, err = cli.communicate(timeout=20)
+    finally:
+        if cli.poll() is None:
+            cli.kill()
+            cli.communicate()
+    return err.decode()
+
+
 @pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="needs bubblewrap")
 @pytest.mark.timeout(300)
 # By default the grader's worker runs the notebook for nbgrader too; --nbgrader-kernel runs
@@ -89,26 +115,9 @@ def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, 
                             ASSIGNMENT, "--no-progress", *([option] if option else [])],
                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     seen: dict[int, str] = {}
-    try:
-        deadline = time.monotonic() + 180
-        sleeper = None
-        while sleeper is None and time.monotonic() < deadline and cli.poll() is None:
-            seen.update(_descendants(cli.pid))
-            sleeper = next((p for p in seen if runner in _cmdline(p)), None)
-            time.sleep(0.3)
-        assert sleeper is not None, (f"{runner} never started",
-                                     cli.poll(), cli.stderr.read() if cli.poll() else "")
-        time.sleep(2.0)   # the notebook is now inside time.sleep(600)
-        seen.update(_descendants(cli.pid))
-        assert _still_running(seen), "nothing to interrupt"
-        cli.send_signal(signal.SIGINT)   # the CLI alone, as a terminal's Ctrl-C reaches it
-        _, err = cli.communicate(timeout=20)
-    finally:
-        if cli.poll() is None:
-            cli.kill()
-            cli.communicate()
-    assert cli.returncode == 130, err.decode()[-2000:]
-    assert "interrupted" in err.decode()
+    err = interrupt_once_running(cli, runner, seen)
+    assert cli.returncode == 130, err[-2000:]
+    assert "interrupted" in err
     stop = time.monotonic() + 5
     while _still_running(seen) and time.monotonic() < stop:
         time.sleep(0.2)

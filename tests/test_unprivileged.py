@@ -50,7 +50,7 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 from test_course_install import _copy_sources, _link_tree
-from test_grade_cli import _cmdline, _descendants, _still_running
+from test_grade_cli import _still_running, interrupt_once_running
 
 from autograder import checks, sandbox
 
@@ -362,30 +362,15 @@ def test_ctrl_c_stops_every_process_in_the_fallback(ta, option, runner):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     seen: dict[int, str] = {}
     try:
-        deadline = time.monotonic() + 180
-        sleeper = None
-        while sleeper is None and time.monotonic() < deadline and cli.poll() is None:
-            seen.update(_descendants(cli.pid))
-            sleeper = next((p for p in seen if runner in _cmdline(p)), None)
-            time.sleep(0.3)
-        assert sleeper is not None, (f"{runner} never started",
-                                     cli.poll(), cli.stderr.read() if cli.poll() else "")
-        time.sleep(2.0)   # the notebook is now inside time.sleep(600)
-        seen.update(_descendants(cli.pid))
-        assert _still_running(seen), "nothing to interrupt"
-        cli.send_signal(signal.SIGINT)   # the CLI alone, as a terminal's Ctrl-C reaches it
-        _, err = cli.communicate(timeout=20)
-        assert cli.returncode == 130, err.decode()[-2000:]
-        assert "interrupted" in err.decode() and "WARNING" in err.decode()
+        err = interrupt_once_running(cli, runner, seen)
+        assert cli.returncode == 130, err[-2000:]
+        assert "interrupted" in err and "WARNING" in err
         stop = time.monotonic() + 5
         while _still_running(seen) and time.monotonic() < stop:
             time.sleep(0.2)
         assert _still_running(seen) == []
         assert not (course / "grades.csv").exists()   # nothing half-recorded
     finally:
-        if cli.poll() is None:
-            cli.kill()
-            cli.communicate()
         for entry in _still_running(seen):   # never leave the user's processes behind
             try:
                 os.kill(int(entry.split()[0]), signal.SIGKILL)
