@@ -66,8 +66,8 @@ class Jail:
 
     ``ro`` paths are bound at the same place; ``masked`` directories show only the host
     paths listed for them (:class:`autograder.views.View`); ``ro_at`` and ``rw_at`` are
-    (host, inside) pairs; ``hide`` paths (inside) get an empty read-only tmpfs (a directory)
-    or /dev/null (a file) on top, after the binds.
+    (host, inside) pairs. There is no list of places to hide: what is not listed is not
+    there.
     """
 
     @classmethod
@@ -81,7 +81,6 @@ class Jail:
     masked: tuple[tuple[str, tuple[str, ...]], ...] = ()
     ro_at: tuple[tuple[str, str], ...] = ()
     rw_at: tuple[tuple[str, str], ...] = ()
-    hide: tuple[str, ...] = ()
     scratch_mb: int = 64
     chdir: str = "/tmp"
     env: dict[str, str] = field(default_factory=dict)
@@ -152,11 +151,6 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
         args += ["--bind", src, dst]
     for src, dst in jail.ro_at:  # after the read-write binds: may sit inside one
         args += ["--ro-bind", src, dst]
-    for path in jail.hide:  # an empty read-only directory, or /dev/null over a file
-        if os.path.isdir(path):
-            args += ["--perms", "0555", "--size", "4096", "--tmpfs", path, "--remount-ro", path]
-        else:
-            args += ["--ro-bind", "/dev/null", path]
     args += ["--remount-ro", "/", "--chdir", jail.chdir, "--clearenv"]
     for key, value in jail.env.items():
         args += ["--setenv", key, value]

@@ -117,10 +117,11 @@ def kernel_jail(course: Path, home: Path, source: Path, config: Path, assignment
     plus the throwaway ``course`` (read-write at /course), the assignment's ``source``
     files without its notebooks (read-only; nbgrader copies them over the submission, and
     they hold the practice data the hidden tests score on), and ``config``."""
+    from autograder.practice import ENV_DIR
     from autograder.views import kernel_view
 
     env = _env("/home/student")
-    env["COBOTLAB_PRACTICE_DIR"] = f"{INSIDE}/source/{assignment}"
+    env[ENV_DIR] = f"{INSIDE}/source/{assignment}"
     return sandbox.Jail.of_view(
         kernel_view(),
         rw_at=((str(course), INSIDE), (str(home), "/home/student")),

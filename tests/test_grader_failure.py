@@ -60,7 +60,7 @@ class BrokenSandbox:
         if not breaks:
             return jail
         # No interpreter in the view: bubblewrap itself fails to exec it.
-        return sandbox.Jail(ro=(), hide=(), scratch_mb=jail.scratch_mb, chdir=jail.chdir,
+        return sandbox.Jail(ro=(), scratch_mb=jail.scratch_mb, chdir=jail.chdir,
                             env=jail.env)
 
 
