@@ -25,14 +25,18 @@ from __future__ import annotations
 
 import builtins
 import io
+import json
+import os
 import resource
 import signal
+import socket
 import sys
+import threading
 import time
 import traceback
 import types
 
-from autograder import forbidden, standin, wire
+from autograder import _isolate, forbidden, standin, wire
 
 OUTPUT_KEEP = 4096
 
@@ -176,6 +180,7 @@ def _limit(which: int, value: int) -> None:
 def main(argv: list[str]) -> int:
     req_fd, rep_fd = int(argv[0]), int(argv[1])
     memory_mb, cpu_s, file_mb = (int(x) for x in argv[2:5])
+    control_fd = int(argv[5]) if len(argv) > 5 else None   # a template (autograder.template)
     _limit(resource.RLIMIT_AS, memory_mb * 1024 * 1024)
     _limit(resource.RLIMIT_CPU, cpu_s)
     _limit(resource.RLIMIT_FSIZE, file_mb * 1024 * 1024)
@@ -190,11 +195,16 @@ def main(argv: list[str]) -> int:
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
     _stub_viewer()
-    send, receive = wire.send, wire.receive  # bound now: student code may patch the module
     # Before any student code: the grader knows the sandbox started (a failure until here
     # is the grader's, retried in a fresh sandbox, never a student's zero).
-    send(rep_fd, {"op": "ready"})
+    wire.send(rep_fd, {"op": "ready"})
+    return _serve(req_fd, rep_fd, namespace, out, err, control_fd)
 
+
+def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
+           err: _CappedWriter, control_fd: int | None = None) -> int:
+    """Answer requests until "quit" or the grader closes the pipe; returns the exit code."""
+    send, receive = wire.send, wire.receive  # bound now: student code may patch the module
     while True:
         try:
             request = receive(req_fd)
@@ -203,6 +213,8 @@ def main(argv: list[str]) -> int:
         op = request.get("op")
         if op == "quit":
             return 0
+        if op == "template" and control_fd is not None:
+            return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err)
         if op == "cell":
             started, cpu_started = time.monotonic(), time.process_time()
             index = request.get("index", 0)
@@ -246,6 +258,138 @@ def main(argv: list[str]) -> int:
                                                     f"or number ({exc})"})
         else:
             send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
+
+
+# --------------------------------------------------------------------------- template mode
+#
+# A template is a worker that has run the notebook's leading read-only cells (the lab's
+# imports, its simulator set-up: instructor code, the same for every student) and then
+# forks one process per submission. Each fork leaves the template's namespaces for fresh
+# ones (autograder._isolate) before it runs any student code, and answers on the pipes the
+# grader passed with the fork request, exactly as a freshly started worker would.
+
+
+def _single_threaded() -> str | None:
+    """None when this process has one thread (fork copies only the calling thread, so a
+    lock another thread held would stay locked in every child), else which ones it has."""
+    for thread in threading.enumerate():
+        if type(thread).__name__ == "TMonitor":   # tqdm's progress-bar monitor: display
+            thread.exit()                          # only; a fork's next bar starts its own
+    deadline = time.monotonic() + 2.0   # a joined thread's task outlives its join a moment
+    while len(tasks := os.listdir("/proc/self/task")) > 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    if len(tasks) == 1:
+        return None
+    names = sorted(t.name for t in threading.enumerate())
+    return f"{len(tasks)} threads after loading (Python's: {', '.join(names)})"
+
+
+def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
+                 out: _CappedWriter, err: _CappedWriter) -> int:
+    """The template's loop: one fork per request on the control socket (fds attached:
+    the submission's request and reply pipes, its stderr file, its cgroups' procs files)."""
+    busy = _single_threaded()
+    wire.send(rep_fd, {"ok": busy is None, "error": busy or "", "pid": os.getpid()})
+    if busy is not None:
+        return 0
+    _isolate.not_dumpable()
+    control = socket.socket(fileno=control_fd)
+    exited: dict[int, int] = {}
+    while True:
+        try:
+            data, fds, _, _ = socket.recv_fds(control, 65536, 8)
+        except OSError:
+            return 0
+        if not data:
+            return 0
+        _reap(exited)
+        try:
+            request = json.loads(data)
+        except ValueError:
+            request = {}
+        op = request.get("op")
+        if op == "fork" and len(fds) >= 3:
+            pid = os.fork()
+            if pid == 0:
+                _become_submission(control, fds, request, (req_fd, rep_fd), namespace, out,
+                                   err)
+            for fd in fds:
+                os.close(fd)
+            control.send(json.dumps({"pid": pid}).encode())
+        elif op == "status":
+            pid = int(request.get("pid", 0))
+            deadline = time.monotonic() + float(request.get("wait", 0.0))
+            while pid not in exited and time.monotonic() < deadline:
+                time.sleep(0.01)
+                _reap(exited)
+            control.send(json.dumps({"status": exited.get(pid)}).encode())
+        else:
+            for fd in fds:
+                os.close(fd)
+            control.send(json.dumps({"error": f"unknown request {op!r}"}).encode())
+
+
+def _reap(exited: dict[int, int]) -> None:
+    """Collect the exit codes of finished submissions (each the code of its process 1)."""
+    while True:
+        try:
+            pid, status = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            return
+        exited[pid] = os.waitstatus_to_exitcode(status)
+
+
+def _become_submission(control, fds, request, template_fds, namespace, out, err):
+    """In the fork: leave the template's namespaces, fork process 1 of a PID namespace of
+    its own, and serve the submission there. Never returns."""
+    req_r, rep_w, err_w, *cgroups = fds
+    try:
+        control.close()
+        for fd in template_fds:
+            os.close(fd)
+        for fd in cgroups:   # "0": this process; its children inherit the group
+            os.write(fd, b"0")
+            os.close(fd)
+        _isolate.leave_template(int(request.get("scratch_bytes", 64 * 2**20)))
+        child = os.fork()
+    except BaseException as exc:  # noqa: BLE001 - told to the grader, which starts cold
+        _refuse(rep_w, exc)
+    if child:   # stays outside, to report how process 1 ended
+        for fd in (req_r, rep_w, err_w):
+            os.close(fd)
+        _, status = os.waitpid(child, 0)
+        code = os.waitstatus_to_exitcode(status)
+        os._exit(code if code >= 0 else 128 - code)
+    try:
+        _isolate.enter_own_pid_namespace()
+        _isolate.drop_privileges()
+        os.dup2(err_w, 2)
+        _close_all_but({0, 1, 2, req_r, rep_w})   # the template's files and pipes too
+        cpu_s = int(request.get("cpu_s", 60))
+        _limit(resource.RLIMIT_CPU, max(1, cpu_s))
+    except BaseException as exc:  # noqa: BLE001
+        _refuse(rep_w, exc)
+    wire.send(rep_w, {"op": "ready"})
+    os._exit(_serve(req_r, rep_w, namespace, out, err))
+
+
+def _close_all_but(keep: set[int]) -> None:
+    for name in os.listdir("/proc/self/fd"):
+        fd = int(name)
+        if fd not in keep:
+            try:
+                os.close(fd)
+            except OSError:   # the directory listing's own descriptor, already gone
+                pass
+
+
+def _refuse(rep_w: int, exc: BaseException):
+    try:
+        wire.send(rep_w, {"op": "isolation_failed", "error": _describe(exc)})
+    finally:
+        os._exit(70)
 
 
 if __name__ == "__main__":

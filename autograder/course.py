@@ -31,6 +31,7 @@ from pathlib import Path
 from autograder import checks, feedback, freeze, grading, record, sandbox, scratch
 from autograder.freeze import printable
 from autograder.practice import build_practice, save_practice
+from autograder.template import Template, TemplateUnavailable, leading_cells
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
 
@@ -270,7 +271,8 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                  limits: grading.Limits = grading.Limits(),
                  caps: freeze.Caps = freeze.Caps(),
                  fresh: bool = False, nonce: str | None = None, quiet: bool = False,
-                 students=None, progress=None, cluster=None) -> list[dict]:
+                 students=None, progress=None, cluster=None,
+                 template: bool = True) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
     Three stages, so that no submission can damage or fool the grade:
@@ -322,6 +324,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     submission on a worker of its Dask cluster, in the same sandbox, instead of here
     (``workers`` submissions in flight at once); freezing, nbgrader's converter and
     recording stay in this process, which validates what each worker returns.
+
+    ``template``: each of the ``workers`` grading threads loads the interpreter, the lab's
+    imports and the released notebook's leading read-only cells once, and forks every
+    submission's worker from it into a sandbox of its own (:mod:`autograder.template`);
+    False starts a new interpreter per submission (the results are the same, slower).
     """
     root = Path(course_dir).resolve()
     if workers < 1:
@@ -352,7 +359,7 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         nb_runs, grades = _execute(root, assignment, frozen, Path(store), workers, secret,
                                    nonce, limits, run_nbgrader, nbgrader_kernel,
                                    nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
-                                   progress, cluster)
+                                   progress, cluster, template and cluster is None)
     ungraded = [g.student_id for g in grades if not g.graded]
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
@@ -402,13 +409,20 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
 
 def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limits,
              run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-             run_notes, progress=None, cluster=None):
+             run_notes, progress=None, cluster=None, use_template=False):
     """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
     a refused one gets an empty grade here (zero, with its flags). With ``cluster``, each
-    grading runs on a worker of that Dask cluster (:mod:`autograder.cluster`)."""
+    grading runs on a worker of that Dask cluster (:mod:`autograder.cluster`); with
+    ``use_template``, each grading thread forks its workers from a template of its own."""
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
-    grade_notebook = grading.grade_notebook if cluster is None else cluster.grade_notebook
+    templates = _Templates(root, assignment, limits, run_notes) if use_template else None
+    if cluster is not None:
+        grade_notebook = cluster.grade_notebook
+    else:
+        def grade_notebook(*args, **kwargs):
+            mine = templates.mine() if templates is not None else None
+            return grading.grade_notebook(*args, **kwargs, template=mine)
     template = known = None
     if run_nbgrader:
         try:
@@ -435,6 +449,8 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
     def one(sub: freeze.Frozen):
         nb = grade = None
         errors: list[str] = []
+        if templates is not None and sub.accepted and sub.notebooks:
+            templates.mine()   # this thread's, built before nbgrader's share is timed
         if sub.accepted and sub.notebooks and template is not None:
             def in_worker_grade(paths):
                 got, failed = attempts(lambda: grade_notebook(
@@ -487,8 +503,64 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
         pool.shutdown(wait=True, cancel_futures=True)
         sandbox.allow_starts()
         raise
+    finally:
+        if templates is not None:
+            templates.close()
     pool.shutdown()
     return {sid: nb for sid, nb, _ in done if nb is not None}, [g for _, _, g in done]
+
+
+class _Templates:
+    """One :class:`autograder.template.Template` per grading thread, built on its first
+    submission (so ``--workers 2`` builds two at once, one per core) and closed at the end.
+    A thread whose template cannot be built grades cold; the run log says why, once."""
+
+    def __init__(self, root: Path, assignment: str, limits: grading.Limits, run_notes):
+        self.limits, self.run_notes = limits, run_notes
+        self.release = root / "release" / assignment / f"{assignment}.ipynb"
+        self.cpu_s = limits.worker_cpu_s(checks.SPECS[assignment])
+        self._local, self._lock, self._built = threading.local(), threading.Lock(), []
+
+    def mine(self):
+        """This thread's template, or None (no release, nothing to share, or it failed)."""
+        if not hasattr(self._local, "template"):
+            self._local.template = self._build()
+        return self._local.template
+
+    def _build(self):
+        why = None
+        try:
+            cells = leading_cells(self.release) if self.release.is_file() else None
+            if not cells:
+                why = ("no released notebook to share cells from (run nbgrader "
+                       "generate_assignment)" if cells is None else "the released notebook "
+                       "does not begin with read-only cells")
+            else:
+                built = Template(cells, self.limits, self.cpu_s)
+        except TemplateUnavailable as exc:
+            why = printable(exc, 300)
+        except Exception as exc:  # noqa: BLE001 - a grader bug costs speed, never a grade
+            why = f"{type(exc).__name__}: {printable(exc, 300)}"
+        with self._lock:
+            if why is not None:
+                note = f"no template, every submission started cold: {why}"
+                if note not in self.run_notes:
+                    self.run_notes.append(note)
+                return None
+            self._built.append(built)
+            if len(self._built) == 1:
+                self.run_notes.append(
+                    f"template: the interpreter, imports and the first {len(cells)} cells "
+                    f"({built.shared_s:.1f} s) loaded once per worker, in "
+                    f"{built.build_s:.1f} s; peak {built.peak_memory_mb():.0f} MB, shared by "
+                    "its forks")
+        return built
+
+    def close(self) -> None:
+        with self._lock:
+            for template in self._built:
+                template.close()
+            self._built.clear()
 
 
 # A grader error (its sandbox did not start, a bug) is tried again in a fresh sandbox; a

@@ -66,6 +66,7 @@ __all__ = [
     "sandbox_available",
     "Worker",
     "GraderError",
+    "TemplateUnavailable",
     "grade_notebook",
 ]
 
@@ -139,6 +140,12 @@ class SubmissionGrade:
     # False when the grader itself failed on every attempt: no score is recorded (not 0),
     # the row says ``grader_error``, and the next run grades the submission again.
     graded: bool = True
+    # Where the wall clock went (s): until the worker was ready (sandbox, interpreter,
+    # imports; or the fork of a template), the template's shared cells (run once for the
+    # class, not for this submission), the submission's own cells, the hidden problems and
+    # tests; and the peak memory of its cgroup (MB; None without one).
+    profile: dict = field(default_factory=lambda: {
+        "start_s": 0.0, "shared_s": 0.0, "cells_s": 0.0, "hidden_s": 0.0, "peak_mb": None})
 
     @property
     def score(self) -> float:
@@ -310,10 +317,12 @@ def sandbox_available() -> bool:
 
 
 def _worker_env(home: str) -> dict[str, str]:
-    """A clean environment: nothing of the grader's (no secret), one BLAS thread."""
+    """A clean environment: nothing of the grader's (no secret), one BLAS and one OpenCV
+    thread (a template forks: a thread pool would not survive the fork)."""
     return {"PATH": "/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8", "MPLBACKEND": "Agg",
             "MPLCONFIGDIR": home, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-            "MKL_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1", "PYTHONHASHSEED": "0"}
+            "MKL_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1",
+            "PYTHONDONTWRITEBYTECODE": "1", "PYTHONHASHSEED": "0"}
 
 
 def worker_jail(limits: Limits) -> sandbox.Jail:
@@ -335,6 +344,11 @@ class GraderError(RuntimeError):
     """The grader could not grade: its sandbox did not start, before any student code ran.
     Never the submission's fault: :func:`autograder.course.grade_course` retries it in a
     fresh sandbox and, if it persists, records no score."""
+
+
+class TemplateUnavailable(RuntimeError):
+    """A template (:mod:`autograder.template`) could not be built or could not fork a
+    sandboxed worker: the submission gets a cold worker instead."""
 
 
 # Wall clock for a fresh worker to say it is ready (interpreter start and the worker's
@@ -387,33 +401,50 @@ class Worker:
     each cell to ``budget``; a cell that hangs past its wall-clock backstop raises
     :class:`CellHang` so the caller can restart without it. ``load_report`` lists what each
     cell did. ``cpu_s`` is the worker's lifetime CPU limit (RLIMIT_CPU).
+
+    With ``template`` (an :class:`autograder.template.Template` whose shared cells begin
+    ``cells``), the worker is a fork of it in a sandbox of its own instead of a new
+    interpreter: the shared cells' reports are the template's (charged to ``budget`` as if
+    run here) and loading starts after them; it raises
+    :class:`TemplateUnavailable` when the template cannot fork.
+    ``control_fd`` starts a template instead (its end of the control socket).
+    ``start_s`` and ``cells_s`` are the wall-clock seconds until the worker was ready and
+    of the cells it ran itself.
     """
 
     def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
                  cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
-                 budget: LoadBudget | None = None, first: bool = True):
+                 budget: LoadBudget | None = None, first: bool = True,
+                 template=None, control_fd: int | None = None):
         self.limits = limits
         budget = budget or LoadBudget.of(limits)
+        started = time.monotonic()
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
-        req_r, self._req_w = os.pipe()
-        self._rep_r, rep_w = os.pipe()
-        python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
-                  str(limits.memory_mb), str(int(cpu_s)), str(limits.file_mb)]
-        if sandbox_available():
-            command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
-        else:  # rlimits only: the worker still starts in an empty directory with a clean env
-            command, env = python, _worker_env(self.workdir)
         self._stderr = open(os.path.join(self.workdir, ".worker-stderr"), "w+b")
-        self.proc = subprocess.Popen(
-            command, cwd=self.workdir, env=env, stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL, stderr=self._stderr, pass_fds=(req_r, rep_w),
-            start_new_session=True)
-        os.close(req_r)
-        os.close(rep_w)
         self.load_report: list[dict] = []
         self.tripped: set[str] = set()
+        self.shared = 0
+        if template is not None:
+            try:
+                self.proc, self._req_w, self._rep_r = template.fork(self._stderr.fileno(),
+                                                                    cgroup)
+            except Exception:
+                self._stderr.close()
+                shutil.rmtree(self.workdir, ignore_errors=True)
+                raise
+            self.shared = len(template.cells)
+        else:
+            self._spawn(limits, cgroup, cpu_s, control_fd)
         self._wait_ready(first)
+        self.start_s = time.monotonic() - started
+        for reply in template.replies if template is not None else ():
+            seconds = float(reply.get("seconds", 0.0))
+            budget.spend(_reported_cpu(reply, seconds), seconds)
+            self.load_report.append(dict(reply))
+        started = time.monotonic()
         for index, source in enumerate(cells):
+            if index < self.shared:
+                continue
             if index in skip:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
                 continue
@@ -423,16 +454,38 @@ class Worker:
                                     f"{limits.load_timeout_s:g} s of CPU time")
             cpu = min(limits.cell_timeout_s, budget.cpu_s)
             wall = min(limits.wall_factor * cpu, budget.wall_s)
-            started = time.monotonic()
+            cell_started = time.monotonic()
             try:
                 reply = self._request({"op": "cell", "index": index, "source": source,
                                        "timeout": cpu, "wall": wall}, wall + 2.0)
             except WorkerFailure as exc:
-                budget.spend(0.0, time.monotonic() - started)
+                budget.spend(0.0, time.monotonic() - cell_started)
                 raise CellHang(index, f"cell {index}: {exc}") from None
-            elapsed = time.monotonic() - started
+            elapsed = time.monotonic() - cell_started
             budget.spend(_reported_cpu(reply, elapsed), elapsed)
             self.load_report.append(dict(reply, index=index))
+        self.cells_s = time.monotonic() - started
+
+    def _spawn(self, limits: Limits, cgroup, cpu_s: int, control_fd: int | None) -> None:
+        """Start a new interpreter in a new sandbox (a template's with ``control_fd``)."""
+        req_r, self._req_w = os.pipe()
+        self._rep_r, rep_w = os.pipe()
+        python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
+                  str(limits.memory_mb), str(int(cpu_s)), str(limits.file_mb)]
+        passed = (req_r, rep_w)
+        if control_fd is not None:
+            python.append(str(control_fd))
+            passed += (control_fd,)
+        if sandbox_available():
+            command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
+        else:  # rlimits only: the worker still starts in an empty directory with a clean env
+            command, env = python, _worker_env(self.workdir)
+        self.proc = subprocess.Popen(
+            command, cwd=self.workdir, env=env, stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL, stderr=self._stderr, pass_fds=passed,
+            start_new_session=True)
+        os.close(req_r)
+        os.close(rep_w)
 
     def _wait_ready(self, first: bool) -> None:
         """Wait for the worker's hello. A first worker that never says it (bubblewrap refused
@@ -444,11 +497,18 @@ class Worker:
             if hello.get("op") == "ready":
                 return
             why = f"unexpected first message {str(hello)[:80]}"
+            if hello.get("op") == "isolation_failed":   # a template's fork, before any
+                self._kill()                            # student code: start cold instead
+                self.close()
+                raise TemplateUnavailable(f"a fork could not make its sandbox: "
+                                          f"{str(hello.get('error'))[:200]}")
         except (wire.WireError, OSError) as exc:
             why = str(exc)
         self._kill()
         detail = self.stderr_tail()
         self.close()
+        if self.shared:   # a fork that failed before any student code: the template's fault
+            raise TemplateUnavailable(f"a fork did not start ({why}): {detail or 'no message'}")
         if first:
             raise GraderError(f"the sandboxed worker did not start ({why}): "
                               f"{detail or 'no message'}")
@@ -464,16 +524,26 @@ class Worker:
             return ""
 
     def _kill(self) -> None:
-        """Kill the process group and reap it; stderr stays readable (for a message)."""
+        """Kill the process group (a fork: its PID namespace) and reap it; stderr stays
+        readable (for a message)."""
         if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+            if not isinstance(self.proc, subprocess.Popen):
+                self.proc.kill()
+            else:
+                try:
+                    os.killpg(self.proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
         try:
             self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             pass
+
+    def request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
+        """Send ``message`` and return the reply (within ``timeout_s``, at most
+        ``max_bytes``); a hang, death or malformed reply kills the worker and raises
+        :class:`WorkerFailure`."""
+        return self._request(message, timeout_s, max_bytes)
 
     def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
         try:
@@ -549,7 +619,7 @@ class Worker:
 
 def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str,
                    nonce: str | None, limits: Limits = Limits(),
-                   run_tests: bool = False) -> SubmissionGrade:
+                   run_tests: bool = False, template=None) -> SubmissionGrade:
     """Grade one submission (its frozen notebook file or files) on its own hidden problems.
 
     The code runs in the sandboxed worker, all of its processes in one cgroup when the
@@ -563,6 +633,11 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     only (a restart skips them), each cell's outcome goes to ``cell_runs``, and every
     ``hidden_test(f)`` of a test cell is scored here on the kernel seeds, the rule of
     :func:`autograder.checks.hidden_test`, into ``kernel_checks``.
+
+    ``template``: an :class:`autograder.template.Template` of this assignment; when the
+    submission's first cells are its shared ones, each worker is a fork of it (a sandbox of
+    its own, the shared cells not run again), else, or when it cannot fork, a cold one.
+    ``grade.profile`` says where the wall-clock time went.
     """
     started = time.monotonic()
     specs = checks.SPECS.get(assignment)
@@ -597,15 +672,31 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     deadline = started + limits.deadline_s
 
     starts = 0
+    if template is not None and not template.matches(cells):
+        grade.notes.append("started cold: the notebook's first cells are not the released "
+                           "notebook's read-only ones")
+        template = None
+    profile = grade.profile
 
     def loaded() -> Worker:
-        nonlocal worker, starts
+        nonlocal worker, starts, template
         if worker is None or not worker.alive:
             if worker is not None:
                 worker.close()
             starts += 1
-            worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                   worker_cpu_s, first=starts == 1)
+            try:
+                worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
+                                       worker_cpu_s, first=starts == 1, template=template)
+            except TemplateUnavailable as exc:
+                grade.notes.append(f"started without the template ({exc})")
+                template = None
+                worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
+                                       worker_cpu_s, first=starts == 1)
+            profile["start_s"] += worker.start_s
+            profile["cells_s"] += worker.cells_s
+            if worker.shared:
+                profile["shared_s"] = sum(float(r.get("seconds", 0.0))
+                                          for r in worker.load_report[:worker.shared])
             _note_load(grade, worker.load_report, tests)
             if run_tests and not grade.cell_runs:
                 grade.cell_runs = _cell_runs(worker.load_report, grade.cell_origins, skip)
@@ -655,6 +746,7 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                 loaded()
             except WorkerFailure as exc:
                 grade.notes.append(f"the notebook did not load: {exc}")
+        hidden_started, loading_before = time.monotonic(), profile["start_s"] + profile["cells_s"]
         for spec in specs:
             if banned[spec.name]:
                 grade.functions.append(checks.forbidden_result(spec, banned[spec.name]))
@@ -669,10 +761,14 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                 grade.functions.append(checks.score_function(spec, trials, outcomes))
         for name in hidden_tests_called(cells[i] for i in sorted(tests)):
             grade.kernel_checks[name] = _kernel_check(name, specs, banned, run)
+        # restarts while calling count as loading, not as the hidden problems
+        profile["hidden_s"] = (time.monotonic() - hidden_started
+                               - (profile["start_s"] + profile["cells_s"] - loading_before))
     finally:
         if worker is not None:
             worker.close()
         if cgroup is not None:
+            profile["peak_mb"] = cgroup.peak_memory_mb()
             if cgroup.oom_kills():
                 grade.notes.append(f"the memory limit ({limits.memory_mb} MB for all the "
                                    f"submission's processes) stopped it {cgroup.oom_kills()} "
@@ -733,15 +829,17 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
                   budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
-                  first: bool) -> Worker:
-    """A loaded worker; cells that hang or time out are skipped on every later restart.
-    ``first``: no worker of this submission has started yet (see :class:`GraderError`)."""
+                  first: bool, template=None) -> Worker:
+    """A loaded worker (a fork of ``template`` when given); cells that hang or time out are
+    skipped on every later restart. ``first``: no worker of this submission has started
+    yet (see :class:`GraderError`)."""
     while True:
         if budget.exhausted:
             raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s "
                                 "of CPU time")
         try:
-            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first)
+            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first,
+                            template=template)
         except CellHang as exc:
             first = False
             skip.add(exc.index)

@@ -318,6 +318,31 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
+def host_pid(ns_pid: int, ancestor: int) -> int | None:
+    """The PID here of the process below ``ancestor`` (a bubblewrap sandbox) whose PID in
+    the sandbox's namespace is ``ns_pid``; None when there is none."""
+    for pid in _descendants(ancestor):
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            continue
+        for line in status.splitlines():
+            if line.startswith("NSpid:"):
+                ids = line.split()[1:]
+                if len(ids) >= 2 and ids[1] == str(ns_pid):
+                    return pid
+    return None
+
+
+def kill_tree(pid: int, include_root: bool = True) -> int:
+    """Stop, then SIGKILL, every process below ``pid`` (and ``pid`` itself with
+    ``include_root``), whatever its session; returns how many were signalled."""
+    below = _descendants(pid) | ({pid} if include_root else set())
+    _signal(below, signal.SIGSTOP)
+    below |= _descendants(pid)   # forked before the stop arrived
+    return _signal(below, signal.SIGKILL)
+
+
 def _signal(pids, sig: int) -> int:
     sent = 0
     for pid in pids:

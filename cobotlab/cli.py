@@ -175,6 +175,10 @@ def _build_parser() -> argparse.ArgumentParser:
                             "run of each notebook: slower, but the autograded notebooks keep "
                             "plots and check() tables); default: its cells run once, by the "
                             "grader's worker")
+    grade.add_argument("--no-template", action="store_true",
+                       help="start a new interpreter for every submission instead of forking "
+                            "each from a template that loaded the lab's imports and first "
+                            "read-only cells once (same results, slower; for comparison)")
     grade.add_argument("--nbgrader-timeout", type=float, default=300, metavar="S",
                        help="wall clock of one student's nbgrader kernel run (default 300 s)")
     grade.add_argument("--students", default=None, metavar="IDS",
@@ -657,7 +661,8 @@ def _grade(args) -> None:
                      nbgrader_timeout_s=args.nbgrader_timeout,
                      students=_student_ids(args.students),
                      progress=None if args.no_progress else progress,
-                     fresh=args.fresh, nonce=args.replay, cluster=cluster)
+                     fresh=args.fresh, nonce=args.replay, cluster=cluster,
+                     template=not args.no_template)
     finally:
         if bar is not None:
             bar.close()

@@ -292,7 +292,14 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     # sleepers are cut at 2x their limit: the attack is tested here, not the clock
     limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
                             wall_factor=2)
+    # Graded twice: each worker forked from a template (the default) and each a new
+    # interpreter; the template must change no score and no flag.
+    cold = fresh_course(course, tmp_path / "cold")
     rows = grade_course(course, lab, workers=2, limits=limits, quiet=True)
+    cold_rows = grade_course(cold, lab, workers=2, limits=limits, quiet=True, template=False)
+    assert "template: the interpreter" in (course / ".cobotlab" / "last_run.log").read_text()
+    assert ({r["student_id"]: (r["score"], r["flags"]) for r in rows}
+            == {r["student_id"]: (r["score"], r["flags"]) for r in cold_rows})
     grades = {r["student_id"]: r for r in rows}
     assert set(grades) == set(cases) | {"reference"}, "every submission gets a row"
     # without a kernel run nbgrader has no result for the reference, and says so

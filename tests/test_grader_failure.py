@@ -99,8 +99,10 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     sandbox.forget_capabilities()
     fault = BrokenSandbox(monkeypatch, first_start=True, always={"broken"})
 
+    # Each worker a new interpreter in a new sandbox (a template's forks use no worker_jail:
+    # its own failure is the next test's)
     rows = {r["student_id"]: r for r in grade_course(
-        course, ASSIGNMENT, workers=2, run_nbgrader=True)}
+        course, ASSIGNMENT, workers=2, run_nbgrader=True, template=False)}
     out = capsys.readouterr().out
     assert len(probes) == 1, "the sandbox was probed more than once in one run"
     first = fault.broken[0]
@@ -127,10 +129,26 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     # The next run, with the machine fixed, grades it like the others.
     monkeypatch.setattr(grading, "worker_jail", fault.real_jail)
     rows = {r["student_id"]: r for r in grade_course(
-        course, ASSIGNMENT, workers=2, run_nbgrader=True, quiet=True)}
+        course, ASSIGNMENT, workers=2, run_nbgrader=True, quiet=True, template=False)}
     assert float(rows["broken"]["score"]) == full, rows["broken"]
     assert "grader_error" not in rows["broken"]["flags"]
     assert all(v is not None for v in _cobotlab_cells(course, "broken").values())
+
+
+def test_a_template_that_cannot_start_costs_time_never_a_grade(released, tmp_path,
+                                                              monkeypatch):
+    course = kit.fresh_course(released, tmp_path)
+    _submit_class(course)
+    fault = BrokenSandbox(monkeypatch, first_start=True)   # the run's first sandbox: the template
+    rows = {r["student_id"]: r for r in grade_course(
+        course, ASSIGNMENT, workers=1, run_nbgrader=True, quiet=True)}
+    assert fault.broken == [None], "the template, built before any submission, was the first"
+    full = sum(s.points for s in checks.SPECS[ASSIGNMENT])
+    assert {s: float(r["score"]) for s, r in rows.items()} == {
+        "ada": full, "broken": full, "cy": full, "bo": 0.0}
+    assert not any(r["flags"] for r in rows.values()), rows
+    log = (course / ".cobotlab" / "last_run.log").read_text()
+    assert "no template, every submission started cold: the template did not load" in log
 
 
 def test_a_row_whose_isolation_differs_from_the_probe_says_so(released, tmp_path, monkeypatch):
