@@ -24,6 +24,7 @@ static scan is the authoritative rule) and the stand-ins of :mod:`autograder.sta
 from __future__ import annotations
 
 import builtins
+import importlib
 import io
 import json
 import os
@@ -215,6 +216,9 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             return 0
         if op == "template" and control_fd is not None:
             return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err)
+        if op == "preload" and control_fd is not None:
+            send(rep_fd, _preload(request))
+            continue
         if op == "cell":
             started, cpu_started = time.monotonic(), time.process_time()
             index = request.get("index", 0)
@@ -267,6 +271,21 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
 # forks one process per submission. Each fork leaves the template's namespaces for fresh
 # ones (autograder._isolate) before it runs any student code, and answers on the pipes the
 # grader passed with the fork request, exactly as a freshly started worker would.
+
+
+def _preload(request: dict) -> dict:
+    """Import the modules the notebook's later cells import (the instructor's notebook, read
+    by the grader), binding no name: a fork then finds them in ``sys.modules`` as a cold
+    worker would after its own import. One that fails is left for the fork to import."""
+    loaded = []
+    for name in request.get("modules", []):
+        try:
+            _run_guarded(lambda name=name: importlib.import_module(str(name)),
+                         *_limits_of(request))
+            loaded.append(str(name))
+        except BaseException:  # noqa: BLE001 - the fork's own import will say what is wrong
+            pass
+    return {"ok": True, "loaded": loaded}
 
 
 def _single_threaded() -> str | None:

@@ -31,7 +31,7 @@ from pathlib import Path
 from autograder import checks, feedback, freeze, grading, record, sandbox, scratch
 from autograder.freeze import printable
 from autograder.practice import build_practice, save_practice
-from autograder.template import Template, TemplateUnavailable, leading_cells
+from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
 
@@ -536,7 +536,8 @@ class _Templates:
                        "generate_assignment)" if cells is None else "the released notebook "
                        "does not begin with read-only cells")
             else:
-                built = Template(cells, self.limits, self.cpu_s)
+                built = Template(cells, self.limits, self.cpu_s,
+                                 preload=imported_modules(self.release))
         except TemplateUnavailable as exc:
             why = printable(exc, 300)
         except Exception as exc:  # noqa: BLE001 - a grader bug costs speed, never a grade
@@ -550,7 +551,8 @@ class _Templates:
             self._built.append(built)
             if len(self._built) == 1:
                 self.run_notes.append(
-                    f"template: the interpreter, imports and the first {len(cells)} cells "
+                    f"template: the interpreter, the notebook's imports and its first "
+                    f"{len(cells)} cells "
                     f"({built.shared_s:.1f} s) loaded once per worker, in "
                     f"{built.build_s:.1f} s; peak {built.peak_memory_mb():.0f} MB, shared by "
                     "its forks")

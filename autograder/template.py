@@ -26,6 +26,7 @@ log says why).
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import select
@@ -40,7 +41,8 @@ from pathlib import Path
 from autograder import grading, sandbox
 from autograder.grading import TemplateUnavailable
 
-__all__ = ["Template", "TemplateUnavailable", "ForkedProcess", "leading_cells"]
+__all__ = ["Template", "TemplateUnavailable", "ForkedProcess", "imported_modules",
+           "leading_cells"]
 
 # Wall clock for the template to answer a fork or status request.
 CONTROL_TIMEOUT_S = 30.0
@@ -50,6 +52,26 @@ def _locked_code(cell: dict) -> bool:
     meta = cell.get("metadata", {}).get("nbgrader", {})
     return (cell.get("cell_type") == "code" and meta.get("locked") is True
             and not meta.get("grade") and not meta.get("solution"))
+
+
+def imported_modules(notebook: Path) -> list[str]:
+    """The absolute module names ``notebook``'s code cells import, in order, once each."""
+    cells, _ = grading.extract_code([notebook])
+    names: list[str] = []
+    for source in cells:
+        try:
+            tree = ast.parse(source)
+        except SyntaxError:
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                found = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                found = [node.module]
+            else:
+                continue
+            names += [n for n in found if n not in names]
+    return names
 
 
 def leading_cells(notebook: Path) -> list[str]:
@@ -76,11 +98,14 @@ class Template:
     """A sandboxed worker holding ``cells`` already run, forked once per submission.
 
     ``cpu_s`` is the CPU limit of one submission's worker (the template's own is the
-    same: a fork's limit is what remains after the shared cells). Raises
+    same: a fork's limit is what remains after the shared cells). ``preload``: modules
+    imported after the shared cells, binding no name (those the notebook's later cells
+    import: :func:`imported_modules`), so no fork pays for them again. Raises
     :class:`TemplateUnavailable` when the worker or one of the cells fails to load.
     """
 
-    def __init__(self, cells: list[str], limits: grading.Limits, cpu_s: int):
+    def __init__(self, cells: list[str], limits: grading.Limits, cpu_s: int,
+                 preload: list[str] = ()):
         if not sandbox.capabilities().bwrap:
             raise TemplateUnavailable("no bubblewrap here: a fork could not get a sandbox "
                                       "of its own")
@@ -102,6 +127,11 @@ class Template:
             self.close()
             raise TemplateUnavailable(f"cell {failed[0].get('index')} of the shared cells "
                                       f"failed: {str(failed[0].get('error'))[:200]}")
+        if preload:
+            self.worker.request({"op": "preload", "modules": list(preload),
+                                 "timeout": limits.load_timeout_s,
+                                 "wall": limits.wall_factor * limits.load_timeout_s},
+                                limits.wall_factor * limits.load_timeout_s + 2.0)
         reply = self.worker.request({"op": "template"}, CONTROL_TIMEOUT_S)
         if reply.get("ok") is not True:
             self.close()
