@@ -71,8 +71,8 @@ def _write(path: str, text: str) -> None:
 
 
 def leave_template(scratch_bytes: int) -> None:
-    """In the forked process, before its child is forked: new user, mount, PID and IPC
-    namespaces, a fresh ``/tmp`` of ``scratch_bytes`` and ``/dev/shm``, ``/dev`` read-only.
+    """In the forked process, before its child is forked: new user, mount, PID, IPC, UTS
+    and network namespaces (loopback up), a fresh ``/tmp`` of ``scratch_bytes`` and ``/dev/shm``, ``/dev`` read-only.
     The PID namespace holds the *next* child (the caller forks it: it is process 1 there)."""
     uid, gid = os.getuid(), os.getgid()
     _check(_libc.unshare(CLONE_NEWUSER | CLONE_NEWNS | CLONE_NEWPID | CLONE_NEWIPC
@@ -142,7 +142,8 @@ def drop_privileges() -> None:
     _check(_libc.capset(ctypes.byref(_CapHeader(_LINUX_CAPABILITY_VERSION_3, 0)),
                         (_CapData * 2)()), "clear the capabilities")
     _check(_libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "set no_new_privs")
-    status = open("/proc/self/status").read()
+    with open("/proc/self/status") as f:
+        status = f.read()
     if "CapEff:\t0000000000000000" not in status or "CapBnd:\t0000000000000000" not in status:
         raise IsolationError(errno.EPERM, "capabilities are left after dropping them")
 

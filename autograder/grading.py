@@ -695,8 +695,7 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
             profile["start_s"] += worker.start_s
             profile["cells_s"] += worker.cells_s
             if worker.shared:
-                profile["shared_s"] = sum(float(r.get("seconds", 0.0))
-                                          for r in worker.load_report[:worker.shared])
+                profile["shared_s"] = template.shared_s
             _note_load(grade, worker.load_report, tests)
             if run_tests and not grade.cell_runs:
                 grade.cell_runs = _cell_runs(worker.load_report, grade.cell_origins, skip)

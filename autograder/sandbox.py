@@ -334,13 +334,22 @@ def host_pid(ns_pid: int, ancestor: int) -> int | None:
     return None
 
 
-def kill_tree(pid: int, include_root: bool = True) -> int:
-    """Stop, then SIGKILL, every process below ``pid`` (and ``pid`` itself with
-    ``include_root``), whatever its session; returns how many were signalled."""
-    below = _descendants(pid) | ({pid} if include_root else set())
-    _signal(below, signal.SIGSTOP)
-    below |= _descendants(pid)   # forked before the stop arrived
-    return _signal(below, signal.SIGKILL)
+def _stop_below(pid: int) -> set[int]:
+    """SIGSTOP every process below ``pid``, whatever its session, until no new one appears
+    below a stopped one (so none forked meanwhile is orphaned out of reach); returns them."""
+    tree: set[int] = set()
+    for _ in range(10):
+        new = _descendants(pid) - tree
+        if not new:
+            break
+        _signal(new, signal.SIGSTOP)
+        tree |= new
+    return tree
+
+
+def kill_below(pid: int) -> int:
+    """Stop, then SIGKILL, every process below ``pid``; returns how many were signalled."""
+    return _signal(_stop_below(pid), signal.SIGKILL)
 
 
 def _signal(pids, sig: int) -> int:
@@ -368,13 +377,7 @@ def stop_all() -> int:
     """
     _STOPPING.set()
     me = os.getpid()
-    tree: set[int] = set()
-    for _ in range(10):   # until no new process appears below a stopped one
-        new = _descendants(me) - tree
-        if not new:
-            break
-        _signal(new, signal.SIGSTOP)
-        tree |= new
+    tree = _stop_below(me)
     killed = 0
     for pid in _children(me):
         try:

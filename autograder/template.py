@@ -255,7 +255,7 @@ class ForkedProcess:
         return self.returncode
 
     def kill(self) -> None:
-        sandbox.kill_tree(self.pid, include_root=False)
+        sandbox.kill_below(self.pid)
 
     def wait(self, timeout: float | None = None) -> int:
         deadline = None if timeout is None else time.monotonic() + timeout
