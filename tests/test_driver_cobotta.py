@@ -231,3 +231,13 @@ def test_reply_length_is_checked(server):
     # Sanity of the fake itself: every recorded request is a well-formed packet.
     for raw in server.packets:
         assert struct.unpack_from("<I", raw, 1)[0] == len(raw)
+
+
+def test_a_camera_that_cannot_open_gives_the_arm_back(server):
+    # connect("cobotta", camera="realsense", camera_options=...) like the other drivers; a
+    # camera option that cannot be opened raises after the arm was taken and its motor
+    # switched on: both are undone before the error reaches the caller.
+    with pytest.raises(ValueError, match="camera must be None, 'realsense' or a robots.Camera"):
+        create_workcell("127.0.0.1", server.port, camera="kinect")
+    sent = commands(server)
+    assert "GiveArm" in sent and sent.index("GiveArm") > sent.index("TakeArm"), sent

@@ -237,3 +237,14 @@ def test_installed_constructors_take_the_hostname_first():
         real_module = pytest.importorskip(module, reason="ur_rtde cannot be imported here")
         doc = getattr(real_module, cls).__init__.__doc__
         assert re.search(r"__init__\(self: [\w.]+, hostname: str", doc), doc
+
+
+def test_a_camera_that_cannot_open_leaves_no_rtde_connection(arm):
+    # connect("ur", camera="realsense", camera_options=...) as docs/robots/realsense.md shows;
+    # a camera option that cannot be opened raises, and the arm is released, not left connected.
+    with pytest.raises(ValueError, match="camera must be None, 'realsense' or a robots.Camera"):
+        cell_for(arm, tool="none", camera="kinect")
+    closed = sorted(e[0] for e in arm.log if e[1:] == ("disconnect",))
+    assert closed == ["RTDEControlInterface", "RTDEIOInterface", "RTDEReceiveInterface"]
+    with pytest.raises(ValueError, match="camera_options given but camera is not 'realsense'"):
+        cell_for(arm, tool="none", camera_options={"serial": "0123"})

@@ -288,7 +288,8 @@ def create_workcell(
     ext_speed_pct: float = 50.0,
     full_speed_m_s: float = 1.0,
     motor_off_on_close: bool = True,
-    camera: Camera | None = None,
+    camera: Camera | str | None = None,
+    camera_options: dict | None = None,
     provider: str = PROVIDER,
     robot_name: str = "Arm",
     service_option: str = "",
@@ -301,7 +302,8 @@ def create_workcell(
     limit for connecting and for each reply (an interim "still executing" reply restarts it).
     ``service_option``: the ``Service_Start`` option, e.g. ``"WDT=400"`` for a 400 ms
     watchdog (see docs/robots/cobotta.md). ``ext_speed_pct``: the controller's external
-    speed/acceleration override set at connect. ``camera``: an already opened Camera, if any.
+    speed/acceleration override set at connect. ``camera``: None, ``"realsense"`` (with
+    ``camera_options`` for :func:`robots.drivers.realsense.open_realsense`) or an opened Camera.
     On any failure while connecting, whatever was opened is released before the error is raised.
     """
     if not host:
@@ -347,4 +349,11 @@ def create_workcell(
                          motor_off_on_close)
     if tool == "gripper":
         robot.tool = CobottaGripper(robot, flange_T_tcp)
+    try:
+        from robots.drivers.realsense import camera_from_option
+
+        camera = camera_from_option(camera, camera_options)
+    except BaseException:
+        robot.close()   # a camera that fails to open must not leave the arm taken and powered
+        raise
     return Workcell(robot, camera, kind="cobotta")

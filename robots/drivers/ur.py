@@ -382,7 +382,8 @@ def create_workcell(
     safety: Safety | None = None,
     mode: str | None = None,
     arm: str = "ur5e",
-    camera: Camera | None = None,
+    camera: Camera | str | None = None,
+    camera_options: dict | None = None,
     sdk=None,
     probe: bool | None = None,
     probe_timeout_s: float = 3.0,
@@ -392,6 +393,8 @@ def create_workcell(
     ``tool``: "suction", "gripper" (switched by digital output ``pin``, on the tool connector
     if ``tool_output``) or "none"; ``flange_T_tcp`` its tip in the flange frame. ``safety``:
     limits (default :func:`default_safety`); ``mode="confirm"`` asks before every move.
+    ``camera``: None, ``"realsense"`` (with ``camera_options`` for
+    :func:`robots.drivers.realsense.open_realsense`) or an opened Camera.
     ``sdk``: an object with the three ur_rtde classes (tests pass a fake; default: ur_rtde).
     ``probe``: first check that the host answers RTDE's handshake within ``probe_timeout_s``
     (see :func:`probe_rtde`); default: whenever the real ur_rtde is used.
@@ -442,4 +445,11 @@ def create_workcell(
         robot.tool = URSuctionCup(robot, pin, tool_output, flange_T_tcp)
     elif tool == "gripper":
         robot.tool = URGripper(robot, pin, tool_output, flange_T_tcp)
+    try:
+        from robots.drivers.realsense import camera_from_option
+
+        camera = camera_from_option(camera, camera_options)
+    except BaseException:
+        robot.close()   # a camera that fails to open must not leave RTDE connected
+        raise
     return Workcell(robot, camera, kind="ur")
