@@ -152,6 +152,24 @@ MISTAKES: dict[str, list[Mistake]] = {
            "the residuals not rotated into the camera frame",
            ("along_cam = residuals @ R\n", "along_cam = residuals\n")),
     ],
+    "lab5_depth": [
+        _m("backproject", "depth in millimetres", "the Z16 units kept: depth_scale ignored",
+           (" * float(depth_scale)", "")),
+        _m("backproject", "u and v swapped", "the row index used as x",
+           ("u, v = np.meshgrid(np.arange(w), np.arange(h))",
+            "v, u = np.meshgrid(np.arange(w), np.arange(h))")),
+        _m("fit_plane_ransac", "no outlier rejection", "least squares through every point",
+           ("for _ in range(iterations):", "for _ in range(0):"),
+           ("centre = pts[best].mean(axis=0)\n", "best = slice(None)\n    centre = pts.mean(axis=0)\n")),
+        _m("fit_flange_circle", "algebraic fit unrefined", "the Kasa fit's bias on a partial arc",
+           ("for _ in range(50):", "for _ in range(0):")),
+        _m("fit_flange_circle", "normal away from the camera", "the sign of the SVD normal kept",
+           ("    if n @ c0 > 0:\n        n = -n\n", "")),
+        _m("base_T_cam_from_flanges", "cam_T_base returned", "the registration the wrong way round",
+           ("    return T\n", "    return np.linalg.inv(T)\n")),
+        _m("rectangle_pose", "width and height swapped", "width_m taken along the left edge",
+           ("w, hh = width_m / 2, height_m / 2", "w, hh = height_m / 2, width_m / 2")),
+    ],
 }
 
 

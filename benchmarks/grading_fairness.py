@@ -562,8 +562,196 @@ def lab4(ns) -> dict:
 
 frame_from_three_points = None  # set by lab4(): the notebook's, replaced by the stand-in
 
+
+# --------------------------------------------------------------------------- lab 5
+
+
+def _backproject_float32(depth_raw, K, depth_scale):
+    """All in float32, as the RealSense SDK hands out depth (raw * scale as float32)."""
+    z = np.asarray(depth_raw).astype(np.float32) * np.float32(depth_scale)
+    z[np.asarray(depth_raw) == 0] = np.nan
+    v, u = np.indices(z.shape).astype(np.float32)
+    K = np.asarray(K, np.float32)
+    return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
+
+
+def _backproject_with(depth_raw, K, depth_scale, scale=None, swap=False, inverted=False,
+                      holes_nan=True):
+    z = np.asarray(depth_raw, dtype=float) * (depth_scale if scale is None else scale)
+    if holes_nan:
+        z[np.asarray(depth_raw) == 0] = np.nan
+    v, u = np.indices(z.shape)
+    if swap:
+        u, v = v, u
+    fx, fy = (1 / K[0, 0], 1 / K[1, 1]) if inverted else (K[0, 0], K[1, 1])
+    return np.stack([(u - K[0, 2]) * z / fx, (v - K[1, 2]) * z / fy, z], axis=-1)
+
+
+def _towards_camera(centre, normal):
+    return centre, (-normal if normal @ centre > 0 else normal)
+
+
+def _plane_svd_all(points, inlier_m, iterations=500, seed=0):
+    pts = np.asarray(points, float).reshape(-1, 3)
+    centre = pts.mean(axis=0)
+    return _towards_camera(centre, np.linalg.svd(pts - centre, full_matrices=False)[2][2])
+
+
+def _plane_ransac(points, inlier_m, iterations=500, seed=0, msac=False, refit="svd"):
+    """RANSAC (or MSAC: truncated squared distances instead of the inlier count) over
+    random triples, then a refit on the best hypothesis's inliers (SVD or the covariance's
+    smallest eigenvector)."""
+    pts = np.asarray(points, float).reshape(-1, 3)
+    rng = np.random.default_rng(seed)
+    best, best_cost = None, np.inf
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        d = np.abs((pts - a) @ (n / np.linalg.norm(n)))
+        cost = np.sum(np.minimum(d, inlier_m) ** 2) if msac else -np.sum(d < inlier_m)
+        if cost < best_cost:
+            best, best_cost = d < inlier_m, cost
+    q = pts[best]
+    centre = q.mean(axis=0)
+    if refit == "svd":
+        normal = np.linalg.svd(q - centre, full_matrices=False)[2][2]
+    else:
+        normal = np.linalg.eigh(np.cov(q.T))[1][:, 0]
+    return _towards_camera(centre, normal)
+
+
+def _rim_plane(rim):
+    P = np.asarray(rim, float)
+    c0, n = _towards_camera(P.mean(axis=0), np.linalg.svd(P - P.mean(axis=0),
+                                                          full_matrices=False)[2][2])
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    return c0, n, e1, e2, np.column_stack([(P - c0) @ e1, (P - c0) @ e2])
+
+
+def _circle_kasa(rim, radius_m):
+    """The algebraic (Kasa) fit in the rim's plane, not refined: the mistake."""
+    c0, n, e1, e2, xy = _rim_plane(rim)
+    A = np.column_stack([2 * xy, np.ones(len(xy))])
+    cx, cy, _ = np.linalg.lstsq(A, (xy ** 2).sum(axis=1), rcond=None)[0]
+    return c0 + cx * e1 + cy * e2, n
+
+
+def _circle_lm(rim, radius_m):
+    """Levenberg-Marquardt (scipy) on the geometric residuals, the radius fixed."""
+    from scipy.optimize import least_squares
+
+    c0, n, e1, e2, xy = _rim_plane(rim)
+    start = np.asarray(_circle_kasa(rim, radius_m)[0] - c0) @ np.column_stack([e1, e2])
+    cx, cy = least_squares(lambda c: np.linalg.norm(xy - c, axis=1) - radius_m, start,
+                           method="lm").x
+    return c0 + cx * e1 + cy * e2, n
+
+
+def _registration_rt(cam_centres, base_T_flanges):
+    """The cross-covariance built base-first: R^T (the mistake)."""
+    a = np.asarray(cam_centres, float)
+    b = np.asarray(base_T_flanges, float)[:, :3, 3]
+    U, _, Vt = np.linalg.svd((b - b.mean(0)).T @ (a - a.mean(0)))
+    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    return _pose(R, b.mean(0) - R @ a.mean(0))
+
+
+def _rectangle_homography(corners_px, width_m, height_m, K):
+    """The plane-to-image homography (DLT on the 4 corners), decomposed: [r1 r2 t] =
+    K^-1 H / scale, scale the mean of |K^-1 h1| and |K^-1 h2|, R made a rotation (SVD)."""
+    w, h = width_m / 2, height_m / 2
+    P = np.array([[-w, -h], [w, -h], [w, h], [-w, h]])
+    rows = []
+    for (X, Y), (u, v) in zip(P, np.asarray(corners_px, float)):
+        rows.append([X, Y, 1, 0, 0, 0, -u * X, -u * Y, -u])
+        rows.append([0, 0, 0, X, Y, 1, -v * X, -v * Y, -v])
+    H = np.linalg.svd(np.array(rows))[2][-1].reshape(3, 3)
+    M = np.linalg.inv(K) @ H
+    M /= (np.linalg.norm(M[:, 0]) + np.linalg.norm(M[:, 1])) / 2
+    if M[2, 2] < 0:  # the mark in front of the camera
+        M = -M
+    U, _, Vt = np.linalg.svd(np.column_stack([M[:, 0], M[:, 1], np.cross(M[:, 0], M[:, 1])]))
+    return _pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, M[:, 2])
+
+
+def _rectangle_not_orthogonal(corners_px, width_m, height_m, K, ref=None):
+    """The vanishing-point directions used as they are: R = [dx, dy, dx x dy]."""
+    h = np.column_stack([corners_px, np.ones(4)]) @ np.linalg.inv(K).T
+    dx = np.cross(np.cross(h[0], h[1]), np.cross(h[3], h[2]))
+    dy = np.cross(np.cross(h[0], h[3]), np.cross(h[1], h[2]))
+    dx = dx * (np.sign(dx[:2] @ (h[1, :2] - h[0, :2])) or 1.0)
+    dy = dy * (np.sign(dy[:2] @ (h[3, :2] - h[0, :2])) or 1.0)
+    dx, dy = dx / np.linalg.norm(dx), dy / np.linalg.norm(dy)
+    T = np.array(ref(corners_px, width_m, height_m, K), dtype=float)
+    T[:3, :3] = np.column_stack([dx, dy, np.cross(dx, dy)])
+    return T
+
+
+def _flip_normal(f):
+    def flipped(*args):
+        centre, normal = f(*args)
+        return centre, -np.asarray(normal, float)
+    return flipped
+
+
+def lab5(ns) -> dict:
+    bp, plane, circle = ns["backproject"], ns["fit_plane_ransac"], ns["fit_flange_circle"]
+    reg5, rect = ns["base_T_cam_from_flanges"], ns["rectangle_pose"]
+    return {
+        "backproject": [
+            Variant("notebook solution", True, bp),
+            Variant("float32 arithmetic (as the RealSense SDK)", True, _backproject_float32),
+            Variant("depth in millimetres (depth_scale ignored)", False,
+                    lambda d, K, s: _backproject_with(d, K, s, scale=1.0)),
+            Variant("depth_scale hard-coded to 0.001", False,
+                    lambda d, K, s: _backproject_with(d, K, s, scale=0.001)),
+            Variant("u and v swapped", False, lambda d, K, s: _backproject_with(d, K, s, swap=True)),
+            Variant("intrinsics inverted ((u - cx) fx)", False,
+                    lambda d, K, s: _backproject_with(d, K, s, inverted=True)),
+            Variant("holes left at z = 0", False,
+                    lambda d, K, s: _backproject_with(d, K, s, holes_nan=False)),
+        ],
+        "fit_plane_ransac": [
+            Variant("notebook solution", True, plane),
+            Variant("covariance eigenvector refit", True,
+                    lambda p, t, i=500, s=0: _plane_ransac(p, t, i, s, refit="eigh")),
+            Variant("MSAC scoring", True, lambda p, t, i=500, s=0: _plane_ransac(p, t, i, s,
+                                                                                  msac=True)),
+            Variant("twice the iterations", True, lambda p, t, i=500, s=0: plane(p, t, 2 * i, s)),
+            Variant("no outlier rejection (SVD on all points)", False, _plane_svd_all),
+            Variant("normal away from the camera", False, _flip_normal(plane)),
+        ],
+        "fit_flange_circle": [
+            Variant("notebook solution", True, circle),
+            Variant("Levenberg-Marquardt (scipy), radius fixed", True, _circle_lm),
+            Variant("algebraic (Kasa) fit, unrefined", False, _circle_kasa),
+            Variant("normal away from the camera", False, _flip_normal(circle)),
+        ],
+        "base_T_cam_from_flanges": [
+            Variant("notebook solution", True, reg5),
+            Variant("Horn quaternion fit", True,
+                    lambda a, F: _horn(a, np.asarray(F, float)[:, :3, 3])),
+            Variant("cam_T_base returned (inverse)", False, _wrap(reg5, _inv)),
+            Variant("cross-covariance the other way round (R^T)", False, _registration_rt),
+        ],
+        "rectangle_pose": [
+            Variant("notebook solution", True, rect),
+            Variant("homography decomposition, orthogonalised", True, _rectangle_homography),
+            Variant("width and height swapped", False,
+                    lambda uv, w, h, K: rect(uv, h, w, K)),
+            Variant("K not inverted (pixels used as rays)", False,
+                    lambda uv, w, h, K: rect(uv, w, h, np.eye(3))),
+            Variant("edge directions not made orthogonal", False,
+                    lambda uv, w, h, K: _rectangle_not_orthogonal(uv, w, h, K, ref=rect)),
+        ],
+    }
+
 LABS = {"lab0_frames": lab0, "lab1_flange": lab1, "lab2_handeye": lab2,
-        "lab3_servoing": lab3, "lab4_stereo": lab4}
+        "lab3_servoing": lab3, "lab4_stereo": lab4, "lab5_depth": lab5}
 
 
 def variants(assignment: str) -> dict[str, list[Variant]]:

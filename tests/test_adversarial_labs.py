@@ -1,4 +1,4 @@
-"""The adversarial corpus on Labs 3 and 4: no attack scores more than the blank.
+"""The adversarial corpus on Labs 3, 4 and 5: no attack scores more than the blank.
 
 The cases in tests/adversarial/ are written for lab 0 (see its README.md). Their attacks on
 the grader sit in the ``extra`` cell and do not care which lab they run in; the few graded
@@ -10,9 +10,9 @@ to say about a blank and are left to tests/test_course_cycle.py.
 
 nbgrader is not run: the flags checked are those of the independent grader's own scan.
 
-Each case runs on one of the two labs (alternately, by name), so every attack meets a lab
+Each case runs on one of the three labs (in turn, by name), so every attack meets a lab
 other than lab 0 once per suite run (tests/test_course_cycle.py runs them all on lab 0);
-``COBOTLAB_FULL_CORPUS=1`` runs every case on both labs.
+``COBOTLAB_FULL_CORPUS=1`` runs every case on every lab.
 """
 
 from __future__ import annotations
@@ -34,10 +34,13 @@ LABS = {
     "lab3_servoing": ("interaction_matrix", "ibvs_velocity", "piece_position"),
     "lab4_stereo": ("frame_from_three_points", "reproject", "hand_to_eye_from_three_points",
                     "per_axis_rmse"),
+    "lab5_depth": ("backproject", "fit_plane_ransac", "fit_flange_circle",
+                   "base_T_cam_from_flanges", "rectangle_pose"),
 }
 CORRECT_ANSWERS_ONLY = {"mangled"}
 # Short limits skip the lab's simulator cells (they need the blanks anyway) and make the
-# hangs cheap (about 85 s for both labs on 2 cores, against 130 s with 3 s / 2 s limits);
+# hangs cheap (about 85 s for labs 3 and 4 on 2 cores, against 130 s with 3 s / 2 s limits;
+# lab 5 takes its third of the cases, so the file costs about the same with three labs);
 # no score here depends on them, every one must be the blank's zero.
 # Sleepers are cut at 2x their limit: the attack is tested here, not the clock.
 LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,

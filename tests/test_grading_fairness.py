@@ -25,6 +25,9 @@ import grading_fairness as fairness  # noqa: E402
     ("lab1_flange", "fit_rigid", 12),
     ("lab4_stereo", "frame_from_three_points", 10),
     ("lab4_stereo", "reproject", 30),
+    ("lab5_depth", "backproject", 10),
+    ("lab5_depth", "base_T_cam_from_flanges", 10),
+    ("lab5_depth", "rectangle_pose", 10),
 ])
 def test_correct_code_keeps_full_credit_and_each_mistake_loses_some(assignment, function, draws):
     result = fairness.run_function((assignment, function, 0, draws))

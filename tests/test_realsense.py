@@ -20,9 +20,9 @@ rs = pytest.importorskip(
 W, H = 64, 48
 
 
-def rs_intrinsics(fx, fy, cx, cy, coeffs=(0, 0, 0, 0, 0), model=None):
+def rs_intrinsics(fx, fy, cx, cy, coeffs=(0, 0, 0, 0, 0), model=None, width=W, height=H):
     i = rs.intrinsics()
-    i.width, i.height, i.fx, i.fy, i.ppx, i.ppy = W, H, fx, fy, cx, cy
+    i.width, i.height, i.fx, i.fy, i.ppx, i.ppy = width, height, fx, fy, cx, cy
     i.coeffs = list(coeffs)
     i.model = rs.distortion.brown_conrady if model is None else model
     return i
@@ -65,14 +65,14 @@ class SoftwareRig:
     def _stream(kind, fmt, bpp, intrinsics, uid):
         s = rs.video_stream()
         s.type, s.index, s.uid, s.width, s.height, s.fps, s.bpp, s.fmt = (
-            kind, 0, uid, W, H, 30, bpp, fmt
+            kind, 0, uid, intrinsics.width, intrinsics.height, 30, bpp, fmt
         )
         s.intrinsics = intrinsics
         return s
 
     def _push(self, sensor, profile, pixels, bpp, timestamp_ms):
         f = rs.software_video_frame()
-        f.pixels, f.stride, f.bpp = np.ascontiguousarray(pixels), W * bpp, bpp
+        f.pixels, f.stride, f.bpp = np.ascontiguousarray(pixels), pixels.shape[1] * bpp, bpp
         f.timestamp, f.frame_number = timestamp_ms, self.count
         f.domain = rs.timestamp_domain.hardware_clock
         f.profile = profile.as_video_stream_profile()
@@ -215,3 +215,48 @@ def test_camera_option_resolution():
         realsense.camera_from_option("kinect")
     with pytest.raises(ValueError, match="camera_options"):
         realsense.camera_from_option(None, {"serial": "1"})
+
+
+@pytest.mark.parametrize("depth_units", [0.001, 0.0001])   # a D435's default, a D405's
+def test_lab5_finds_the_flange_centre_in_a_realsense_capture(depth_units):
+    # Lab 5's pipeline (its reference functions, robots.labkit.lab5) on a frame that went through
+    # pyrealsense2 as Z16 with the sensor's depth units, aligned like a live D400's: a 63 mm
+    # flange face 0.45 m away, tilted, in front of the wrist 6.5 mm behind it and a far wall,
+    # with the D435's depth noise. The centre comes back to well under a millimetre.
+    import course_kit as kit
+
+    from robots.geometry import compose, make_pose, pose_from_rotvec
+    from robots.labkit import lab5
+
+    w, h, f = 320, 240, 300.0
+    same = rs_intrinsics(f, f, 159.5, 119.5, width=w, height=h)
+    rig = SoftwareRig(same, same, depth_units=depth_units)
+    cam = make_camera(rig, depth_units)
+    cam_T_face = compose(make_pose(t=[0.02, -0.01, 0.45]), pose_from_rotvec([0.25, -0.2, 0.0]))
+    radius = 0.0315
+    c = cam_T_face[:3, 3]
+    n = cam_T_face[:3, 2] if cam_T_face[:3, 2] @ c < 0 else -cam_T_face[:3, 2]   # to the camera
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(uu - 159.5) / f, (vv - 119.5) / f, np.ones((h, w))], axis=-1)
+    depth = np.full((h, w), 0.9)                                     # the wall
+    for offset, reach in ((0.0065, 2.0 * radius), (0.0, radius)):    # wrist, then the face
+        plane_c = c - offset * n                                     # behind: away from us
+        hit = rays * ((plane_c @ n) / (rays @ n))[..., None]
+        inside = np.linalg.norm(hit - plane_c, axis=2) < reach
+        depth = np.where(inside, hit[..., 2], depth)
+    rng = np.random.default_rng(5)
+    depth = depth + rng.normal(0.0, 0.00358 * depth ** 2)             # sigma_z = k z^2, D435
+    raw = np.round(depth / depth_units).astype(np.uint16)
+    rig.push(np.full((h, w, 3), 128, np.uint8), raw)
+    frame = cam.capture()
+    cam.close()
+
+    ns = {"np": np}
+    names = ("backproject", "fit_plane_ransac", "fit_flange_circle")
+    for source in kit.solution_sources("lab5_depth", names).values():
+        exec(source, ns)  # noqa: S102 - the lab's own reference cells
+    z16 = lab5.to_z16(frame.depth, cam.depth_scale)
+    view = lab5.measure_flange(z16, cam.intrinsics.K, cam.depth_scale, radius,
+                               *(ns[name] for name in names))
+    assert np.linalg.norm(view.centre - c) < 0.8e-3, view.centre - c
+    assert np.degrees(np.arccos(min(1.0, view.normal @ n))) < 1.0

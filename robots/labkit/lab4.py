@@ -9,7 +9,7 @@ from robots import geometry as geo
 from robots.interfaces import SafetyError, UnreachableError
 
 __all__ = ["view_goals", "find_corners", "capture_stereo_views", "park", "rectify",
-           "sgbm_disparity", "show_rectified", "show_residuals_mm"]
+           "sgbm_disparity", "show_rectified", "show_residuals_mm", "bars_along_camera_axes"]
 
 
 def view_goals(cell, rng: np.random.Generator, n: int):
@@ -138,15 +138,20 @@ def show_residuals_mm(base_T_cam, cam_points, base_points, gain: float = 10.0) -
     ax.set_ylabel("base y (m)")
     ax.set_title("the check points from above (base frame)")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
-    ax = axes[1]
-    x = np.arange(len(along_cam))
-    for k, (name, colour) in enumerate(zip(("camera x", "camera y", "camera z (depth)"), "rgb")):
-        ax.bar(x + (k - 1) * 0.27, along_cam[:, k], 0.27, color=colour, label=name)
-    ax.axhline(0.0, color="0.5", lw=0.8)
-    ax.set_xticks(x)
-    ax.set_xlabel("check point")
-    ax.set_ylabel("residual (mm)")
-    ax.set_title("each residual along the camera's axes")
-    ax.legend(fontsize=8)
+    bars_along_camera_axes(axes[1], along_cam, "check point", "residual (mm)",
+                           "each residual along the camera's axes")
     fig.tight_layout()
     plt.show()
+
+
+def bars_along_camera_axes(ax, values_mm, xlabel: str, ylabel: str, title: str) -> None:
+    """One group of three bars (camera x, y, z) per row of ``values_mm`` (N, 3), on ``ax``."""
+    x = np.arange(len(values_mm))
+    for k, (name, colour) in enumerate(zip(("camera x", "camera y", "camera z (depth)"), "rgb")):
+        ax.bar(x + (k - 1) * 0.27, values_mm[:, k], 0.27, color=colour, label=name)
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_xticks(x)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
