@@ -265,7 +265,8 @@ def _arc_angles(rng, step: float) -> tuple[np.ndarray, float]:
     return rng.uniform(0, 2 * np.pi) + rng.random(n) * total, total
 
 
-def _trial_circle(rng, index: int) -> Trial:
+def _draw_circle(rng) -> tuple[Trial, float]:
+    """One rim problem and the sd (rad) of its rim plane's tilt."""
     c, n, r, f, k, e1, e2 = _flange_scene(rng)
     # One rim point per pixel of the outline, whose footprint on the face is z / f: the
     # outline pixels sit anywhere within one footprint of the true rim (uniform: the edge
@@ -301,7 +302,24 @@ def _trial_circle(rng, index: int) -> Trial:
            "normal": TILT_FACTOR * math.degrees(tilt) + 0.01}
     return Trial(args=(rim, r), truth=(c, n), tol=tol,
                  label=f"r {1000 * r:.1f} mm at {c[2]:.2f} m, {math.degrees(total):.0f} deg of "
-                       "the rim")
+                       "the rim"), tilt
+
+
+
+# A rim whose own plane is uncertain by more than this (sd, deg) is drawn again. Its plane,
+# and with it the centre, is then off by second-order amounts (r (1 - cos tilt)) that the
+# first-order tolerance does not bound: at 10,000 draws (480,000 problems) two such rims
+# (r 20 mm, 0.5 m away, 95 deg of arc: the plane 18-29 deg off) cost the reference credit.
+# The lab never hands fit_flange_circle such a rim: its rim points lie on the face's plane,
+# fitted to thousands of points. About 4 % of rims are redrawn.
+MAX_RIM_TILT_SD_DEG = 2.0
+
+
+def _trial_circle(rng, index: int) -> Trial:
+    while True:
+        trial, tilt = _draw_circle(rng)
+        if math.degrees(tilt) <= MAX_RIM_TILT_SD_DEG:
+            return trial
 
 
 CIRCLE_FACTOR = 5.5
@@ -393,7 +411,8 @@ def _registration_mistakes(trial: Trial) -> list:
 RECTANGLES = ((0.1, 0.1), (0.1, 0.15), (0.15, 0.1), (0.08, 0.12), (0.21, 0.297), (0.12, 0.06))
 
 
-def _trial_rectangle(rng, index: int) -> Trial:
+def _draw_rectangle(rng, index: int) -> tuple[Trial, float]:
+    """One rectangle problem and the first-order sd (rad) of its rotation."""
     width, height = RECTANGLES[index % len(RECTANGLES)]
     K = _random_K(rng, 480, 640, (450.0, 1000.0))
     # The mark 0.25-1.2 m ahead, its normal (z, into the mark) up to 55 deg off the optical
@@ -424,7 +443,24 @@ def _trial_rectangle(rng, index: int) -> Trial:
            "translation": RECTANGLE_FACTOR * 1000.0 * trans_sd}
     return Trial(args=(uv, width, height, K), truth=cam_T_rect, tol=tol,
                  label=f"{1000 * width:.0f} x {1000 * height:.0f} mm mark at {dist:.2f} m, "
-                       f"{sigma_px:.2f} px corner noise")
+                       f"{sigma_px:.2f} px corner noise"), rot_sd
+
+
+
+# A view whose rotation is uncertain by more than this (first-order sd, deg) is drawn again:
+# a small mark far away (120 x 60 mm at 1.2 m: sd 7.5 deg, a rotation tolerance of 60 deg) is
+# beyond the first-order model, and at 10,000 draws two such views cost correct code credit
+# (an error 1.09 x its tolerance). Over 2,000 views 22 % are redrawn and the reference's
+# worst error on the rest is 0.45 of its tolerance. The lab's figure shows how the shape
+# constraint degrades with distance; the grade judges views where a pose can be told.
+MAX_RECT_ROT_SD_DEG = 3.0
+
+
+def _trial_rectangle(rng, index: int) -> Trial:
+    while True:
+        trial, rot_sd = _draw_rectangle(rng, index)
+        if math.degrees(rot_sd) <= MAX_RECT_ROT_SD_DEG:
+            return trial
 
 
 RECTANGLE_FACTOR = 8.0
