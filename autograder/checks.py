@@ -29,16 +29,25 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from autograder import forbidden, mistakes, practice, standin
-from autograder.scoring import collect_scoring
+from autograder import forbidden, mistakes, practice, registry, standin
 
 # Re-exported where callers reach them as checks.<name> (tests, benchmarks, grading).
-from autograder.spec_types import EXACT_TOL, Check, FunctionSpec, OutputError, Trial, measure_pose  # noqa: F401
+from autograder.spec_types import (  # noqa: F401
+    EXACT_TOL,
+    Check,
+    CodeMistake,
+    FunctionSpec,
+    OutputError,
+    Trial,
+    measure_pose,
+    mistake_answers,
+)
 
 __all__ = [
     "Check",
@@ -67,38 +76,49 @@ PUBLIC_SEEDS = (0, 1, 2)
 KERNEL_SEEDS = (1001, 1002)
 
 
-SCORING: dict[str, tuple[FunctionSpec, ...]] = collect_scoring()
+class InstructorOnly(ImportError):
+    """What needs the private generators (a lab's private spec), absent from a student install."""
+
+
+class _Labs(Mapping):
+    """{assignment: specs} over every lab of :mod:`autograder.registry`, each loaded when first
+    asked for, so a lab whose files are broken breaks only itself. ``in`` asks whether the
+    lab exists, without loading it."""
+
+    def __init__(self, load):
+        self._load = load
+
+    def __getitem__(self, name):
+        if not isinstance(name, str) or name not in registry.all_labs():
+            raise KeyError(name)
+        return self._load(name)
+
+    def __contains__(self, name) -> bool:
+        return isinstance(name, str) and name in registry.all_labs()
+
+    def __iter__(self):
+        return iter(registry.lab_names())
+
+    def __len__(self) -> int:
+        return len(registry.all_labs())
+
+
+def _private(name: str) -> tuple[FunctionSpec, ...]:
+    """The full specs (generators included) of ``name``; InstructorOnly without them."""
+    if not registry.private_available(name):
+        raise InstructorOnly(
+            f"the hidden-problem generators of {name} are only in the instructor's install or "
+            "course repository, not in a student's copy; check() and hidden_test() score on "
+            "the practice data shipped with each lab instead")
+    return registry.specs(name)
+
+
+SCORING: Mapping[str, tuple[FunctionSpec, ...]] = _Labs(registry.scoring)
 """{assignment: public scoring entries}: what :func:`check` scores with, in every install."""
 
-
-class InstructorOnly(ImportError):
-    """What needs the private generators (autograder/specs), absent from a student install."""
-
-
-_private: dict | None = None
-
-
-def _private_specs() -> dict[str, tuple[FunctionSpec, ...]]:
-    """The full specs (generators included), imported on first use; InstructorOnly without."""
-    global _private
-    if _private is None:
-        if not practice.private_side_available():
-            raise InstructorOnly(
-                "the hidden-problem generators (autograder.specs) are only in the instructor's "
-                "install of cobotlab, not in the student package; check() and hidden_test() "
-                "score on the practice data shipped with each lab instead")
-        from autograder.specs import collect_specs
-
-        _private = collect_specs()
-    return _private
-
-
-def __getattr__(name: str):
-    # SPECS is lazy so that importing this module (every notebook does) never imports the
-    # private generators; the grader, the course tools and the benchmarks ask for it.
-    if name == "SPECS":
-        return _private_specs()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+SPECS: Mapping[str, tuple[FunctionSpec, ...]] = _Labs(_private)
+"""{assignment: full specs}: the grader's, the course tools' and the benchmarks'. Importing
+this module never imports a private spec; indexing one lab imports that lab's only."""
 
 
 # A time limit counts CPU seconds of the student's code (the same on a quiet laptop and on a
@@ -201,15 +221,25 @@ def _locate(name: str, assignment: str | None = None) -> tuple[str, int]:
         if assignment is not None:
             known = sorted(s.name for s in SCORING[assignment])
             raise ValueError(f"{assignment} grades no function named {name!r}; it grades {known}")
-    matches = [(lab, i) for lab, group in SCORING.items() for i, spec in enumerate(group)
+    matches = [(lab, i) for lab, group in _usable_labs() for i, spec in enumerate(group)
                if spec.name == name]
     if len(matches) == 1:
         return matches[0]
     if matches:
         labs = ", ".join(lab for lab, _ in matches)
         raise ValueError(f"{name!r} is graded in several labs ({labs}); pass assignment=")
-    known = sorted(s.name for g in SCORING.values() for s in g)
+    known = sorted(s.name for _, g in _usable_labs() for s in g)
     raise ValueError(f"no graded function named {name!r}; graded functions are {known}")
+
+
+def _usable_labs():
+    """(lab, public entries) of every lab that loads: one lab's broken files must not stop
+    check() in another (the broken lab says what is wrong when it is itself asked for)."""
+    for lab in registry.lab_names():
+        try:
+            yield lab, SCORING[lab]
+        except registry.LabError:
+            continue
 
 
 def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
@@ -220,20 +250,19 @@ def spec_for(name: str, assignment: str | None = None) -> FunctionSpec:
     lab that does; a name graded by several labs then needs ``assignment=``.
     """
     lab, index = _locate(name, assignment)
-    if practice.private_side_available():
-        return _private_specs()[lab][index]
+    if registry.private_available(lab):
+        return SPECS[lab][index]
     return SCORING[lab][index]
 
 
 def _assignment_of(spec: FunctionSpec) -> str:
     """The assignment whose spec (public or full) ``spec`` is."""
-    for lab, group in SCORING.items():
+    for lab, group in _usable_labs():
         if any(s is spec for s in group):
             return lab
-    if practice.private_side_available():
-        for lab, group in _private_specs().items():
-            if any(s is spec for s in group):
-                return lab
+    for lab, group in registry.loaded_specs().items():
+        if any(s is spec for s in group):
+            return lab
     return _locate(spec.name)[0]
 
 
@@ -333,8 +362,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
 def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
     """The spec's own mistakes of this problem (precomputed with practice data), then
     :func:`autograder.mistakes.diagnose` on the answer (or on the first parts of a pair)."""
-    predicted_mistakes = trial.mistakes if trial.mistakes is not None else (
-        spec.mistakes(trial) if spec.mistakes else ())
+    predicted_mistakes = trial.mistakes if trial.mistakes is not None else \
+        mistake_answers(spec, trial)
     for words, predicted in predicted_mistakes:
         if mistakes.matches(value, predicted):
             return words

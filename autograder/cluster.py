@@ -47,7 +47,7 @@ import uuid
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from autograder import checks, grading, sandbox
+from autograder import checks, grading, registry, sandbox
 from autograder.freeze import printable
 
 __all__ = ["ClusterGrader", "connect", "grade_to_wire", "grade_from_wire",
@@ -75,10 +75,12 @@ def secret_fingerprint(secret: str) -> str:
 
 
 def spec_digest(assignment: str) -> str:
-    """The lab's graded functions, points, checks and weights, hashed: a worker whose lab
-    version differs would score out of other totals."""
+    """The lab's graded functions, points, checks and weights, and the hash of its scoring
+    and private spec files (:func:`autograder.registry.spec_hash`), hashed: a worker whose
+    lab version differs would score out of other totals or draw other problems."""
     shape = [(s.name, s.points, [(c.name, c.weight) for c in s.checks])
              for s in checks.SPECS[assignment]]
+    shape.append(registry.spec_hash(assignment))
     return hashlib.sha256(json.dumps(shape).encode()).hexdigest()[:16]
 
 
@@ -291,7 +293,11 @@ def probe_task(assignment: str) -> str:
         package = version("cobotlab")
     except Exception:  # noqa: BLE001
         package = "unknown"
-    return json.dumps({"fingerprint": secret, "specs": spec_digest(assignment),
+    try:
+        specs = spec_digest(assignment)
+    except Exception as exc:  # noqa: BLE001 - no such lab here: the client says what to do
+        specs = f"missing: {type(exc).__name__}: {exc}"
+    return json.dumps({"fingerprint": secret, "specs": specs,
                        "sandbox": sandbox.mode(), "version": package})
 
 
@@ -340,7 +346,15 @@ class ClusterGrader:
                     f"the worker {worker} does not hold this course's grading secret ({why}): "
                     f"give the workers ${grading.SECRET_ENV} from {grading.PRIVATE_DIR}/"
                     f"{grading.SECRET_FILE} (docs/instructors.md, Grading on a cluster)")
-            if got.get("specs") != specs:
+            theirs = str(got.get("specs", ""))
+            if theirs.startswith("missing"):
+                raise ValueError(
+                    f"the worker {worker} cannot load the lab {assignment} "
+                    f"({printable(theirs, 300)}): a course's own lab must reach the workers: "
+                    f"mount a copy of the course's {registry.CONFIG_NAME}, lab folders and "
+                    f"{registry.PRIVATE_DIR.as_posix()}/ on them and set "
+                    f"${registry.COURSE_ENV} to it (docs/instructors.md, Grading on a cluster)")
+            if theirs != specs:
                 raise ValueError(f"the worker {worker} has another version of {assignment} "
                                  f"(cobotlab {printable(got.get('version'), 40)}): build "
                                  "the workers' image from the same release as this install")

@@ -13,7 +13,6 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 from __future__ import annotations
 
 import functools
-import importlib.util
 import json
 import os
 import re
@@ -28,7 +27,7 @@ from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
-from autograder import checks, feedback, freeze, grading, record, sandbox, scratch
+from autograder import checks, feedback, freeze, grading, record, registry, sandbox, scratch
 from autograder.freeze import printable
 from autograder.practice import build_practice, save_practice
 from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
@@ -37,17 +36,7 @@ __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde",
 
 
 
-def _installed_labs() -> Path:
-    """The lab sources: the package ``cobotlab_labs`` (``labs/`` of the checkout in an
-    editable install, a copy in site-packages in a regular one). The student install has
-    none: the path returned then does not exist, and the commands that need it say so."""
-    spec = importlib.util.find_spec("cobotlab_labs")
-    if spec is not None and spec.submodule_search_locations:
-        return Path(list(spec.submodule_search_locations)[0])
-    return Path(__file__).resolve().parent.parent / "labs"
-
-
-LABS_DIR = _installed_labs()
+LABS_DIR = registry.builtin_folder()
 GRADE_COLUMNS = ["assignment", "duedate", "timestamp", "student_id", "last_name", "first_name",
                  "email", "raw_score", "late_submission_penalty", "score", "max_score", "flags"]
 
@@ -78,7 +67,8 @@ c.GenerateFeedback.preprocessors = [
 
 
 def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobotlab") -> Path:
-    """Lay out an nbgrader course in ``course_dir`` with every lab in ``labs/``.
+    """Lay out an nbgrader course in ``course_dir`` with every lab: the built-in ones (or
+    those in ``labs_dir``) and those of the folders its ``cobotlab.toml`` names.
 
     Writes ``nbgrader_config.py`` (``course_id``, the course root, and nbgrader's exchange:
     ``exchange``, default ``course_dir/exchange``, created world-writable as nbgrader
@@ -87,14 +77,20 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     environment without activating it never needs ``alembic`` on ``$PATH``), and the
     grading secret in ``.cobotlab/secret`` (mode 0600; not copied into any assignment).
     Existing config, sources, gradebook and secret are kept, so running it again after
-    adding a lab is safe. Returns the path.
+    adding a lab is safe; only the course's own labs are copied again into ``source/``
+    (their lab folder is where they are edited and verified). Returns the path.
     """
     root = Path(course_dir).resolve()
-    labs = Path(labs_dir) if labs_dir else LABS_DIR
-    if not labs.is_dir():
-        raise ValueError(f"labs directory {labs} not found: the lab sources come with the "
+    registry.use_course(root)   # its cobotlab.toml names the instructor's own lab folders
+    if labs_dir is None and not LABS_DIR.is_dir() and not registry.source_folders():
+        raise ValueError(f"labs directory {LABS_DIR} not found: the lab sources come with the "
                          "instructor's package (pip install cobotlab, not cobotlab-student); "
                          "or pass labs_dir=")
+    sources = registry.source_folders(labs_dir)
+    # Every lab's spec is loaded and its practice problems drawn before anything is written:
+    # a broken lab stops the init with its file named, not halfway through the course.
+    documents = {name: _practice_document(name, registry.spec_hash(name))
+                 for name in sources if name in checks.SPECS}
     root.mkdir(parents=True, exist_ok=True)
     config = root / "nbgrader_config.py"
     if not config.exists():
@@ -109,23 +105,41 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         with Gradebook(f"sqlite:///{root / 'gradebook.db'}", course_id=course_id):
             pass
-    for lab in sorted(p for p in labs.iterdir() if p.is_dir() and any(p.glob("*.ipynb"))):
-        target = root / "source" / lab.name
+    own = {name for name, lab in registry.all_labs().items() if not lab.builtin}
+    for name, folder in sources.items():
+        target = root / "source" / name
         if not target.exists():
-            shutil.copytree(lab, target, ignore=shutil.ignore_patterns(
+            shutil.copytree(folder, target, ignore=shutil.ignore_patterns(
                 ".ipynb_checkpoints", "__pycache__"))
-        if lab.name in checks.SPECS:
+        elif name in own:
+            # The course's own lab is edited in its lab folder, and `labs verify` proved that
+            # folder fair: nbgrader must release the same notebook, not an older copy.
+            _sync_folder(folder, target)
+        if name in documents:
             # The practice problems, as data, beside the notebook: nbgrader copies them into
             # the release (the students' check()) and the hidden tests score on them in
             # nbgrader's kernel, which sees no generator. Written again on every init, so a
             # changed spec reaches the next release.
-            save_practice(_practice_document(lab.name), target)
+            save_practice(documents[name], target)
     grading.create_secret(root)
     return root
 
 
+def _sync_folder(folder: Path, target: Path) -> None:
+    """Copy every file of ``folder`` whose content differs into ``target`` (files only in
+    ``target``, such as practice data, are left)."""
+    for path in folder.rglob("*"):
+        relative = path.relative_to(folder)
+        if not path.is_file() or {".ipynb_checkpoints", "__pycache__"} & set(relative.parts):
+            continue
+        dest = target / relative
+        if not dest.is_file() or dest.read_bytes() != path.read_bytes():
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, dest)
+
+
 @functools.cache
-def _practice_document(assignment: str) -> dict:
+def _practice_document(assignment: str, spec_hash: str) -> dict:
     """The practice data of ``assignment``, built once per process (the generators' closed
     loops and depth images take seconds; a process that lays out several courses, or the
     same course again, pays once)."""
@@ -331,6 +345,7 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     False starts a new interpreter per submission (the results are the same, slower).
     """
     root = Path(course_dir).resolve()
+    registry.use_course(root)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     if assignment not in checks.SPECS:
@@ -350,6 +365,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     # a cluster whose workers would grade differently (secret, lab version) is refused here
     cluster_note = cluster.check(assignment, secret) if cluster is not None else None
     run_notes = _begin_run(root, private)
+    unverified = registry.verification_note(assignment)
+    if unverified:
+        run_notes.append(f"warning: {unverified}")
+        if not quiet:
+            print(f"warning: {unverified}", file=sys.stderr)
     if cluster_note:
         run_notes.append(cluster_note)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
@@ -859,6 +879,7 @@ def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
     previous = runs.read_bytes() if runs.is_file() and not runs.is_symlink() else b""
     entry = {"assignment": assignment, "problems": problems, "nonce": nonce, "when":
              datetime.now(timezone.utc).isoformat(), "students": len(rows),
+             "spec_hash": registry.spec_hash(assignment),
              "sandbox": sandbox.mode(), "notes": run_notes}
     record.write_file(private, "runs.jsonl", previous + (json.dumps(entry) + "\n").encode())
     log = ["sandbox: " + sandbox.mode(), *("  " + e for e in sandbox.capabilities().evidence),

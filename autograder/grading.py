@@ -328,11 +328,12 @@ def _worker_env(home: str) -> dict[str, str]:
 def worker_jail(limits: Limits) -> sandbox.Jail:
     """The worker's view (:func:`autograder.views.worker_view`: an allow list of the
     interpreter, a lab notebook's libraries and the worker's own modules; never
-    ``solutions/``, the specs, the checks, the course or $HOME), read-only, and a /tmp
-    scratch."""
+    ``solutions/``, the specs, the checks, the course or $HOME; with the packages the
+    course's cobotlab.toml adds for its labs), read-only, and a /tmp scratch."""
+    from autograder.registry import notebook_packages
     from autograder.views import worker_view
 
-    return sandbox.Jail.of_view(worker_view(), scratch_mb=limits.scratch_mb, chdir="/tmp",
+    return sandbox.Jail.of_view(worker_view(notebook_packages()), scratch_mb=limits.scratch_mb, chdir="/tmp",
                                 env=_worker_env("/tmp"))
 
 

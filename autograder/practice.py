@@ -21,7 +21,6 @@ generators are importable (an instructor's install) does it build the same data 
 from __future__ import annotations
 
 import gzip
-import importlib.util
 import json
 import os
 from functools import lru_cache
@@ -29,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import wire
-from autograder.spec_types import FunctionSpec, Trial
+from autograder import registry, wire
+from autograder.spec_types import FunctionSpec, Trial, mistake_answers
 
 __all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "load_practice",
-           "practice_file_name", "practice_rng", "practice_trials", "private_side_available",
+           "practice_file_name", "practice_rng", "practice_trials",
            "save_practice", "write_practice"]
 
 ENV_DIR = "COBOTLAB_PRACTICE_DIR"
@@ -59,25 +58,11 @@ def practice_file_name(assignment: str) -> str:
     return f"practice_{assignment}.json.gz"
 
 
-def private_side_available() -> bool:
-    """Whether the private generators (autograder/specs) can be imported: an instructor's
-    install; a student's has no such package."""
-    try:
-        spec = importlib.util.find_spec("autograder.specs")
-    except (ImportError, ValueError):
-        return False
-    # A namespace package (an empty or hidden folder of that name) is not the generators.
-    return spec is not None and spec.origin is not None and spec.origin.endswith("__init__.py")
-
-
 # --------------------------------------------------------------------------- the private side
 
 
 def _full_spec(assignment: str, name: str) -> FunctionSpec:
-    import importlib
-
-    module = importlib.import_module(f"autograder.specs.{assignment}")
-    for spec in module.SPECS:
+    for spec in registry.specs(assignment):
         if spec.name == name:
             return spec
     raise PracticeDataError(f"{assignment} grades no function named {name!r}")
@@ -85,8 +70,7 @@ def _full_spec(assignment: str, name: str) -> FunctionSpec:
 
 def _encode_trial(spec: FunctionSpec, trial: Trial) -> dict:
     """``trial`` in the file's form, with its mistakes and stand-in tables computed now."""
-    mistakes = [(str(words), value) for words, value in spec.mistakes(trial)] \
-        if spec.mistakes else []
+    mistakes = [(str(words), value) for words, value in mistake_answers(spec, trial)]
     # With a drive the stand-ins are needed at states only the closed loop reaches: the
     # public scoring entry derives those tables itself.
     tables = spec.substitutes(trial.args) if spec.substitutes and spec.drive is None else None
@@ -96,9 +80,15 @@ def _encode_trial(spec: FunctionSpec, trial: Trial) -> dict:
         "raises": trial.raises, "mistakes": mistakes, "substitutes": tables})
 
 
-@lru_cache(maxsize=256)
 def _built(assignment: str, name: str, seed: int) -> tuple:
-    """The encoded practice problems of one function and seed, drawn by its generator."""
+    """The encoded practice problems of one function and seed, drawn by its generator (cached
+    per version of the lab's spec: another course's lab of that name, or an edited spec, is
+    drawn again)."""
+    return _built_for(assignment, name, seed, registry.spec_hash(assignment))
+
+
+@lru_cache(maxsize=256)
+def _built_for(assignment: str, name: str, seed: int, spec_hash: str) -> tuple:
     spec = _full_spec(assignment, name)
     rng = practice_rng(seed)
     n = spec.practice_trials or spec.n_trials
@@ -114,13 +104,12 @@ def _default_seeds() -> tuple[int, ...]:
 def build_practice(assignment: str, seeds=None) -> dict:
     """The practice data of ``assignment`` (a JSON-ready dict) for ``seeds`` (default: the
     public and the kernel seeds). Needs the private generators."""
-    if not private_side_available():
-        raise PracticeDataError("building practice data needs the instructor's install of "
-                                "cobotlab (the private generators, autograder.specs)")
-    import importlib
-
+    if not registry.private_available(assignment):
+        raise PracticeDataError(f"building practice data of {assignment} needs its private "
+                                "spec (the instructor's install of cobotlab, or the course "
+                                "repository of an instructor's lab)")
     seeds = tuple(int(s) for s in (_default_seeds() if seeds is None else seeds))
-    specs = importlib.import_module(f"autograder.specs.{assignment}").SPECS
+    specs = registry.specs(assignment)
     return {"cobotlab_practice": FORMAT, "assignment": assignment, "seeds": list(seeds),
             "functions": {spec.name: {str(seed): list(_built(assignment, spec.name, seed))
                                       for seed in seeds} for spec in specs}}
@@ -205,7 +194,7 @@ class PracticeSet:
         """The practice problems of graded function ``name`` for ``seed`` (fresh objects)."""
         encoded = self._functions.get(name, {}).get(str(int(seed)))
         if encoded is None:
-            if not private_side_available():
+            if not registry.private_available(self.assignment):
                 have = ", ".join(str(s) for s in self.seeds) or "none"
                 raise PracticeDataError(
                     f"{self.source} holds no practice problems of {name} for seed {seed} (its "
@@ -265,7 +254,7 @@ def load_practice(assignment: str) -> PracticeSet:
         if key not in _loaded:
             _loaded[key] = _read(path, assignment)
         return _loaded[key]
-    if private_side_available():
+    if registry.private_available(assignment):
         return PracticeSet(assignment, "the private generators (drawn in memory)")
     looked = " and ".join(str(p.parent) for p in candidates)
     raise PracticeDataError(

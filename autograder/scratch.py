@@ -118,12 +118,13 @@ def kernel_jail(course: Path, home: Path, source: Path, config: Path, assignment
     files without its notebooks (read-only; nbgrader copies them over the submission, and
     they hold the practice data the hidden tests score on), and ``config``."""
     from autograder.practice import ENV_DIR
+    from autograder.registry import notebook_packages
     from autograder.views import kernel_view
 
     env = _env("/home/student")
     env[ENV_DIR] = f"{INSIDE}/source/{assignment}"
     return sandbox.Jail.of_view(
-        kernel_view(),
+        kernel_view(notebook_packages()),
         rw_at=((str(course), INSIDE), (str(home), "/home/student")),
         ro_at=((str(source), f"{INSIDE}/source/{assignment}"),
                (str(config), f"{INSIDE}/nbgrader_config.py")),

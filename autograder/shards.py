@@ -23,7 +23,7 @@ import os
 import stat
 from pathlib import Path
 
-from autograder import checks, course, freeze, grading, record, scratch
+from autograder import checks, course, freeze, grading, record, registry, scratch
 
 __all__ = ["merge_shard"]
 
@@ -150,6 +150,7 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     home, shard = Path(course_dir).resolve(), Path(shard_dir).resolve()
     if home == shard:
         raise ValueError("the shard is the course itself: pass the job's copy of the course")
+    registry.use_course(home)   # an instructor's lab is found in the home course's folders
     if assignment not in checks.SPECS:
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}")
     rows = _shard_rows(shard, assignment)

@@ -3,14 +3,15 @@
 A graded function has two halves. Its public scoring (``autograder/scoring/<lab>.py``):
 points, checks, ``measure``, ``drive``, signature, limits; a :class:`FunctionSpec` with
 ``make_trial=None``, shipped to students. Its private generation (``autograder/specs/<lab>.py``,
-instructors only): the generator that computes the truth, the answer functions, the mistakes
-predictors, which completes the same :class:`FunctionSpec` with ``dataclasses.replace``.
+instructors only): the generator that computes the truth, the answer functions, the code
+mistakes, which completes the same :class:`FunctionSpec` with ``dataclasses.replace``.
 Imports go one way: specs -> scoring -> spec_types, and checks -> scoring, spec_types (checks
 reaches specs only when the grader asks for them).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -64,7 +65,7 @@ class Trial:
     # value earns none, whatever it is.
     raises: str | None = None
     # Precomputed by the private side for practice data (autograder.practice), where the
-    # spec's own ``mistakes`` and ``substitutes`` are not shipped: this problem's
+    # spec's ``code_mistakes`` and ``substitutes`` are not shipped: this problem's
     # [(words, predicted answer)], and the stand-in tables for a call with ``args``
     # (functions without a ``drive`` only). None: ask the spec.
     mistakes: list | None = None
@@ -84,6 +85,10 @@ class FunctionSpec:
     checks: tuple[Check, ...]
     signature: str
     time_limit_s: float = 10.0
+    # The notebook's ``def`` parameter list as Python source ("points, inlier_m,
+    # iterations=500, seed=0"): names, order and defaults, which `cobotlab labs verify`
+    # compares with the notebook (``signature`` is the human-readable form for feedback).
+    parameters: str | None = None
     # Closed-loop grading (a control law): ``drive(call, trial)`` calls the student's function
     # as often as it needs, ``call(*args)`` returning its value or raising StudentCallError,
     # and returns what ``measure`` scores. None: one call with ``trial.args``.
@@ -102,10 +107,55 @@ class FunctionSpec:
     # seeds' worth, and the hidden grade must draw at least as many, so that a bug check()
     # reveals cannot pass the grader by luck.
     practice_trials: int | None = None
-    # Mistakes that depend on the inputs (a chain multiplied in reverse order): for a
-    # problem, [(the words for the mistake, the answer it gives)]; an answer matching one is
-    # told so (autograder.mistakes covers those seen from the truth alone).
-    mistakes: Callable[[Trial], list[tuple[str, Any]]] | None = None
+    # The classic wrong versions of this function (private: autograder/specs). Each loses
+    # credit on at least 99 % of hidden draws (benchmarks/grading_fairness.py and
+    # `cobotlab labs verify` measure it), and an answer equal to one's answer on the same
+    # problem is named by check() and the feedback (autograder.mistakes names those seen
+    # from the truth alone: inverse pose, millimetres, ...).
+    code_mistakes: tuple[CodeMistake, ...] = ()
+
+
+@dataclass(frozen=True)
+class CodeMistake:
+    """A classic wrong version of a graded function, as code: ``func`` takes the graded
+    function's arguments and returns what that mistake returns; ``label`` is the words the
+    feedback shows when a student's answer equals it ("the translation is in millimetres:
+    the course works in metres")."""
+
+    label: str
+    func: Callable
+
+
+def mistake_answers(spec: FunctionSpec, trial: Trial) -> list[tuple[str, Any]]:
+    """[(label, answer)] of ``spec``'s code mistakes on ``trial``: one call with its inputs,
+    or the spec's closed loop (``drive``) around the mistake, whose answer is the loop's
+    measured errors. A mistake that raises, or whose answer is within every tolerance of
+    this problem, gives no answer: an answer that passes must not be named as a mistake (a
+    float32 composition is exact enough on some problems, a slightly biased fit on others)."""
+    answers = []
+    with np.errstate(all="ignore"):  # a mistake may divide by zero: that is its bug
+        for mistake in spec.code_mistakes:
+            try:
+                if spec.drive is None:
+                    # a copy: a mistake that writes into its inputs must not change the problem
+                    args = copy.deepcopy(trial.args)
+                    answer = mistake.func(*args)
+                else:
+                    answer = spec.drive(mistake.func, trial)
+            except Exception:  # noqa: BLE001 - a mistake may well raise on some inputs
+                continue
+            if trial.raises is None and _within_tolerance(spec, trial, answer):
+                continue
+            answers.append((mistake.label, answer))
+    return answers
+
+
+def _within_tolerance(spec: FunctionSpec, trial: Trial, answer) -> bool:
+    try:
+        measured = spec.measure(answer, trial)
+    except Exception:  # noqa: BLE001 - an answer the scoring rejects is not within tolerance
+        return False
+    return all(float(measured[c.name]) <= trial.tol[c.name] for c in spec.checks)
 
 
 # --------------------------------------------------------------------------- output validation

@@ -48,6 +48,7 @@ WORKER_MODULES = ("__init__.py", "_worker.py", "_isolate.py", "wire.py", "forbid
 # nbgrader's kernel runs the notebook's hidden_test cells: the public scoring and the
 # practice problems of the kernel seeds (data, not the generators behind them).
 KERNEL_MODULES = WORKER_MODULES + ("checks.py", "spec_types.py", "mistakes.py", "practice.py",
+                                   "registry.py",
                                    "scoring", "nbgrader_hooks.py")
 # Distributions whose closure a lab notebook may import besides cobotlab's requirements
 # (the notebook's own display libraries), and what nbgrader's run needs on top.
@@ -253,10 +254,10 @@ def _build(distributions, autograder_modules, extra_ro=()) -> View:
                 tuple(notes))
 
 
-def _roots() -> list[str]:
+def _roots(course_packages: tuple[str, ...]) -> list[str]:
     own = _distribution("cobotlab")
     return [name for name, _ in (_requirements(own) if own is not None else [])] + list(
-        NOTEBOOK_DISTRIBUTIONS)
+        NOTEBOOK_DISTRIBUTIONS) + list(course_packages)
 
 
 @lru_cache(maxsize=1)
@@ -266,17 +267,19 @@ def interpreter_view() -> View:
     return View(tuple(ro), tuple((d, ()) for d in emptied + _package_dirs()))
 
 
-@lru_cache(maxsize=1)
-def worker_view() -> View:
-    """What the grading worker sees: a lab notebook's libraries and nothing of the grader."""
-    return _build(_roots(), WORKER_MODULES)
+@lru_cache(maxsize=4)
+def worker_view(course_packages: tuple[str, ...] = ()) -> View:
+    """What the grading worker sees: a lab notebook's libraries and nothing of the grader.
+    ``course_packages``: the distributions a course adds for its own labs
+    (:func:`autograder.registry.notebook_packages`)."""
+    return _build(_roots(course_packages), WORKER_MODULES)
 
 
-@lru_cache(maxsize=1)
-def kernel_view() -> View:
+@lru_cache(maxsize=4)
+def kernel_view(course_packages: tuple[str, ...] = ()) -> View:
     """What nbgrader's autograde and its kernel see: the worker's view, nbgrader's own
     closure and its command-line scripts and data files, and the public scoring."""
     prefix = sys.prefix
-    return _build(_roots() + list(NBGRADER_DISTRIBUTIONS), KERNEL_MODULES,
+    return _build(_roots(course_packages) + list(NBGRADER_DISTRIBUTIONS), KERNEL_MODULES,
                   extra_ro=(os.path.join(prefix, "bin"),
                             os.path.join(prefix, "share", "jupyter")))

@@ -7,8 +7,10 @@ On the same problems it scores, side by side,
 * the reference solutions (the notebook's SOLUTION regions and the ``solutions/`` package),
 * correct alternatives a student may well write (consecutive-pair Tsai, Park-Martin, Horn's
   quaternion fit, float32 arithmetic where the lab allows it, a quaternion Rodrigues, ...),
-* each classic mistake (inverse pose, transposed rotation, mm for m, degrees for radians,
-  swapped A / B, reversed multiplication order, no reflection fix, no degenerate-input check).
+* each classic mistake of the function's spec (``FunctionSpec.code_mistakes`` in
+  autograder/specs: inverse pose, transposed rotation, mm for m, degrees for radians, swapped
+  A / B, reversed multiplication order, no reflection fix, no degenerate-input check, ...),
+  the same ones that check() and the feedback name.
 
 A draw "loses credit" when the function scores below its full points. Targets: a correct
 variant loses credit on fewer than 1 in 10,000 draws; a mistake on at least 99 % of draws.
@@ -17,8 +19,9 @@ about 3.7 / n, so 10,000 draws can show a rate below 3.7e-4, not below 1e-4 (tha
 about 37,000 draws with none lost). The margin column says how close correct code came:
 the largest error / full-credit tolerance over every problem (below 1: full credit).
 
-Scoring is in-process (``checks._call_in_process`` and ``checks.score_function``, the
-grader's own scoring): the sandbox changes where code runs, not what it scores.
+The Monte Carlo itself is :mod:`autograder.fairness` (draws, scoring, margins, intervals);
+calls are in-process (``fairness.in_process``, the grader's own scoring): the sandbox
+changes where code runs, not what it scores.
 
     .venv/bin/python benchmarks/grading_fairness.py --quick              # ~2 min, 300 draws
     .venv/bin/python benchmarks/grading_fairness.py --labs lab0_frames,lab4_stereo
@@ -49,7 +52,6 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import beta
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,7 +60,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import course_kit as kit  # noqa: E402
 
-from autograder import checks, grading  # noqa: E402
+from autograder import checks, fairness, grading  # noqa: E402
+from autograder.fairness import clopper_pearson  # noqa: E402
+from autograder.specs.lab1_flange import _kabsch  # noqa: E402
+from autograder.specs.lab5_depth import _kasa  # noqa: E402
 from robots import geometry as geo  # noqa: E402
 from solutions import handeye as he  # noqa: E402
 from solutions import registration as reg  # noqa: E402
@@ -97,22 +102,6 @@ def _pose(R, t) -> np.ndarray:
     return T
 
 
-def _inv(T) -> np.ndarray:
-    return _pose(T[:3, :3].T, -T[:3, :3].T @ T[:3, 3])
-
-
-def _transposed(T) -> np.ndarray:
-    return _pose(T[:3, :3].T, T[:3, 3])
-
-
-def _mm(T) -> np.ndarray:
-    return _pose(T[:3, :3], T[:3, 3] * 1000.0)
-
-
-def _wrap(f, post):
-    return lambda *a: post(f(*a))
-
-
 # --------------------------------------------------------------------------- lab 0
 
 
@@ -140,45 +129,24 @@ def _rotvec_series(rvec, t):
     return _pose(np.eye(3) + a * W + b * W @ W, t)
 
 
-def _rotvec_no_zero_check(rvec, t):
-    rvec = np.asarray(rvec, float)
-    theta = np.linalg.norm(rvec)
-    K = geo.skew(rvec / theta)
-    return _pose(np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K, t)
-
-
 def lab0(ns) -> dict:
-    ref_rotvec = ns["pose_from_rotvec"]
     return {
         "invert_pose": [
             Variant("notebook solution", True, ns["invert_pose"]),
             Variant("np.linalg.inv", True, lambda T: np.linalg.inv(T)),
-            Variant("R not transposed", False, lambda T: _pose(T[:3, :3], -T[:3, :3] @ T[:3, 3])),
-            Variant("t negated only (-t, not -R^T t)", False,
-                    lambda T: _pose(T[:3, :3].T, -T[:3, 3])),
-            Variant("returns the pose itself", False, lambda T: np.array(T)),
         ],
         "compose_chain": [
             Variant("notebook solution", True, ns["compose_chain"]),
             Variant("np.linalg.multi_dot", True,
                     lambda P: np.linalg.multi_dot([np.eye(4), *P]) if len(P) < 2
                     else np.linalg.multi_dot(P)),
-            Variant("reversed multiplication order", False,
-                    lambda P: ns["compose_chain"](list(P)[::-1])),
-            Variant("inverse poses composed", False,
-                    lambda P: ns["compose_chain"]([_inv(T) for T in P])),
         ],
         "pose_from_rotvec": [
-            Variant("notebook solution", True, ref_rotvec),
+            Variant("notebook solution", True, ns["pose_from_rotvec"]),
             Variant("quaternion formula", True, _rotvec_quaternion),
             Variant("Taylor series near 0", True, _rotvec_series),
             Variant("scipy Rotation.from_rotvec", True,
                     lambda r, t: _pose(Rotation.from_rotvec(r).as_matrix(), t)),
-            Variant("degrees taken for radians", False,
-                    lambda r, t: ref_rotvec(np.radians(np.asarray(r, float)), t)),
-            Variant("transposed rotation", False, _wrap(ref_rotvec, _transposed)),
-            Variant("no zero-rotation check (0/0)", False, _rotvec_no_zero_check),
-            Variant("translation in mm", False, _wrap(ref_rotvec, _mm)),
         ],
     }
 
@@ -205,21 +173,6 @@ def _horn(src, dst):
     return _pose(R, dst.mean(0) - R @ src.mean(0))
 
 
-def _kabsch(src, dst, reflection_fix=True, degenerate_check=True):
-    src, dst = np.asarray(src, float), np.asarray(dst, float)
-    a, b = src - src.mean(0), dst - dst.mean(0)
-    if degenerate_check:
-        if len(src) < 3:
-            raise ValueError("fewer than 3 points")
-        s = np.linalg.svd(a, compute_uv=False)
-        if s[1] < 1e-3 * s[0]:
-            raise ValueError("collinear points")
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) if reflection_fix else 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return _pose(R, dst.mean(0) - R @ src.mean(0))
-
-
 def _residuals_homogeneous(T, src, dst):
     h = np.c_[src, np.ones(len(src))] @ np.asarray(T).T
     return np.linalg.norm(h[:, :3] - dst, axis=1)
@@ -231,42 +184,20 @@ def _rmse_inverse_map(T, src, dst):
     return np.sqrt(np.mean(back ** 2, axis=0))
 
 
-def _rmse_dst_axes(T, src, dst):
-    r = geo.transform_points(T, src) - dst
-    return np.sqrt(np.mean(r ** 2, axis=0))
-
-
-def _rmse_r_not_transposed(T, src, dst):
-    r = geo.transform_points(T, src) - dst
-    return np.sqrt(np.mean((r @ T[:3, :3].T) ** 2, axis=0))
-
-
 def lab1(ns) -> dict:
-    fit, res, rmse = ns["fit_rigid"], ns["per_point_residuals"], ns["per_axis_rmse"]
     return {
         "fit_rigid": [
-            Variant("notebook solution", True, fit),
+            Variant("notebook solution", True, ns["fit_rigid"]),
             Variant("solutions.registration.fit_rigid", True, reg.fit_rigid),
             Variant("Horn quaternion fit", True, _horn),
-            Variant("no reflection fix", False, lambda s, d: _kabsch(s, d, reflection_fix=False)),
-            Variant("no degenerate-input check", False,
-                    lambda s, d: _kabsch(s, d, degenerate_check=False)),
-            Variant("inverse pose (src_T_dst)", False, _wrap(fit, _inv)),
-            Variant("swapped src / dst", False, lambda s, d: fit(d, s)),
-            Variant("transposed rotation", False, _wrap(fit, _transposed)),
-            Variant("translation in mm", False, _wrap(fit, _mm)),
         ],
         "per_point_residuals": [
-            Variant("notebook solution", True, res),
+            Variant("notebook solution", True, ns["per_point_residuals"]),
             Variant("solutions.registration.residuals", True,
                     lambda T, s, d: np.linalg.norm(reg.residuals(T, s, d), axis=1)),
             Variant("homogeneous coordinates", True, _residuals_homogeneous),
-            Variant("squared distances", False, lambda T, s, d: res(T, s, d) ** 2),
-            Variant("inverse pose used", False, lambda T, s, d: res(_inv(T), s, d)),
-            Variant("transposed rotation", False, lambda T, s, d: res(_transposed(T), s, d)),
-            Variant("in mm", False, lambda T, s, d: res(T, s, d) * 1000.0),
         ],
-        "per_axis_rmse": _rmse_variants(rmse, "src"),
+        "per_axis_rmse": _rmse_variants(ns["per_axis_rmse"], "src"),
     }
 
 
@@ -276,11 +207,6 @@ def _rmse_variants(rmse, frame) -> list[Variant]:
         Variant("solutions.registration.per_axis_rmse", True,
                 lambda T, s, d: reg.per_axis_rmse(T, s, d, expressed_in="src")),
         Variant(f"inverse map into the {frame} frame", True, _rmse_inverse_map),
-        Variant("along the dst (base) axes", False, _rmse_dst_axes),
-        Variant("R instead of R^T", False, _rmse_r_not_transposed),
-        Variant("mean square (no sqrt)", False, lambda T, s, d: rmse(T, s, d) ** 2),
-        Variant("one RMS for all axes", False,
-                lambda T, s, d: np.full(3, np.sqrt(np.mean(rmse(T, s, d) ** 2)))),
     ]
 
 
@@ -316,45 +242,20 @@ def _motions_np_inv(F, C, strategy="all"):
             np.array([C[i] @ np.linalg.inv(C[j]) for i, j in pairs]))
 
 
-def _motions_with(a_of, b_of, strategy_ignored=False):
-    def motions(F, C, strategy="all"):
-        n = len(F)
-        if strategy_ignored:
-            strategy = "all"
-        pairs = ([(i, j) for i in range(n) for j in range(i + 1, n)] if strategy == "all"
-                 else [(i, i + 1) for i in range(n - 1)])
-        return (np.array([a_of(F[i], F[j]) for i, j in pairs]),
-                np.array([b_of(C[i], C[j]) for i, j in pairs]))
-    return motions
-
-
 def _solver_variants(ref, alt_name, alt, extra=()) -> list[Variant]:
     return [
         Variant("notebook solution", True, ref),
         Variant(alt_name, True, alt),
         Variant("consecutive pairs only", True, lambda A, B: ref(*_consecutive_of_all(A, B))),
         *extra,
-        Variant("inverse X (cam_T_flange)", False, _wrap(ref, _inv)),
-        Variant("swapped A / B", False, lambda A, B: ref(B, A)),
-        Variant("transposed R_X", False, _wrap(ref, _transposed)),
-        Variant("t_X in mm", False, _wrap(ref, _mm)),
     ]
 
 
 def lab2(ns) -> dict:
-    mot, rr, tr = ns["motions"], ns["rotation_residual"], ns["translation_residual"]
     return {
         "motions": [
-            Variant("notebook solution", True, mot),
+            Variant("notebook solution", True, ns["motions"]),
             Variant("np.linalg.inv", True, _motions_np_inv),
-            Variant("B = inv(C_i) C_j (inverse on the wrong side)", False,
-                    _motions_with(lambda Fi, Fj: _inv(Fi) @ Fj, lambda Ci, Cj: _inv(Ci) @ Cj)),
-            Variant("A = inv(F_j) F_i (reversed)", False,
-                    _motions_with(lambda Fi, Fj: _inv(Fj) @ Fi, lambda Ci, Cj: Ci @ _inv(Cj))),
-            Variant("strategy ignored (always all pairs)", False,
-                    _motions_with(lambda Fi, Fj: _inv(Fi) @ Fj, lambda Ci, Cj: Ci @ _inv(Cj),
-                                  strategy_ignored=True)),
-            Variant("swapped A / B", False, lambda F, C, s="all": mot(F, C, s)[::-1]),
         ],
         "tsai_lenz": _solver_variants(ns["tsai_lenz"], "solutions.handeye.solve_tsai",
                                       he.solve_tsai),
@@ -362,21 +263,12 @@ def lab2(ns) -> dict:
                                     [Variant("solutions.handeye.solve_axes_ls", True,
                                              he.solve_axes_ls)]),
         "rotation_residual": [
-            Variant("notebook solution", True, rr),
+            Variant("notebook solution", True, ns["rotation_residual"]),
             Variant("solutions.handeye.rotation_residual", True, he.rotation_residual),
-            Variant("sum, not mean", False, lambda A, B, X: rr(A, B, X) * len(A)),
-            Variant("Frobenius norm, not squared", False,
-                    lambda A, B, X: float(np.mean([np.linalg.norm(a[:3, :3] @ X[:3, :3]
-                                                                  - X[:3, :3] @ b[:3, :3])
-                                                   for a, b in zip(A, B)]))),
-            Variant("R_X transposed", False, lambda A, B, X: rr(A, B, _transposed(X))),
         ],
         "translation_residual": [
-            Variant("notebook solution", True, tr),
+            Variant("notebook solution", True, ns["translation_residual"]),
             Variant("solutions.handeye.translation_residual", True, he.translation_residual),
-            Variant("sum, not mean", False, lambda A, B, X: tr(A, B, X) * len(A)),
-            Variant("in mm^2", False, lambda A, B, X: tr(A, B, X) * 1e6),
-            Variant("inverse X", False, lambda A, B, X: tr(A, B, _inv(X))),
         ],
     }
 
@@ -384,40 +276,10 @@ def lab2(ns) -> dict:
 # --------------------------------------------------------------------------- lab 3
 
 
-def _interaction_stacked(x, y, Z):
-    """The right entries, rows stacked x1..xn, y1..yn instead of x1, y1, x2, ..."""
-    L = np.asarray(interaction_matrix(x, y, Z))
-    return np.vstack([L[0::2], L[1::2]])
-
-
-def _interaction_rotation_sign(x, y, Z):
-    L = np.asarray(interaction_matrix(x, y, Z)).copy()
-    L[:, 3:] *= -1
-    return L
-
-
-def _interaction_no_depth(x, y, Z):
-    L = np.asarray(interaction_matrix(x, y, np.ones_like(np.asarray(Z, float)))).copy()
-    return L
-
-
 def _ibvs_lstsq(s, s_star, Z, gain):
     s, s_star = np.asarray(s, float), np.asarray(s_star, float)
     L = interaction_matrix(s[:, 0], s[:, 1], Z)
     return -gain * np.linalg.lstsq(L, (s - s_star).reshape(-1), rcond=None)[0]
-
-
-def _ibvs_transpose(s, s_star, Z, gain):
-    s, s_star = np.asarray(s, float), np.asarray(s_star, float)
-    return -gain * interaction_matrix(s[:, 0], s[:, 1], Z).T @ (s - s_star).reshape(-1)
-
-
-def _ibvs_flipped(s, s_star, Z, gain):
-    return -_ibvs_lstsq(s, s_star, Z, gain)
-
-
-def _ibvs_no_gain(s, s_star, Z, gain):
-    return _ibvs_lstsq(s, s_star, Z, 1.0)
 
 
 def _piece_nanmedian(depth, uv, K):
@@ -427,43 +289,22 @@ def _piece_nanmedian(depth, uv, K):
     return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
 
 
-def _piece_pixel_only(depth, uv, K):
-    u, v = np.rint(np.asarray(uv, float)).astype(int)
-    Z = float(depth[v, u])
-    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
-
-
-def _piece_swapped(depth, uv, K, ref=None):
-    return ref(depth, (uv[1], uv[0]), K)
-
-
 def lab3(ns) -> dict:
     global interaction_matrix
     interaction_matrix = ns["interaction_matrix"]
-    piece = ns["piece_position"]
     return {
         "interaction_matrix": [
             Variant("notebook solution", True, ns["interaction_matrix"]),
             Variant("solutions.servoing.interaction_matrix", True,
                     lambda x, y, Z: sv.interaction_matrix(np.column_stack([x, y]), Z)),
-            Variant("rows stacked x..., y...", False, _interaction_stacked),
-            Variant("rotation columns' sign flipped", False, _interaction_rotation_sign),
-            Variant("depth ignored (Z = 1)", False, _interaction_no_depth),
         ],
         "ibvs_velocity": [
             Variant("notebook solution", True, ns["ibvs_velocity"]),
             Variant("lstsq instead of pinv", True, _ibvs_lstsq),
-            Variant("gain sign flipped", False, _ibvs_flipped),
-            Variant("L^T instead of pinv(L)", False, _ibvs_transpose),
-            Variant("gain ignored", False, _ibvs_no_gain),
         ],
         "piece_position": [
-            Variant("notebook solution", True, piece),
+            Variant("notebook solution", True, ns["piece_position"]),
             Variant("np.nanmedian of the 5x5 window", True, _piece_nanmedian),
-            Variant("the pixel's own depth (no hole handling)", False, _piece_pixel_only),
-            Variant("u and v swapped", False,
-                    lambda d, uv, K: _piece_swapped(d, uv, K, ref=piece)),
-            Variant("depth in mm", False, lambda d, uv, K: piece(d, uv, K) * 1000.0),
         ],
     }
 
@@ -482,13 +323,6 @@ def _frame_gram_schmidt(o, px, pxy):
     return _pose(np.column_stack([x, y, np.cross(x, y)]), o)
 
 
-def _frame_y_copied(o, px, pxy):
-    o, px, pxy = (np.asarray(p, float) for p in (o, px, pxy))
-    x = (px - o) / np.linalg.norm(px - o)
-    y = (pxy - o) / np.linalg.norm(pxy - o)
-    return _pose(np.column_stack([x, y, np.cross(x, y)]), o)
-
-
 def _reproject_float32(u, v, d, Q):
     X, Y, Z, W = np.asarray(Q, np.float32) @ np.array([u, v, d, 1.0], np.float32)
     return np.array([X, Y, Z], np.float32) / W
@@ -501,66 +335,29 @@ def _reproject_cv2(u, v, d, Q):
                                     np.asarray(Q, float)).reshape(3)
 
 
-def _reproject_no_shift(u, v, d, Q):
-    Q = np.array(Q, float)
-    Q[3, 3] = 0.0
-    X, Y, Z, W = Q @ np.array([u, v, d, 1.0])
-    return np.array([X, Y, Z]) / W
-
-
 def _chain_fit_rigid(cam, base):
     return _kabsch(cam, base)
 
 
 def lab4(ns) -> dict:
-    frame, rep, chain = ns["frame_from_three_points"], ns["reproject"], \
-        ns["hand_to_eye_from_three_points"]
-
-    def chain_with(combine):
-        def hand_to_eye(cam_points, base_points):
-            cam_T_world = frame_from_three_points(*np.asarray(cam_points, float))
-            base_T_world = frame_from_three_points(*np.asarray(base_points, float))
-            return combine(base_T_world, cam_T_world)
-        return hand_to_eye
-
-    global frame_from_three_points
-    frame_from_three_points = frame
     return {
         "frame_from_three_points": [
-            Variant("notebook solution", True, frame),
+            Variant("notebook solution", True, ns["frame_from_three_points"]),
             Variant("solutions.registration.frame_from_three_points", True,
                     reg.frame_from_three_points),
             Variant("Gram-Schmidt y", True, _frame_gram_schmidt),
-            Variant("left-handed (z = (p_xy - o) x x)", False,
-                    lambda o, px, pxy: frame(o, px, pxy) @ np.diag([1.0, -1.0, -1.0, 1.0])),
-            Variant("p_xy - o copied as the y axis", False, _frame_y_copied),
-            Variant("inverse pose (frame_T_parent)", False, _wrap(frame, _inv)),
-            Variant("transposed rotation", False, _wrap(frame, _transposed)),
         ],
         "reproject": [
-            Variant("notebook solution", True, rep),
+            Variant("notebook solution", True, ns["reproject"]),
             Variant("float32 arithmetic", True, _reproject_float32),
             Variant("cv2.perspectiveTransform (float32)", True, _reproject_cv2),
-            Variant("divided by Z, not W", False,
-                    lambda u, v, d, Q: (lambda h: h[:3] / h[2])(np.asarray(Q) @ [u, v, d, 1.0])),
-            Variant("(cx - cx')/Tx term dropped", False, _reproject_no_shift),
-            Variant("disparity sign flipped", False, lambda u, v, d, Q: rep(u, v, -d, Q)),
-            Variant("in mm", False, lambda u, v, d, Q: np.asarray(rep(u, v, d, Q)) * 1000.0),
         ],
         "hand_to_eye_from_three_points": [
-            Variant("notebook solution", True, chain),
+            Variant("notebook solution", True, ns["hand_to_eye_from_three_points"]),
             Variant("fit_rigid on the three points", True, _chain_fit_rigid),
-            Variant("inverse (cam_T_base)", False, _wrap(chain, _inv)),
-            Variant("reversed order (world_T_cam @ base_T_world)", False,
-                    chain_with(lambda bw, cw: _inv(cw) @ bw)),
-            Variant("camera frame used as the world (no inverse)", False,
-                    chain_with(lambda bw, cw: bw @ cw)),
         ],
         "per_axis_rmse": _rmse_variants(ns["per_axis_rmse"], "camera"),
     }
-
-
-frame_from_three_points = None  # set by lab4(): the notebook's, replaced by the stand-in
 
 
 # --------------------------------------------------------------------------- lab 5
@@ -575,26 +372,8 @@ def _backproject_float32(depth_raw, K, depth_scale):
     return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=-1)
 
 
-def _backproject_with(depth_raw, K, depth_scale, scale=None, swap=False, inverted=False,
-                      holes_nan=True):
-    z = np.asarray(depth_raw, dtype=float) * (depth_scale if scale is None else scale)
-    if holes_nan:
-        z[np.asarray(depth_raw) == 0] = np.nan
-    v, u = np.indices(z.shape)
-    if swap:
-        u, v = v, u
-    fx, fy = (1 / K[0, 0], 1 / K[1, 1]) if inverted else (K[0, 0], K[1, 1])
-    return np.stack([(u - K[0, 2]) * z / fx, (v - K[1, 2]) * z / fy, z], axis=-1)
-
-
 def _towards_camera(centre, normal):
     return centre, (-normal if normal @ centre > 0 else normal)
-
-
-def _plane_svd_all(points, inlier_m, iterations=500, seed=0):
-    pts = np.asarray(points, float).reshape(-1, 3)
-    centre = pts.mean(axis=0)
-    return _towards_camera(centre, np.linalg.svd(pts - centre, full_matrices=False)[2][2])
 
 
 def _plane_ransac(points, inlier_m, iterations=500, seed=0, msac=False, refit="svd"):
@@ -632,32 +411,15 @@ def _rim_plane(rim):
     return c0, n, e1, e2, np.column_stack([(P - c0) @ e1, (P - c0) @ e2])
 
 
-def _circle_kasa(rim, radius_m):
-    """The algebraic (Kasa) fit in the rim's plane, not refined: the mistake."""
-    c0, n, e1, e2, xy = _rim_plane(rim)
-    A = np.column_stack([2 * xy, np.ones(len(xy))])
-    cx, cy, _ = np.linalg.lstsq(A, (xy ** 2).sum(axis=1), rcond=None)[0]
-    return c0 + cx * e1 + cy * e2, n
-
-
 def _circle_lm(rim, radius_m):
     """Levenberg-Marquardt (scipy) on the geometric residuals, the radius fixed."""
     from scipy.optimize import least_squares
 
     c0, n, e1, e2, xy = _rim_plane(rim)
-    start = np.asarray(_circle_kasa(rim, radius_m)[0] - c0) @ np.column_stack([e1, e2])
+    start = np.asarray(_kasa(np.asarray(rim, float))[0] - c0) @ np.column_stack([e1, e2])
     cx, cy = least_squares(lambda c: np.linalg.norm(xy - c, axis=1) - radius_m, start,
                            method="lm").x
     return c0 + cx * e1 + cy * e2, n
-
-
-def _registration_rt(cam_centres, base_T_flanges):
-    """The cross-covariance built base-first: R^T (the mistake)."""
-    a = np.asarray(cam_centres, float)
-    b = np.asarray(base_T_flanges, float)[:, :3, 3]
-    U, _, Vt = np.linalg.svd((b - b.mean(0)).T @ (a - a.mean(0)))
-    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
-    return _pose(R, b.mean(0) - R @ a.mean(0))
 
 
 def _rectangle_homography(corners_px, width_m, height_m, K):
@@ -678,42 +440,12 @@ def _rectangle_homography(corners_px, width_m, height_m, K):
     return _pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, M[:, 2])
 
 
-def _rectangle_not_orthogonal(corners_px, width_m, height_m, K, ref=None):
-    """The vanishing-point directions used as they are: R = [dx, dy, dx x dy]."""
-    h = np.column_stack([corners_px, np.ones(4)]) @ np.linalg.inv(K).T
-    dx = np.cross(np.cross(h[0], h[1]), np.cross(h[3], h[2]))
-    dy = np.cross(np.cross(h[0], h[3]), np.cross(h[1], h[2]))
-    dx = dx * (np.sign(dx[:2] @ (h[1, :2] - h[0, :2])) or 1.0)
-    dy = dy * (np.sign(dy[:2] @ (h[3, :2] - h[0, :2])) or 1.0)
-    dx, dy = dx / np.linalg.norm(dx), dy / np.linalg.norm(dy)
-    T = np.array(ref(corners_px, width_m, height_m, K), dtype=float)
-    T[:3, :3] = np.column_stack([dx, dy, np.cross(dx, dy)])
-    return T
-
-
-def _flip_normal(f):
-    def flipped(*args):
-        centre, normal = f(*args)
-        return centre, -np.asarray(normal, float)
-    return flipped
-
-
 def lab5(ns) -> dict:
-    bp, plane, circle = ns["backproject"], ns["fit_plane_ransac"], ns["fit_flange_circle"]
-    reg5, rect = ns["base_T_cam_from_flanges"], ns["rectangle_pose"]
+    plane = ns["fit_plane_ransac"]
     return {
         "backproject": [
-            Variant("notebook solution", True, bp),
+            Variant("notebook solution", True, ns["backproject"]),
             Variant("float32 arithmetic (as the RealSense SDK)", True, _backproject_float32),
-            Variant("depth in millimetres (depth_scale ignored)", False,
-                    lambda d, K, s: _backproject_with(d, K, s, scale=1.0)),
-            Variant("depth_scale hard-coded to 0.001", False,
-                    lambda d, K, s: _backproject_with(d, K, s, scale=0.001)),
-            Variant("u and v swapped", False, lambda d, K, s: _backproject_with(d, K, s, swap=True)),
-            Variant("intrinsics inverted ((u - cx) fx)", False,
-                    lambda d, K, s: _backproject_with(d, K, s, inverted=True)),
-            Variant("holes left at z = 0", False,
-                    lambda d, K, s: _backproject_with(d, K, s, holes_nan=False)),
         ],
         "fit_plane_ransac": [
             Variant("notebook solution", True, plane),
@@ -722,40 +454,129 @@ def lab5(ns) -> dict:
             Variant("MSAC scoring", True, lambda p, t, i=500, s=0: _plane_ransac(p, t, i, s,
                                                                                   msac=True)),
             Variant("twice the iterations", True, lambda p, t, i=500, s=0: plane(p, t, 2 * i, s)),
-            Variant("no outlier rejection (SVD on all points)", False, _plane_svd_all),
-            Variant("normal away from the camera", False, _flip_normal(plane)),
         ],
         "fit_flange_circle": [
-            Variant("notebook solution", True, circle),
+            Variant("notebook solution", True, ns["fit_flange_circle"]),
             Variant("Levenberg-Marquardt (scipy), radius fixed", True, _circle_lm),
-            Variant("algebraic (Kasa) fit, unrefined", False, _circle_kasa),
-            Variant("normal away from the camera", False, _flip_normal(circle)),
         ],
         "base_T_cam_from_flanges": [
-            Variant("notebook solution", True, reg5),
+            Variant("notebook solution", True, ns["base_T_cam_from_flanges"]),
             Variant("Horn quaternion fit", True,
                     lambda a, F: _horn(a, np.asarray(F, float)[:, :3, 3])),
-            Variant("cam_T_base returned (inverse)", False, _wrap(reg5, _inv)),
-            Variant("cross-covariance the other way round (R^T)", False, _registration_rt),
         ],
         "rectangle_pose": [
-            Variant("notebook solution", True, rect),
+            Variant("notebook solution", True, ns["rectangle_pose"]),
             Variant("homography decomposition, orthogonalised", True, _rectangle_homography),
-            Variant("width and height swapped", False,
-                    lambda uv, w, h, K: rect(uv, h, w, K)),
-            Variant("K not inverted (pixels used as rays)", False,
-                    lambda uv, w, h, K: rect(uv, w, h, np.eye(3))),
-            Variant("edge directions not made orthogonal", False,
-                    lambda uv, w, h, K: _rectangle_not_orthogonal(uv, w, h, K, ref=rect)),
         ],
     }
+
 
 LABS = {"lab0_frames": lab0, "lab1_flange": lab1, "lab2_handeye": lab2,
         "lab3_servoing": lab3, "lab4_stereo": lab4, "lab5_depth": lab5}
 
 
+# --------------------------------------------------------------------------- the mistakes
+
+# The table's short name of each spec mistake (by its function's qualified name): a spec's
+# label is the sentence a student reads, too long for a table row. A mistake missing here is
+# shown by its label, cut short (tests/test_grading_fairness.py keeps the list complete).
+SHORT_NAMES = {
+    # lab 0
+    "_invert_keeps_r": "R not transposed",
+    "_invert_negates_t": "t negated only (-t, not -R^T t)",
+    "_invert_returns_input": "returns the pose itself",
+    "_compose_reversed": "reversed multiplication order",
+    "_compose_inverses": "inverse poses composed",
+    "_rotvec_as_degrees": "degrees taken for radians",
+    "_rotvec_transposed": "transposed rotation",
+    "_rotvec_no_zero_check": "no zero-rotation check (0/0)",
+    "_rotvec_translation_mm": "translation in mm",
+    # lab 1 (and lab 4's per_axis_rmse)
+    "_fit_no_reflection_fix": "no reflection fix",
+    "_fit_no_degenerate_check": "no degenerate-input check",
+    "_fit_inverse": "inverse pose (src_T_dst)",
+    "_fit_swapped": "swapped src / dst",
+    "_fit_transposed": "transposed rotation",
+    "_fit_translation_mm": "translation in mm",
+    "_residuals_squared": "squared distances",
+    "_residuals_inverse_pose": "inverse pose used",
+    "_residuals_transposed": "transposed rotation",
+    "_residuals_mm": "in mm",
+    "_rmse_dst_axes": "along the dst (base) axes",
+    "_rmse_r_not_transposed": "R instead of R^T",
+    "_rmse_no_sqrt": "mean square (no sqrt)",
+    "_rmse_one_for_all_axes": "one RMS for all axes",
+    # lab 2
+    "_motions_b_inverse_first": "B = inv(C_i) C_j (inverse on the wrong side)",
+    "_motions_a_reversed": "A = inv(F_j) F_i (reversed)",
+    "_motions_strategy_ignored": "strategy ignored (always all pairs)",
+    "_motions_swapped": "swapped A / B",
+    "_solver_mistakes.<locals>.inverse": "inverse X (cam_T_flange)",
+    "_solver_mistakes.<locals>.swapped": "swapped A / B",
+    "_solver_mistakes.<locals>.transposed": "transposed R_X",
+    "_solver_mistakes.<locals>.translation_mm": "t_X in mm",
+    "_rotation_residual_sum": "sum, not mean",
+    "_rotation_residual_unsquared": "Frobenius norm, not squared",
+    "_rotation_residual_transposed": "R_X transposed",
+    "_translation_residual_sum": "sum, not mean",
+    "_translation_residual_mm2": "in mm^2",
+    "_translation_residual_inverse": "inverse X",
+    # lab 3
+    "_interaction_stacked": "rows stacked x..., y...",
+    "_interaction_rotation_sign": "rotation columns' sign flipped",
+    "_interaction_no_depth": "depth ignored (Z = 1)",
+    "_ibvs_gain_flipped": "gain sign flipped",
+    "_ibvs_transpose": "L^T instead of pinv(L)",
+    "_ibvs_no_gain": "gain ignored",
+    "_piece_pixel_only": "the pixel's own depth (no hole handling)",
+    "_piece_uv_swapped": "u and v swapped",
+    "_piece_mm": "depth in mm",
+    # lab 4
+    "_frame_left_handed": "left-handed (z = (p_xy - o) x x)",
+    "_frame_y_copied": "p_xy - o copied as the y axis",
+    "_frame_inverse": "inverse pose (frame_T_parent)",
+    "_frame_transposed": "transposed rotation",
+    "_reproject_by_z": "divided by Z, not W",
+    "_reproject_no_shift": "(cx - cx')/Tx term dropped",
+    "_reproject_disparity_flipped": "disparity sign flipped",
+    "_reproject_mm": "in mm",
+    "_hand_to_eye_inverse": "inverse (cam_T_base)",
+    "_hand_to_eye_reversed": "reversed order (world_T_cam @ base_T_world)",
+    "_hand_to_eye_not_inverted": "camera frame used as the world (no inverse)",
+    # lab 5
+    "_backproject_units": "depth in millimetres (depth_scale ignored)",
+    "_backproject_fixed_scale": "depth_scale hard-coded to 0.001",
+    "_backproject_uv_swapped": "u and v swapped",
+    "_backproject_k_inverted": "intrinsics inverted ((u - cx) fx)",
+    "_backproject_holes_at_zero": "holes left at z = 0",
+    "_plane_all_points": "no outlier rejection (SVD on all points)",
+    "_plane_normal_away": "normal away from the camera",
+    "_circle_unrefined": "algebraic (Kasa) fit, unrefined",
+    "_circle_normal_away": "normal away from the camera",
+    "_registration_inverse": "cam_T_base returned (inverse)",
+    "_registration_rt": "cross-covariance the other way round (R^T)",
+    "_rectangle_swapped": "width and height swapped",
+    "_rectangle_k_ignored": "K not inverted (pixels used as rays)",
+    "_rectangle_not_orthogonal": "edge directions not made orthogonal",
+}
+
+
+def short_name(mistake) -> str:
+    """The table's name of a spec's code mistake (its label cut short if it has none)."""
+    name = SHORT_NAMES.get(getattr(mistake.func, "__qualname__", ""))
+    if name is not None:
+        return name
+    return mistake.label if len(mistake.label) <= 44 else mistake.label[:41] + "..."
+
+
 def variants(assignment: str) -> dict[str, list[Variant]]:
-    return LABS[assignment](notebook_solutions(assignment))
+    """{function: its correct variants (the notebook's solution first), then the spec's code
+    mistakes} for every graded function of ``assignment``."""
+    table = LABS[assignment](notebook_solutions(assignment))
+    for spec in checks.SPECS[assignment]:
+        table[spec.name] = table[spec.name] + [Variant(short_name(m), False, m.func)
+                                               for m in spec.code_mistakes]
+    return table
 
 
 # --------------------------------------------------------------------------- the Monte Carlo
@@ -769,82 +590,39 @@ def problem_rng(assignment: str, student: str, function: str) -> np.random.Gener
     return grading.problem_rng(SECRET, assignment, student, function)
 
 
-def _margin(spec, trial, outcome) -> float:
-    """Largest error / full-credit tolerance over the checks (inf: no usable answer)."""
-    if trial.raises is not None:
-        ok = outcome.error is not None and outcome.error.split(":", 1)[0] == trial.raises
-        return 0.0 if ok else math.inf
-    if outcome.error is not None:
-        return math.inf
-    try:
-        measured = spec.measure(outcome.value, trial)
-    except checks.OutputError:
-        return math.inf
-    return max(float(measured[c.name]) / trial.tol[c.name] for c in spec.checks)
-
-
 def run_function(job) -> dict:
-    """All variants of one function over draws [start, stop): losses and margins.
+    """All variants of one function over draws [start, stop) (:func:`fairness.score_draws`).
 
     ``job`` is (assignment, function, start, stop[, mistakes_stop]): mistakes are scored on
     draws below ``mistakes_stop`` only (1,000 draws without a miss already bound their rate
     above 99.6 %; it is correct code that needs the long run)."""
     assignment, name, start, stop = job[:4]
-    mistakes_stop = job[4] if len(job) > 4 else stop
+    mistakes_stop = job[4] if len(job) > 4 else None
     spec = next(s for s in checks.SPECS[assignment] if s.name == name)
     table = variants(assignment)[name]
-    lost = [0] * len(table)
-    seen = [0] * len(table)
-    points = [0.0] * len(table)
-    margin = [0.0 if v.correct else math.nan for v in table]
-    examples: list[str | None] = [None] * len(table)
+    if len({v.name for v in table}) != len(table):
+        raise ValueError(f"{name}: two variants share a name: {[v.name for v in table]}")
     started = time.perf_counter()
-    np.seterr(all="ignore")  # the mistakes divide by zero on purpose
-    for k in range(start, stop):
-        trials = checks.make_trials(spec, problem_rng(assignment, f"student{k:06d}", name))
-        for i, v in enumerate(table):
-            if not v.correct and k >= mistakes_stop:
-                continue
-            seen[i] += 1
-            outcomes = [checks._call_in_process(v.func, t, spec) for t in trials]
-            result = checks.score_function(spec, trials, outcomes)
-            points[i] += result.points
-            if result.points < spec.points:
-                lost[i] += 1
-                if examples[i] is None:
-                    examples[i] = f"student{k:06d}: {result.points:g}/{spec.points:g}"
-            if v.correct:  # how close correct code comes to losing credit
-                margin[i] = max(margin[i], *(_margin(spec, t, o)
-                                             for t, o in zip(trials, outcomes)))
+    stats = fairness.score_draws(
+        spec, assignment, range(start, stop),
+        {v.name: fairness.in_process(v.func) for v in table},
+        lambda student: problem_rng(assignment, student, name),
+        correct={v.name for v in table if v.correct}, mistakes_stop=mistakes_stop)
     return {"assignment": assignment, "function": name, "start": start,
-            "draws": stop - start, "seen": seen,
-            "variants": [v.name for v in table], "correct": [v.correct for v in table],
-            "lost": lost, "points": points, "margin": margin, "examples": examples,
+            "draws": stop - start, "stats": stats,
             "seconds": time.perf_counter() - started, "n_trials": spec.n_trials,
             "max_points": spec.points}
 
 
 def _merge(parts: list[dict]) -> dict:
-    parts = sorted(parts, key=lambda p: p["start"])  # the first example is the lowest draw
+    parts = sorted(parts, key=lambda p: p["start"])
     out = dict(parts[0])
     out["draws"] = sum(p["draws"] for p in parts)
-    out["seen"] = [sum(p["seen"][i] for p in parts) for i in range(len(out["seen"]))]
-    out["lost"] = [sum(p["lost"][i] for p in parts) for i in range(len(out["lost"]))]
-    out["points"] = [sum(p["points"][i] for p in parts) for i in range(len(out["points"]))]
-    out["margin"] = [max(p["margin"][i] for p in parts) if c else math.nan
-                     for i, c in enumerate(out["correct"])]
-    out["examples"] = [next((p["examples"][i] for p in parts if p["examples"][i]), None)
-                       for i in range(len(out["lost"]))]
+    out["stats"] = {name: s for name, s in parts[0]["stats"].items()}
+    for p in parts[1:]:
+        out["stats"] = {name: s.merged(p["stats"][name]) for name, s in out["stats"].items()}
     out["seconds"] = sum(p["seconds"] for p in parts)
     return out
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """Exact binomial interval for k successes in n trials."""
-    a = (1 - level) / 2
-    low = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
-    high = 1.0 if k == n else float(beta.ppf(1 - a, k + 1, n - k))
-    return low, high
 
 
 def verdict(correct: bool, k: int, n: int) -> str:
@@ -864,15 +642,16 @@ def verdict(correct: bool, k: int, n: int) -> str:
 
 def rows_of(result: dict) -> list[dict]:
     rows = []
-    for i, name in enumerate(result["variants"]):
-        n, k = result["seen"][i], result["lost"][i]
+    for name, s in result["stats"].items():
+        n, k = s.seen, s.lost
         low, high = clopper_pearson(k, n)
         rows.append({"function": result["function"], "assignment": result["assignment"],
-                     "variant": name, "correct": result["correct"][i], "draws": n,
+                     "variant": name, "correct": s.correct, "draws": n,
                      "lost": k, "rate": k / n, "low": low, "high": high,
-                     "mean_points": result["points"][i] / n, "max_points": result["max_points"],
-                     "margin": result["margin"][i], "example": result["examples"][i],
-                     "verdict": verdict(result["correct"][i], k, n)})
+                     "mean_points": s.points / n, "max_points": result["max_points"],
+                     "margin": s.margin,
+                     "example": s.first_loss.describe() if s.first_loss else None,
+                     "verdict": verdict(s.correct, k, n)})
     return rows
 
 

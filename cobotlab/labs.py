@@ -46,20 +46,25 @@ hidden ones.
 """
 
 
-def _labs_dir(labs_dir) -> Path:
-    labs = Path(labs_dir) if labs_dir is not None else _default_labs()
-    if not labs.is_dir():
+def _sources(labs_dir) -> dict[str, Path]:
+    """{name: source folder} of the labs: the built-in ones (those in ``labs_dir`` instead,
+    when given) and the current course's (:mod:`autograder.registry`)."""
+    from autograder import registry
+
+    sources = registry.source_folders(labs_dir)
+    if not sources:
+        where = labs_dir if labs_dir is not None else _default_labs()
         raise FileNotFoundError(
-            f"no lab sources at {labs}: `cobotlab labs student` turns the instructor's source "
-            "notebooks (labs/ in the cobotlab repository) into student copies, so run it from "
-            "the full checkout, or ask your instructor for the student notebooks")
-    return labs
+            f"no lab sources at {where}: `cobotlab labs student` turns the instructor's source "
+            "notebooks (labs/ in the cobotlab repository, or a course's own lab folders) into "
+            "student copies, so run it from the full checkout or the course, or ask your "
+            "instructor for the student notebooks")
+    return sources
 
 
 def lab_names(labs_dir=None) -> list[str]:
-    """Names of the labs in ``labs_dir`` (default: the repository's ``labs/``), sorted."""
-    labs = _labs_dir(labs_dir)
-    return sorted(p.name for p in labs.iterdir() if p.is_dir() and any(p.glob("*.ipynb")))
+    """Names of the labs (built in, or in ``labs_dir``, and the course's), sorted."""
+    return sorted(_sources(labs_dir))
 
 
 def release_notebook(path):
@@ -112,16 +117,16 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
 
     from autograder import checks, practice
 
-    source_root = _labs_dir(labs_dir)
-    names = list(labs) if labs else lab_names(source_root)
-    unknown = [n for n in names if not (source_root / n).is_dir()]
+    sources = _sources(labs_dir)
+    names = list(labs) if labs else list(sources)
+    unknown = [n for n in names if n not in sources]
     if unknown:
         raise ValueError(f"no lab named {', '.join(unknown)}; the labs are "
-                         f"{', '.join(lab_names(source_root))}")
+                         f"{', '.join(sources)}")
     dest = Path(dest)
     planned = {}
     for name in names:
-        for source in sorted((source_root / name).glob("*.ipynb")):
+        for source in sorted(sources[name].glob("*.ipynb")):
             planned[source] = dest / name / source.name
     existing = [str(p) for p in planned.values() if p.exists()]
     if existing and not force:
@@ -132,7 +137,7 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
     data = {name: practice.build_practice(name) for name in names if name in checks.SCORING}
     written = []
     for name in names:
-        shutil.copytree(source_root / name, dest / name, ignore=_SKIP, dirs_exist_ok=True)
+        shutil.copytree(sources[name], dest / name, ignore=_SKIP, dirs_exist_ok=True)
         if name in data:
             practice.save_practice(data[name], dest / name)
     for source, target in planned.items():

@@ -1,5 +1,8 @@
 """Shared pytest settings: a deterministic hypothesis profile (reproducible CI runs) and
 slow test files collected first."""
+import os
+
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -18,3 +21,15 @@ def pytest_collection_modifyitems(session, config, items):
     ones fill in around them."""
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.path not in slow_files)   # stable: order kept within
+
+
+@pytest.fixture(autouse=True)
+def _no_course_left_behind():
+    """The course commands set $COBOTLAB_COURSE for their child processes (as the CLI wants);
+    in a test process that would make the next test's subprocesses load another course."""
+    before = os.environ.get("COBOTLAB_COURSE")
+    yield
+    if os.environ.get("COBOTLAB_COURSE") != before:
+        from autograder import registry
+
+        registry.use_course(before)

@@ -5,7 +5,7 @@
 instructor's side. Here:
 
 * the practice data written to a file and loaded back holds exactly the problems the private
-  generators draw, with their mistakes and stand-in tables;
+  generators draw, with their code mistakes' answers and stand-in tables;
 * for every graded function of every lab, the notebook's solution and each correct variant
   and classic mistake of the fairness benchmark get the same points, per-check verdicts and
   errors from ``check()`` on that file as the grader's in-memory scoring on the generators
@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autograder import checks, forbidden, practice
+from autograder import checks, forbidden, practice, registry
+from autograder.spec_types import mistake_answers
 from autograder.specs import lab3_servoing as lab3
 
 TESTS = Path(__file__).resolve().parent
@@ -81,8 +82,7 @@ def test_practice_file_holds_the_generators_problems(lab, practice_dir, monkeypa
                 assert _same_value(truth, b.truth), (spec.name, seed)
                 assert (a.tol, a.label, a.all_or_nothing, a.raises) == \
                     (b.tol, b.label, b.all_or_nothing, b.raises)
-                expected = [(w, v) for w, v in spec.mistakes(a)] if spec.mistakes else []
-                assert _same_value(expected, b.mistakes)
+                assert _same_value(mistake_answers(spec, a), b.mistakes)
                 tables = spec.substitutes(a.args) if spec.substitutes and not spec.drive \
                     else None
                 assert _same_value(tables, b.substitutes)
@@ -91,7 +91,7 @@ def test_practice_file_holds_the_generators_problems(lab, practice_dir, monkeypa
 def test_a_student_install_without_the_file_is_told_what_to_fetch(tmp_path, monkeypatch):
     monkeypatch.delenv(practice.ENV_DIR, raising=False)
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(practice, "private_side_available", lambda: False)
+    monkeypatch.setattr(registry, "private_available", lambda name: False)
     with pytest.raises(practice.PracticeDataError) as err:
         checks.evaluate(lambda T: T, "invert_pose", assignment="lab0_frames")
     message = str(err.value)

@@ -93,7 +93,9 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     assert grades["ref"]["timestamp"]
 
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
-    assert "translation: FAILED" in feedback and " mm" in feedback and " deg" in feedback
+    # -t for the translation is one of the spec's code mistakes: the page names it
+    assert "classic mistake: its translation is -t, not -R^T t" in feedback
+    assert " mm" in feedback and " deg" in feedback
     secret = grading.load_secret(course)
     for path in (course / "feedback_cobotlab").rglob("*.html"):
         text = path.read_text()

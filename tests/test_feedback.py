@@ -209,7 +209,9 @@ def test_page_of_a_real_graded_lab0_notebook(tmp_path):
     page = feedback_html(grade)
     n = by_name["invert_pose"].n_problems
     assert n == checks.spec_for("invert_pose", "lab0_frames").n_trials
-    assert f"translation: FAILED, outside the tolerance on {n} of {n} problems" in page
+    # -t for the translation is one of the spec's code mistakes: the page names it.
+    assert "classic mistake: its translation is -t, not -R^T t" in page
+    assert f"on {n} of {n} problems" in page
     assert " mm" in page and "rotation: passed" not in page  # only what failed is explained
     chain = _section(page, "compose_chain")
     assert f"cell In [{chain_prompt}], line 4" in chain, chain

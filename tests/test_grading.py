@@ -464,7 +464,8 @@ def test_one_bug_costs_once_in_the_worker_too(tmp_path):
 
 def test_check_names_the_classic_mistake_behind_a_wrong_answer(capsys):
     checks.check(lambda T: T.copy(), "invert_pose")   # a_T_b back where b_T_a was asked
-    assert "inverse of the expected pose" in capsys.readouterr().out
+    # the spec's own code mistake for it, in its words
+    assert "it is the given pose itself, not its inverse" in capsys.readouterr().out
     checks.check(_reference("invert_pose"), "invert_pose")   # right: no hint
     assert "classic mistake" not in capsys.readouterr().out
     rotvec = _reference("pose_from_rotvec")
@@ -475,7 +476,9 @@ def test_check_names_the_classic_mistake_behind_a_wrong_answer(capsys):
         return T
 
     checks.check(millimetres, "pose_from_rotvec")
-    assert "millimetres where metres were asked" in capsys.readouterr().out
+    # the spec's own code mistake for it, in its words
+    assert "its translation is in millimetres: t is given in metres" in \
+        capsys.readouterr().out
 
     def inverse(r, t):
         return np.linalg.inv(rotvec(r, t))

@@ -2,8 +2,10 @@
 
 A fast slice of benchmarks/grading_fairness.py (which runs >= 10,000 draws per function):
 a few dozen hidden draws, drawn as the grader draws them, of the functions whose problems
-or weights were fixed for fairness; plus the degenerate-input problems of ``fit_rigid``, the
-number of hidden problems against ``check()``'s, and the weights of the checks.
+or weights were fixed for fairness, every mistake being one of the spec's code mistakes; plus
+the engine's statistics (autograder/fairness.py), the degenerate-input problems of
+``fit_rigid``, the number of hidden problems against ``check()``'s, and the weights of the
+checks.
 """
 
 from __future__ import annotations
@@ -14,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autograder import checks
+from autograder import checks, fairness
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-import grading_fairness as fairness  # noqa: E402
+import grading_fairness as benchmark  # noqa: E402
 
 
 @pytest.mark.parametrize("assignment,function,draws", [
@@ -30,15 +32,72 @@ import grading_fairness as fairness  # noqa: E402
     ("lab5_depth", "rectangle_pose", 10),
 ])
 def test_correct_code_keeps_full_credit_and_each_mistake_loses_some(assignment, function, draws):
-    result = fairness.run_function((assignment, function, 0, draws))
-    for name, correct, lost, margin in zip(result["variants"], result["correct"],
-                                           result["lost"], result["margin"]):
-        if correct:
-            assert lost == 0, f"correct {function} ({name}) lost credit on {lost}/{draws} draws"
-            assert margin < 1.0, (name, margin)
+    result = benchmark.run_function((assignment, function, 0, draws))
+    spec = checks.spec_for(function, assignment)
+    assert sum(not s.correct for s in result["stats"].values()) == len(spec.code_mistakes)
+    for name, s in result["stats"].items():
+        assert s.seen == draws
+        if s.correct:
+            assert s.lost == 0, f"correct {function} ({name}) lost credit: " \
+                                f"{s.first_loss.describe()}"
+            assert s.margin < 1.0, (name, s.margin)
         else:
-            assert lost == draws, f"{function} mistake {name!r} kept full credit on " \
-                                  f"{draws - lost}/{draws} draws"
+            assert s.lost == draws, f"{function} mistake {name!r} kept full credit on " \
+                                    f"{draws - s.lost}/{draws} draws"
+            assert s.first_loss.draw == 0 and s.first_loss.describe().startswith(
+                "draw student000000 ")
+
+
+def test_every_code_mistake_has_a_table_name():
+    """The benchmark's rows name each spec mistake briefly (docs/benchmarks/grading_fairness.md),
+    and no two rows of a function share a name."""
+    for lab, specs in checks.SPECS.items():
+        for spec in specs:
+            for m in spec.code_mistakes:
+                assert m.func.__qualname__ in benchmark.SHORT_NAMES, (lab, spec.name, m.label)
+            names = [benchmark.short_name(m) for m in spec.code_mistakes]
+            assert len(set(names)) == len(names), (lab, spec.name, names)
+
+
+def test_mistakes_are_scored_on_the_first_draws_only_and_parts_merge():
+    first = benchmark.run_function(("lab0_frames", "invert_pose", 0, 3, 2))
+    second = benchmark.run_function(("lab0_frames", "invert_pose", 3, 5, 2))
+    merged = benchmark._merge([second, first])["stats"]
+    for name, s in merged.items():
+        assert s.seen == (5 if s.correct else 2), name
+        assert s.lost == (0 if s.correct else 2), name
+        assert s.correct or s.first_loss.student == "student000000"
+
+
+def test_clopper_pearson_and_the_draws_a_rate_needs():
+    low, high = fairness.clopper_pearson(0, 10_000)
+    assert low == 0.0 and high == pytest.approx(3.69e-4, rel=0.01)
+    low, high = fairness.clopper_pearson(1000, 1000)
+    assert high == 1.0 and low == pytest.approx(0.99632, abs=1e-4)
+    n = fairness.draws_for_rate(1e-3)
+    assert n == 3688
+    assert fairness.clopper_pearson(0, n)[1] < 1e-3 <= fairness.clopper_pearson(0, n - 1)[1]
+    assert fairness.draws_for_rate(1e-4) == pytest.approx(36_887, abs=2)
+
+
+def test_a_losing_draw_names_its_worst_check():
+    spec = checks.spec_for("fit_rigid", "lab1_flange")
+
+    def rng_of(student):
+        return benchmark.problem_rng("lab1_flange", student, "fit_rigid")
+
+    def transposed(src, dst):
+        T = benchmark._kabsch(src, dst)
+        T[:3, :3] = T[:3, :3].T
+        return T
+
+    stats = fairness.score_draws(spec, "lab1_flange", range(4, 6),
+                                 {"transposed": fairness.in_process(transposed)}, rng_of)
+    loss = stats["transposed"].first_loss
+    assert (stats["transposed"].seen, stats["transposed"].lost, loss.draw) == (2, 2, 4)
+    assert loss.check == "mapping" and loss.error > loss.tolerance and loss.unit == "mm"
+    assert loss.describe().startswith("draw student000004 (")
+    assert "check mapping" in loss.describe() and "mm noise' problem" in loss.describe()
 
 
 def test_hidden_problems_are_at_least_as_many_as_checks():
@@ -71,7 +130,7 @@ def test_fit_rigid_hidden_problems_include_collinear_and_too_few_points():
 
 def test_degenerate_problems_score_the_exception_and_only_there():
     spec, trials = _fit_rigid_trials()
-    table = {v.name: v.func for v in fairness.variants("lab1_flange")["fit_rigid"]}
+    table = {v.name: v.func for v in benchmark.variants("lab1_flange")["fit_rigid"]}
 
     def score(func):
         return checks.score_function(spec, trials,

@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from autograder.mistakes import diagnose
+from autograder.spec_types import mistake_answers
 
 
 def _pose(rotvec, t) -> np.ndarray:
@@ -84,10 +85,10 @@ def test_lab5_backproject_mistakes_are_named_with_holes_as_nan(lab5_specs):
     spec = lab5_specs["backproject"]
     trial = spec.make_trial(np.random.default_rng(4), 1)
     raw, K, scale = trial.args
-    for words, predicted in spec.mistakes(trial):
+    for words, predicted in mistake_answers(spec, trial):
         assert _lab5_hint(spec, predicted, trial) == words
     assert _lab5_hint(spec, trial.truth, trial) is None or spec.measure(trial.truth, trial)
-    names = [w for w, _ in spec.mistakes(trial)]
+    names = [w for w, _ in mistake_answers(spec, trial)]
     assert any("depth_scale" in w for w in names) and any("swapped" in w for w in names)
     assert any("focal length" in w for w in names) and any("NaN" in w for w in names)
 
@@ -116,7 +117,7 @@ def test_lab5_classic_mistakes_are_named(lab5_specs, name, words):
     rng = np.random.default_rng(11)
     for index in range(12):
         trial = spec.make_trial(rng, index)
-        found = [(w, v) for w, v in spec.mistakes(trial) if words in w]
+        found = [(w, v) for w, v in mistake_answers(spec, trial) if words in w]
         if not found:
             continue  # e.g. a square mark: width and height are the same
         w, predicted = found[0]
@@ -132,3 +133,76 @@ def test_lab5_a_right_answer_is_given_no_mistake_name(lab5_specs):
     spec = lab5_specs["base_T_cam_from_flanges"]
     trial = spec.make_trial(np.random.default_rng(2), 0)
     assert _lab5_hint(spec, trial.truth, trial) is None
+
+
+# --------------------------------------------------------------------------- code mistakes
+
+
+def _code_mistake_cases():
+    from autograder import checks
+
+    return [pytest.param(lab, spec.name, i, id=f"{spec.name}[{i}]")
+            for lab, specs in checks.SPECS.items() for spec in specs
+            for i in range(len(spec.code_mistakes))]
+
+
+@pytest.mark.parametrize("lab, name, index", _code_mistake_cases())
+def test_each_code_mistake_is_named_where_it_loses_credit(lab, name, index):
+    """A student's answer equal to a spec's code mistake is named by the words of that
+    mistake or of an earlier one giving the same answer there (src and dst swapped is, to
+    the noise, the inverse fit). A closed loop's answer is the loop's measured errors."""
+    from autograder import checks
+
+    spec = checks.spec_for(name, lab)
+    mistake = spec.code_mistakes[index]
+    rng = np.random.default_rng(0)
+    np.seterr(all="ignore")
+    lost_elsewhere = False  # credit lost where nothing is compared: NaN out, no ValueError
+    for i in range(3 * spec.n_trials):
+        trial = spec.make_trial(rng, i)
+        try:
+            value = mistake.func(*trial.args) if spec.drive is None else \
+                spec.drive(mistake.func, trial)
+        except Exception:  # noqa: BLE001 - the call's error is the feedback there
+            lost_elsewhere |= trial.raises is None
+            continue
+        if trial.raises is not None:
+            lost_elsewhere = True  # "expected ValueError": the message says it all
+            continue
+        try:
+            measured = spec.measure(value, trial)
+        except checks.OutputError:
+            lost_elsewhere = True  # NaN, a mirror image: the output check says why
+            continue
+        if all(measured[c.name] <= trial.tol[c.name] for c in spec.checks):
+            continue
+        labels = [m.label for m in spec.code_mistakes[:index + 1]]
+        assert checks._mistake_hint(spec, value, trial) in labels
+        return
+    assert lost_elsewhere, f"{lab}.{name}: no problem where {mistake.label!r} loses credit"
+
+
+def _mm_fit_rigid(src, dst):
+    """A student's Kabsch fit, right but for a translation in millimetres."""
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    if len(src) < 3 or np.linalg.matrix_rank(src - src.mean(axis=0), tol=1e-9) < 2:
+        raise ValueError("degenerate point set")
+    a, b = src - src.mean(axis=0), dst - dst.mean(axis=0)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, 1000.0 * (dst.mean(axis=0) - R @ src.mean(axis=0))
+    return T
+
+
+def test_check_names_a_fit_rigid_in_millimetres_on_practice_data(tmp_path, monkeypatch):
+    """Before the spec held code mistakes, check() said only "worst error 1.36e+06 mm"."""
+    from autograder import checks, practice
+
+    practice.write_practice("lab1_flange", tmp_path)
+    monkeypatch.setenv(practice.ENV_DIR, str(tmp_path))
+    assert practice.load_practice("lab1_flange").source.startswith(str(tmp_path))
+    result = checks.evaluate(_mm_fit_rigid, "fit_rigid", assignment="lab1_flange")
+    assert result.points < result.max_points
+    named = [e for e in result.errors if "classic mistake" in e]
+    assert named and "millimetres" in named[0], result.errors

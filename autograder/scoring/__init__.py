@@ -10,14 +10,3 @@ imports it, and it ships to students (``check()`` scores practice data with it).
 """
 
 from __future__ import annotations
-
-import importlib
-import pkgutil
-
-
-def collect_scoring() -> dict:
-    """{assignment name: tuple of public FunctionSpec} for every module in this package."""
-    specs = {}
-    for module in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        specs[module.name] = importlib.import_module(f"{__name__}.{module.name}").SPECS
-    return specs

@@ -18,6 +18,7 @@ INVERT_POSE = FunctionSpec(
     measure=measure_pose,
     checks=pose_checks("b_T_a = inv(a_T_b): R^T and -R^T t"),
     signature="invert_pose(a_T_b: (4, 4) array) -> b_T_a (4, 4)",
+    parameters="a_T_b",
     forbidden=("robots.geometry.invert",),
 )
 COMPOSE_CHAIN = FunctionSpec(
@@ -25,6 +26,7 @@ COMPOSE_CHAIN = FunctionSpec(
     measure=measure_pose,
     checks=pose_checks("a_T_d = a_T_b @ b_T_c @ c_T_d, multiplied left to right"),
     signature="compose_chain(poses: list of (4, 4)) -> (4, 4)",
+    parameters="poses",
     forbidden=("robots.geometry.compose",),
 )
 POSE_FROM_ROTVEC = FunctionSpec(
@@ -36,6 +38,7 @@ POSE_FROM_ROTVEC = FunctionSpec(
         Check("translation", "mm", 0.1, EXACT_BANDS, "the translation column: t itself"),
     ),
     signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
+    parameters="rvec, t",
     forbidden=("cv2.Rodrigues", "robots.geometry.pose_from_rotvec"),
 )
 

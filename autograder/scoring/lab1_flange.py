@@ -74,6 +74,7 @@ FIT_RIGID = FunctionSpec(
               "ValueError"),
     ),
     signature="fit_rigid(src: (N, 3), dst: (N, 3)) -> dst_T_src (4, 4)",
+    parameters="src, dst",
 )
 PER_POINT_RESIDUALS = FunctionSpec(
     name="per_point_residuals", points=2.0, n_trials=12, practice_trials=4, make_trial=None,
@@ -81,6 +82,7 @@ PER_POINT_RESIDUALS = FunctionSpec(
     checks=(Check("residuals", "mm", 1.0, EXACT_BANDS,
                   "|dst_T_src @ src_i - dst_i| per point, in metres"),),
     signature="per_point_residuals(dst_T_src: (4, 4), src: (N, 3), dst: (N, 3)) -> (N,)",
+    parameters="dst_T_src, src, dst",
 )
 PER_AXIS_RMSE = FunctionSpec(
     name="per_axis_rmse", points=2.0, n_trials=12, practice_trials=4, make_trial=None,
@@ -90,6 +92,7 @@ PER_AXIS_RMSE = FunctionSpec(
                   "rotate each residual by R^T first"),),
     signature="per_axis_rmse(dst_T_src: (4, 4), src: (N, 3), dst: (N, 3)) -> (3,) "
               "along the src axes",
+    parameters="dst_T_src, src, dst",
 )
 
 SPECS = (FIT_RIGID, PER_POINT_RESIDUALS, PER_AXIS_RMSE)

@@ -85,12 +85,14 @@ MOTIONS = FunctionSpec(
     ),
     signature="motions(base_T_flange (n, 4, 4), cam_T_target (n, 4, 4), strategy 'all' | "
               "'consecutive') -> (A (M, 4, 4), B (M, 4, 4))",
+    parameters="base_T_flange, cam_T_target, strategy='all'",
 )
 TSAI_LENZ = FunctionSpec(
     name="tsai_lenz", points=4.0, n_trials=6, practice_trials=2, make_trial=None,
     measure=measure_pose,
     checks=_solver_checks("Tsai-Lenz"),
     signature="tsai_lenz(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+    parameters="A, B",
     forbidden=_SOLVERS_FORBIDDEN,
 )
 AXES_LS = FunctionSpec(
@@ -98,6 +100,7 @@ AXES_LS = FunctionSpec(
     measure=measure_pose,
     checks=_solver_checks("least squares on the rotation axes, projected onto SO(3)"),
     signature="axes_ls(A (M, 4, 4), B (M, 4, 4)) -> X = flange_T_cam (4, 4)",
+    parameters="A, B",
     forbidden=_SOLVERS_FORBIDDEN,
 )
 ROTATION_RESIDUAL = FunctionSpec(
@@ -106,6 +109,7 @@ ROTATION_RESIDUAL = FunctionSpec(
     checks=(Check("value", "relative", 1.0, EXACT_BANDS,
                   "(1/n) sum ||R_A R_X - R_X R_B||_F^2: squared Frobenius norm, mean over n"),),
     signature="rotation_residual(A (M, 4, 4), B (M, 4, 4), X (4, 4)) -> float",
+    parameters="A, B, X",
 )
 TRANSLATION_RESIDUAL = FunctionSpec(
     name="translation_residual", points=2.0, n_trials=6, practice_trials=2, make_trial=None,
@@ -113,6 +117,7 @@ TRANSLATION_RESIDUAL = FunctionSpec(
     checks=(Check("value", "relative", 1.0, EXACT_BANDS,
                   "(1/n) sum ||R_A t_X + t_A - R_X t_B - t_X||^2 in m^2, mean over n"),),
     signature="translation_residual(A (M, 4, 4), B (M, 4, 4), X (4, 4)) -> float (m^2)",
+    parameters="A, B, X",
 )
 
 SPECS = (MOTIONS, TSAI_LENZ, AXES_LS, ROTATION_RESIDUAL, TRANSLATION_RESIDUAL)

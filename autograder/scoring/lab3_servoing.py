@@ -81,6 +81,7 @@ INTERACTION_MATRIX = FunctionSpec(
               "columns wx, wy, wz (the xy, 1 + x^2, 1 + y^2 terms and their signs)"),
     ),
     signature="interaction_matrix(x: (n,), y: (n,), Z: (n,)) -> L (2n, 6)",
+    parameters="x, y, Z",
 )
 
 
@@ -189,6 +190,7 @@ IBVS_VELOCITY = FunctionSpec(
               "relative error of the first twist against v = -gain pinv(L) (s - s*)"),
     ),
     signature="ibvs_velocity(s: (n, 2), s_star: (n, 2), Z: (n,), gain: float) -> v (6,)",
+    parameters="s, s_star, Z, gain",
     time_limit_s=20.0,
     substitutes=_ibvs_substitutes,
 )
@@ -211,6 +213,7 @@ PIECE_POSITION = FunctionSpec(
               "median of the valid neighbours; X = (u - cx) Z / fx)"),
     ),
     signature="piece_position(depth: (H, W) metres, uv: (2,) px, K: (3, 3)) -> p_cam (3,)",
+    parameters="depth, uv, K",
 )
 
 SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)

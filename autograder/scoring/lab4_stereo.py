@@ -42,6 +42,7 @@ FRAME_FROM_THREE_POINTS = FunctionSpec(
         Check("translation", "mm", 0.1, EXACT_BANDS, "the origin: p_origin itself"),
     ),
     signature="frame_from_three_points(p_origin (3,), p_x (3,), p_xy (3,)) -> parent_T_frame",
+    parameters="p_origin, p_x, p_xy",
 )
 
 
@@ -69,6 +70,7 @@ REPROJECT = FunctionSpec(
     checks=(Check("position", "mm", 1.0, ((1.0, 1.0), (100.0, 0.5)),
                   "Q @ [u, v, d, 1] = [X, Y, Z, W]; the point is [X, Y, Z] / W"),),
     signature="reproject(u: float, v: float, d: float, Q: (4, 4)) -> p_cam (3,) metres",
+    parameters="u, v, d, Q",
 )
 
 
@@ -91,6 +93,7 @@ HAND_TO_EYE = FunctionSpec(
                   "12 board points"),),
     signature="hand_to_eye_from_three_points(cam_points (3, 3), base_points (3, 3)) -> "
               "base_T_cam (4, 4)",
+    parameters="cam_points, base_points",
 )
 
 
@@ -114,6 +117,7 @@ PER_AXIS_RMSE = FunctionSpec(
                   "sqrt(mean(r**2)) per camera axis"),),
     signature="per_axis_rmse(base_T_cam (4, 4), cam_points (N, 3), base_points (N, 3)) -> (3,) m "
               "along the camera axes",
+    parameters="base_T_cam, cam_points, base_points",
 )
 
 SPECS = (FRAME_FROM_THREE_POINTS, REPROJECT, HAND_TO_EYE, PER_AXIS_RMSE)

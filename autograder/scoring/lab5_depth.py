@@ -80,6 +80,7 @@ BACKPROJECT = FunctionSpec(
     ),
     signature="backproject(depth_raw (H, W) integer units, K (3, 3), depth_scale m/unit) -> "
               "(H, W, 3) metres, NaN where depth_raw == 0",
+    parameters="depth_raw, K, depth_scale",
     forbidden=("robots.perception.point_cloud", "robots.perception.deproject"),
 )
 
@@ -138,6 +139,7 @@ FIT_PLANE_RANSAC = FunctionSpec(
     ),
     signature="fit_plane_ransac(points (N, 3) m, inlier_m, iterations=500, seed=0) -> "
               "(centre (3,), unit normal (3,) towards the camera)",
+    parameters="points, inlier_m, iterations=500, seed=0",
     forbidden=("robots.perception.fit_plane_ransac",),
 )
 
@@ -171,6 +173,7 @@ FIT_FLANGE_CIRCLE = FunctionSpec(
     ),
     signature="fit_flange_circle(rim_points (N, 3) m, radius_m) -> (centre (3,), unit normal "
               "(3,) towards the camera)",
+    parameters="rim_points, radius_m",
     forbidden=("solutions.perception.fit_flange",),
 )
 
@@ -192,6 +195,7 @@ BASE_T_CAM_FROM_FLANGES = FunctionSpec(
         "t = c_base - R c_cam; the result is base_T_cam, not its inverse"),
     signature="base_T_cam_from_flanges(cam_centres (N, 3) m, base_T_flanges (N, 4, 4)) -> "
               "base_T_cam (4, 4)",
+    parameters="cam_centres, base_T_flanges",
 )
 
 RECTANGLE_POSE = FunctionSpec(
@@ -204,6 +208,7 @@ RECTANGLE_POSE = FunctionSpec(
         "(+-width/2, +-height/2, 0)"),
     signature="rectangle_pose(corners_px (4, 2) TL, TR, BR, BL, width_m, height_m, K (3, 3)) "
               "-> cam_T_rect (4, 4)",
+    parameters="corners_px, width_m, height_m, K",
     forbidden=("cv2.solvePnP", "cv2.solvePnPGeneric", "cv2.solvePnPRansac",
                "solutions.perception.rectangle_pose"),
 )

@@ -1,4 +1,4 @@
-"""Lab 0 (frames and poses), private side: the problem generators and the mistakes predictor.
+"""Lab 0 (frames and poses), private side: the problem generators and the code mistakes.
 
 The scoring (points, checks, bands) is public, in :mod:`autograder.scoring.lab0_frames`; this
 module completes those entries with what computes an answer, and is never given to students.
@@ -12,7 +12,7 @@ import numpy as np
 
 from autograder.scoring import lab0_frames as scoring
 from autograder.scoring.lab0_frames import ROTVEC_PRACTICE
-from autograder.spec_types import EXACT_TOL, Trial, random_pose, random_rotvec
+from autograder.spec_types import EXACT_TOL, CodeMistake, Trial, random_pose, random_rotvec
 from robots import geometry as geo
 
 
@@ -41,19 +41,106 @@ def _trial_rotvec(rng, index: int) -> Trial:
                  label=label, all_or_nothing=edge in (0, 1, 2))
 
 
-def _compose_mistakes(trial: Trial) -> list:
-    if len(trial.args[0]) < 2:
-        return []
-    return [("the poses are multiplied in reverse order (y_T_z @ ... @ a_T_b): a_T_z is "
-             "a_T_b @ b_T_c @ ... @ y_T_z, left to right", geo.compose(*trial.args[0][::-1]))]
+# --------------------------------------------------------------------------- code mistakes
 
 
-INVERT_POSE = replace(scoring.INVERT_POSE, make_trial=_trial_invert)
+def _pose(R, t) -> np.ndarray:
+    # Not geo.make_pose: a mistake may build a matrix that is no rotation, and it must
+    # return it as the student's code would.
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _invert_keeps_r(a_T_b):
+    R, t = a_T_b[:3, :3], a_T_b[:3, 3]
+    return _pose(R, -R @ t)
+
+
+def _invert_negates_t(a_T_b):
+    R, t = a_T_b[:3, :3], a_T_b[:3, 3]
+    return _pose(R.T, -t)
+
+
+def _invert_returns_input(a_T_b):
+    return np.array(a_T_b, dtype=float)
+
+
+def _compose_left_to_right(poses) -> np.ndarray:
+    out = np.eye(4)
+    for T in poses:
+        out = out @ T
+    return out
+
+
+def _compose_reversed(poses):
+    return _compose_left_to_right(list(poses)[::-1])
+
+
+def _compose_inverses(poses):
+    return _compose_left_to_right([geo.invert(np.asarray(T, dtype=float)) for T in poses])
+
+
+def _rotvec_as_degrees(rvec, t):
+    return geo.pose_from_rotvec(np.radians(np.asarray(rvec, dtype=float)), t)
+
+
+def _rotvec_transposed(rvec, t):
+    T = geo.pose_from_rotvec(rvec, t)
+    T[:3, :3] = T[:3, :3].T
+    return T
+
+
+def _rotvec_no_zero_check(rvec, t):
+    rvec = np.asarray(rvec, dtype=float)
+    theta = np.linalg.norm(rvec)
+    with np.errstate(invalid="ignore"):  # 0/0 on purpose: this mistake returns NaN there
+        K = geo.skew(rvec / theta)
+    return _pose(np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K, t)
+
+
+def _rotvec_translation_mm(rvec, t):
+    T = geo.pose_from_rotvec(rvec, t)
+    T[:3, 3] *= 1000.0
+    return T
+
+
+INVERT_MISTAKES = (
+    CodeMistake("its rotation block is R, not R^T: the inverse of [R | t] is [R^T | -R^T t]",
+                _invert_keeps_r),
+    CodeMistake("its translation is -t, not -R^T t: undo the rotation too (b_T_a maps a's "
+                "origin to -R^T t)", _invert_negates_t),
+    CodeMistake("it is the given pose itself, not its inverse: b_T_a = [R^T | -R^T t]",
+                _invert_returns_input),
+)
+COMPOSE_MISTAKES = (
+    CodeMistake("the poses are multiplied in reverse order (y_T_z @ ... @ a_T_b): a_T_z is "
+                "a_T_b @ b_T_c @ ... @ y_T_z, left to right", _compose_reversed),
+    CodeMistake("each pose was inverted before multiplying: the list already holds a_T_b, "
+                "b_T_c, ...; multiply them as given", _compose_inverses),
+)
+ROTVEC_MISTAKES = (
+    CodeMistake("the rotation vector was converted from degrees (np.radians): it is in "
+                "radians already", _rotvec_as_degrees),
+    CodeMistake("its rotation is R^T, the rotation the other way: check the signs of K = "
+                "[[0, -kz, ky], [kz, 0, -kx], [-ky, kx, 0]]", _rotvec_transposed),
+    CodeMistake("a zero rotation vector divides 0 by 0 (r / |r|): return the identity "
+                "rotation when |r| is (nearly) 0", _rotvec_no_zero_check),
+    CodeMistake("its translation is in millimetres: t is given in metres, the course's unit; "
+                "keep it as it is", _rotvec_translation_mm),
+)
+
+INVERT_POSE = replace(scoring.INVERT_POSE, make_trial=_trial_invert,
+                      code_mistakes=INVERT_MISTAKES)
 COMPOSE_CHAIN = replace(scoring.COMPOSE_CHAIN, make_trial=_trial_compose,
-                        mistakes=_compose_mistakes)
-POSE_FROM_ROTVEC = replace(scoring.POSE_FROM_ROTVEC, make_trial=_trial_rotvec)
+                        code_mistakes=COMPOSE_MISTAKES)
+POSE_FROM_ROTVEC = replace(scoring.POSE_FROM_ROTVEC, make_trial=_trial_rotvec,
+                           code_mistakes=ROTVEC_MISTAKES)
 
 SPECS = (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC)
 
 # What computes a graded quantity (a truth or a mistaken answer): never in a student's copy.
-ANSWERS = (_trial_invert, _trial_compose, _trial_rotvec, _compose_mistakes)
+# (_invert_returns_input, np.array(T), is no answer code: helpers everywhere read the same.)
+ANSWERS = (_trial_invert, _trial_compose, _trial_rotvec, _invert_keeps_r, _invert_negates_t,
+           _compose_left_to_right, _compose_reversed, _compose_inverses, _rotvec_as_degrees,
+           _rotvec_transposed, _rotvec_no_zero_check, _rotvec_translation_mm)

@@ -1,7 +1,9 @@
-"""Lab 1 (camera intrinsics and flange calibration), private side: the problem generators.
+"""Lab 1 (camera intrinsics and flange calibration), private side: the problem generators and
+the code mistakes.
 
 The scoring is public, in :mod:`autograder.scoring.lab1_flange`; this module draws the
-problems and computes their truths, and is never given to students.
+problems, computes their truths and holds the classic wrong versions of each function, and is
+never given to students.
 
 * ``fit_rigid``: of every six problems (:data:`FIT_LAYOUT`), one is degenerate and must
   raise ``ValueError`` as the lab asks (exactly collinear points, or only two points; a fit
@@ -25,7 +27,7 @@ import numpy as np
 
 from autograder import synthetic
 from autograder.scoring import lab1_flange as scoring
-from autograder.spec_types import Trial, random_pose
+from autograder.spec_types import CodeMistake, Trial, random_pose
 from robots import geometry as geo
 
 # fit_rigid's problems, by index % 6: degenerate (expects ValueError), 3 planar, 2 volume.
@@ -138,12 +140,151 @@ def _trial_axis_rmse(rng, index: int) -> Trial:
                  tol={"rmse": EXACT_MM}, label=label)
 
 
-FIT_RIGID = replace(scoring.FIT_RIGID, make_trial=_trial_fit_rigid)
-PER_POINT_RESIDUALS = replace(scoring.PER_POINT_RESIDUALS, make_trial=_trial_point_residuals)
-PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_axis_rmse)
+# --------------------------------------------------------------------------- code mistakes
+
+
+def _pose(R, t) -> np.ndarray:
+    # Not geo.make_pose: a mistake may return a mirror image (det -1) as the student's would.
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _kabsch(src, dst, reflection_fix: bool = True, degenerate_check: bool = True) -> np.ndarray:
+    """dst_T_src by the SVD of the cross-covariance, as the lab asks (the notebook's test of
+    a degenerate set: fewer than 3 points, or a second singular value below 1e-3 of the
+    first); the flags switch off the two steps students leave out."""
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    a, b = src - src.mean(axis=0), dst - dst.mean(axis=0)
+    if degenerate_check:
+        if len(src) < 3:
+            raise ValueError("fewer than 3 points")
+        s = np.linalg.svd(a, compute_uv=False)
+        if s[1] < 1e-3 * s[0]:
+            raise ValueError("collinear points")
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) if reflection_fix else 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return _pose(R, dst.mean(axis=0) - R @ src.mean(axis=0))
+
+
+def _fit_no_reflection_fix(src, dst):
+    return _kabsch(src, dst, reflection_fix=False)
+
+
+def _fit_no_degenerate_check(src, dst):
+    return _kabsch(src, dst, degenerate_check=False)
+
+
+def _fit_inverse(src, dst):
+    return geo.invert(_kabsch(src, dst))
+
+
+def _fit_swapped(src, dst):
+    return _kabsch(dst, src)
+
+
+def _fit_transposed(src, dst):
+    T = _kabsch(src, dst)
+    T[:3, :3] = T[:3, :3].T
+    return T
+
+
+def _fit_translation_mm(src, dst):
+    T = _kabsch(src, dst)
+    T[:3, 3] *= 1000.0
+    return T
+
+
+def _residuals_squared(T, src, dst):
+    return _true_point_residuals(T, src, dst) ** 2
+
+
+def _residuals_inverse_pose(T, src, dst):
+    return _true_point_residuals(geo.invert(T), src, dst)
+
+
+def _residuals_transposed(T, src, dst):
+    T = np.array(T, dtype=float)
+    T[:3, :3] = T[:3, :3].T
+    return _true_point_residuals(T, src, dst)
+
+
+def _residuals_mm(T, src, dst):
+    return _true_point_residuals(T, src, dst) * 1000.0
+
+
+def _rmse_dst_axes(T, src, dst):
+    return np.sqrt(np.mean(_true_residuals(T, src, dst) ** 2, axis=0))
+
+
+def _rmse_r_not_transposed(T, src, dst):
+    r = _true_residuals(T, src, dst)
+    return np.sqrt(np.mean((r @ T[:3, :3].T) ** 2, axis=0))
+
+
+def _rmse_no_sqrt(T, src, dst):
+    return _true_axis_rmse(T, src, dst) ** 2
+
+
+def _rmse_one_for_all_axes(T, src, dst):
+    return np.full(3, np.sqrt(np.mean(_true_axis_rmse(T, src, dst) ** 2)))
+
+
+FIT_MISTAKES = (
+    CodeMistake("its rotation has determinant -1 on this planar set: a mirror image, not a "
+                "rotation; flip the sign of the last column of V when det(V U^T) < 0",
+                _fit_no_reflection_fix),
+    CodeMistake("it fitted a degenerate set (collinear points, or fewer than 3): no rigid map "
+                "is determined there, raise ValueError", _fit_no_degenerate_check),
+    CodeMistake("this is src_T_dst, the inverse of dst_T_src: the fit maps src points onto "
+                "dst points (dst_i = R src_i + t)", _fit_inverse),
+    CodeMistake("src and dst are swapped: fit_rigid(src, dst) returns the map taking src "
+                "points onto dst points", _fit_swapped),
+    CodeMistake("its rotation is R^T: with H = sum (src_i - c_src)(dst_i - c_dst)^T = U S V^T "
+                "the rotation is V U^T", _fit_transposed),
+    CodeMistake("its translation is in millimetres: the course works in metres (divide by "
+                "1000; the points are in metres already)", _fit_translation_mm),
+)
+RESIDUAL_MISTAKES = (
+    CodeMistake("these are squared distances: the residual is the distance |R src_i + t - "
+                "dst_i| itself (take the square root)", _residuals_squared),
+    CodeMistake("the inverse pose was applied: dst_T_src maps src points into dst "
+                "(R src_i + t), to compare with dst_i", _residuals_inverse_pose),
+    CodeMistake("the src points were rotated by R^T: map them with R src_i + t (for rows "
+                "of points in numpy, src @ R.T + t)", _residuals_transposed),
+    CodeMistake("these are in millimetres: the course works in metres (divide by 1000)",
+                _residuals_mm),
+)
+
+
+def rmse_mistakes(src: str, dst: str) -> tuple[CodeMistake, ...]:
+    """The classic mistakes of a per-axis RMSE along the ``src`` frame's axes of the
+    residuals of a ``dst``_T_``src`` map (lab 1: src and dst; lab 4: camera and base)."""
+    return (
+        CodeMistake(f"the RMS is taken along the {dst} axes: rotate the residuals into the "
+                    f"{src} frame first (R^T r_i; for rows in numpy, r @ R)", _rmse_dst_axes),
+        CodeMistake(f"the residuals were rotated by R, not R^T: into the {src} frame they go "
+                    "with R^T r_i (for rows in numpy, r @ R)", _rmse_r_not_transposed),
+        CodeMistake("this is the mean square: the RMS is its square root", _rmse_no_sqrt),
+        CodeMistake("one RMS is repeated on every axis: take the RMS of each axis on its own "
+                    "(the mean over the points, axis=0)", _rmse_one_for_all_axes),
+    )
+
+
+FIT_RIGID = replace(scoring.FIT_RIGID, make_trial=_trial_fit_rigid, code_mistakes=FIT_MISTAKES)
+PER_POINT_RESIDUALS = replace(scoring.PER_POINT_RESIDUALS, make_trial=_trial_point_residuals,
+                              code_mistakes=RESIDUAL_MISTAKES)
+PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_axis_rmse,
+                        code_mistakes=rmse_mistakes("src", "dst"))
 
 SPECS = (FIT_RIGID, PER_POINT_RESIDUALS, PER_AXIS_RMSE)
 
-# What computes a graded quantity (a truth): never in a student's copy.
+# What computes a graded quantity (a truth, a fit, a mistaken answer): never in a student's
+# copy.
 ANSWERS = (_true_residuals, _true_point_residuals, _true_axis_rmse, _degenerate_fit,
-           _trial_fit_rigid, _trial_point_residuals, _trial_axis_rmse)
+           _trial_fit_rigid, _trial_point_residuals, _trial_axis_rmse, _kabsch,
+           _fit_no_reflection_fix, _fit_no_degenerate_check, _fit_inverse, _fit_swapped,
+           _fit_transposed, _fit_translation_mm, _residuals_squared, _residuals_inverse_pose,
+           _residuals_transposed, _residuals_mm, _rmse_dst_axes, _rmse_r_not_transposed,
+           _rmse_no_sqrt, _rmse_one_for_all_axes)

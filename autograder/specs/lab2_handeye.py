@@ -1,4 +1,5 @@
-"""Lab 2 (AX = XB eye-in-hand calibration), private side: problems, truths, tolerances.
+"""Lab 2 (AX = XB eye-in-hand calibration), private side: problems, truths, tolerances and
+the code mistakes (built on the reference solvers of ``solutions.handeye``).
 
 The scoring is public, in :mod:`autograder.scoring.lab2_handeye`; this module draws the
 problems, computes their truths and per-problem tolerances, and is never given to students.
@@ -56,8 +57,9 @@ import numpy as np
 
 from autograder import synthetic
 from autograder.scoring import lab2_handeye as scoring
-from autograder.spec_types import Trial
+from autograder.spec_types import CodeMistake, Trial
 from robots import geometry as geo
+from solutions import handeye as he
 
 ROT_K = 40.0
 TRANS_K = 15.0
@@ -177,15 +179,152 @@ def _trial_residual(which: int):
     return make
 
 
+# --------------------------------------------------------------------------- code mistakes
+
+
+def _motions_with(base_T_flange, cam_T_target, strategy, a_of, b_of):
+    """(A, B) with A[k] = a_of(F_i, F_j) and B[k] = b_of(C_i, C_j) over the pairs of
+    ``strategy``."""
+    n = len(base_T_flange)
+    pairs = ([(i, j) for i in range(n) for j in range(i + 1, n)] if strategy == "all"
+             else [(i, i + 1) for i in range(n - 1)])
+    return (np.array([a_of(base_T_flange[i], base_T_flange[j]) for i, j in pairs]),
+            np.array([b_of(cam_T_target[i], cam_T_target[j]) for i, j in pairs]))
+
+
+def _a_right(Fi, Fj):
+    return geo.invert(Fi) @ Fj
+
+
+def _b_right(Ci, Cj):
+    return Ci @ geo.invert(Cj)
+
+
+def _motions_b_inverse_first(base_T_flange, cam_T_target, strategy="all"):
+    return _motions_with(base_T_flange, cam_T_target, strategy, _a_right,
+                         lambda Ci, Cj: geo.invert(Ci) @ Cj)
+
+
+def _motions_a_reversed(base_T_flange, cam_T_target, strategy="all"):
+    return _motions_with(base_T_flange, cam_T_target, strategy,
+                         lambda Fi, Fj: geo.invert(Fj) @ Fi, _b_right)
+
+
+def _motions_strategy_ignored(base_T_flange, cam_T_target, strategy="all"):
+    return _motions_with(base_T_flange, cam_T_target, "all", _a_right, _b_right)
+
+
+def _motions_swapped(base_T_flange, cam_T_target, strategy="all"):
+    return motion_pairs_truth(base_T_flange, cam_T_target, strategy)[::-1]
+
+
+MOTIONS_MISTAKES = (
+    CodeMistake("B is inv(C_i) @ C_j: with C = cam_T_target the camera's motion is "
+                "B = C_i @ inv(C_j) (the inverse on the other side)", _motions_b_inverse_first),
+    CodeMistake("A is inv(F_j) @ F_i, the robot's motion run backwards: for the pair i < j, "
+                "A = inv(F_i) @ F_j", _motions_a_reversed),
+    CodeMistake("the strategy is ignored: strategy='consecutive' asks for the pairs (i, i+1) "
+                "only", _motions_strategy_ignored),
+    CodeMistake("A and B are swapped: A comes from the robot's poses (base_T_flange), B from "
+                "the camera's (cam_T_target)", _motions_swapped),
+)
+
+
+def _solver_mistakes(solve):
+    """The classic mistakes of an AX = XB solver, built on the reference solver ``solve``
+    (the same mistakes whichever method the function implements)."""
+    def inverse(A, B):
+        return geo.invert(solve(A, B))
+
+    def swapped(A, B):
+        return solve(B, A)
+
+    def transposed(A, B):
+        X = solve(A, B)
+        X[:3, :3] = X[:3, :3].T
+        return X
+
+    def translation_mm(A, B):
+        X = solve(A, B)
+        X[:3, 3] *= 1000.0
+        return X
+
+    return (
+        CodeMistake("this is cam_T_flange, the inverse of X = flange_T_cam: with "
+                    "A = inv(F_i) F_j and B = C_i inv(C_j), A X = X B holds for flange_T_cam",
+                    inverse),
+        CodeMistake("A and B are swapped: the robot's motions A come first (solving B Y = Y A "
+                    "gives Y = inv(X))", swapped),
+        CodeMistake("its rotation is R_X^T: check the order of the products that build R_X "
+                    "(alpha_A = R_X alpha_B)", transposed),
+        CodeMistake("t_X is in millimetres: the course works in metres (divide by 1000)",
+                    translation_mm),
+    )
+
+
+TSAI_MISTAKES = _solver_mistakes(he.solve_tsai)
+AXES_LS_MISTAKES = _solver_mistakes(he.solve_axes_ls)
+
+
+def _rotation_residual_sum(A, B, X):
+    return course_residuals(A, B, X)[0] * len(A)
+
+
+def _rotation_residual_unsquared(A, B, X):
+    R = X[:3, :3]
+    return float(np.mean([np.linalg.norm(a[:3, :3] @ R - R @ b[:3, :3]) for a, b in zip(A, B)]))
+
+
+def _rotation_residual_transposed(A, B, X):
+    X = np.array(X, dtype=float)
+    X[:3, :3] = X[:3, :3].T
+    return course_residuals(A, B, X)[0]
+
+
+def _translation_residual_sum(A, B, X):
+    return course_residuals(A, B, X)[1] * len(A)
+
+
+def _translation_residual_mm2(A, B, X):
+    return course_residuals(A, B, X)[1] * 1e6
+
+
+def _translation_residual_inverse(A, B, X):
+    return course_residuals(A, B, geo.invert(X))[1]
+
+
+SUM_WORDS = "this is the sum over the motions: the residual is their mean (divide by n)"
+ROTATION_RESIDUAL_MISTAKES = (
+    CodeMistake(SUM_WORDS, _rotation_residual_sum),
+    CodeMistake("each motion's Frobenius norm is not squared: the residual is the mean of "
+                "||R_A R_X - R_X R_B||_F^2", _rotation_residual_unsquared),
+    CodeMistake("R_X^T was used: the residual takes X's rotation block as it is",
+                _rotation_residual_transposed),
+)
+TRANSLATION_RESIDUAL_MISTAKES = (
+    CodeMistake(SUM_WORDS, _translation_residual_sum),
+    CodeMistake("this is in mm^2: the course works in metres, so the residual is in m^2",
+                _translation_residual_mm2),
+    CodeMistake("inv(X) was used: the residual takes X = flange_T_cam itself",
+                _translation_residual_inverse),
+)
+
+
 # --------------------------------------------------------------------------- specs
 
-MOTIONS = replace(scoring.MOTIONS, make_trial=_trial_motions)
-TSAI_LENZ = replace(scoring.TSAI_LENZ, make_trial=_trial_solver)
-AXES_LS = replace(scoring.AXES_LS, make_trial=_trial_solver)
-ROTATION_RESIDUAL = replace(scoring.ROTATION_RESIDUAL, make_trial=_trial_residual(0))
-TRANSLATION_RESIDUAL = replace(scoring.TRANSLATION_RESIDUAL, make_trial=_trial_residual(1))
+MOTIONS = replace(scoring.MOTIONS, make_trial=_trial_motions, code_mistakes=MOTIONS_MISTAKES)
+TSAI_LENZ = replace(scoring.TSAI_LENZ, make_trial=_trial_solver, code_mistakes=TSAI_MISTAKES)
+AXES_LS = replace(scoring.AXES_LS, make_trial=_trial_solver, code_mistakes=AXES_LS_MISTAKES)
+ROTATION_RESIDUAL = replace(scoring.ROTATION_RESIDUAL, make_trial=_trial_residual(0),
+                            code_mistakes=ROTATION_RESIDUAL_MISTAKES)
+TRANSLATION_RESIDUAL = replace(scoring.TRANSLATION_RESIDUAL, make_trial=_trial_residual(1),
+                               code_mistakes=TRANSLATION_RESIDUAL_MISTAKES)
 
 SPECS = (MOTIONS, TSAI_LENZ, AXES_LS, ROTATION_RESIDUAL, TRANSLATION_RESIDUAL)
 
-# What computes a graded quantity (a truth): never in a student's copy.
-ANSWERS = (motion_pairs_truth, course_residuals, _trial_motions, _trial_solver, _trial_residual)
+# What computes a graded quantity (a truth, a mistaken answer): never in a student's copy.
+ANSWERS = (motion_pairs_truth, course_residuals, _trial_motions, _trial_solver, _trial_residual,
+           _motions_with, _motions_b_inverse_first, _motions_a_reversed,
+           _motions_strategy_ignored, _motions_swapped, _solver_mistakes, _rotation_residual_sum,
+           _rotation_residual_unsquared, _rotation_residual_transposed,
+           _translation_residual_sum, _translation_residual_mm2, _translation_residual_inverse)

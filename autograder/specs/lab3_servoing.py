@@ -1,5 +1,5 @@
-"""Lab 3 (visual servoing to chess pieces), private side: problems, truths and the
-reference control law.
+"""Lab 3 (visual servoing to chess pieces), private side: problems, truths, the
+reference control law and the code mistakes.
 
 The scoring is public, in :mod:`autograder.scoring.lab3_servoing`; this module draws the
 problems and computes their truths, and is never given to students:
@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from autograder.scoring import lab3_servoing as scoring
 from autograder.scoring.lab3_servoing import _drive_ibvs, _features, _move
-from autograder.spec_types import Trial
+from autograder.spec_types import CodeMistake, Trial
 
 
 def _look_at_pose(rng, distance: float) -> np.ndarray:
@@ -174,12 +174,107 @@ def _trial_piece(rng, index: int) -> Trial:
                  label=f"{1000 * sigma:.1f} mm noise" + (", hole at the pixel" if hole else ""))
 
 
-INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction)
-IBVS_VELOCITY = replace(scoring.IBVS_VELOCITY, make_trial=_trial_ibvs)
-PIECE_POSITION = replace(scoring.PIECE_POSITION, make_trial=_trial_piece)
+# --------------------------------------------------------------------------- code mistakes
+
+
+def _interaction_stacked(x, y, Z):
+    L = _true_interaction(np.asarray(x, float), np.asarray(y, float), np.asarray(Z, float))
+    return np.vstack([L[0::2], L[1::2]])
+
+
+def _interaction_rotation_sign(x, y, Z):
+    L = _true_interaction(np.asarray(x, float), np.asarray(y, float), np.asarray(Z, float))
+    L[:, 3:] *= -1
+    return L
+
+
+def _interaction_no_depth(x, y, Z):
+    x = np.asarray(x, float)
+    return _true_interaction(x, np.asarray(y, float), np.ones_like(np.asarray(Z, float)))
+
+
+def _ibvs_lstsq(s, s_star, Z, gain):
+    s, s_star = np.asarray(s, float), np.asarray(s_star, float)
+    L = _true_interaction(s[:, 0], s[:, 1], np.asarray(Z, float))
+    return -gain * np.linalg.lstsq(L, (s - s_star).reshape(-1), rcond=None)[0]
+
+
+def _ibvs_gain_flipped(s, s_star, Z, gain):
+    return -_ibvs_lstsq(s, s_star, Z, gain)
+
+
+def _ibvs_transpose(s, s_star, Z, gain):
+    s, s_star = np.asarray(s, float), np.asarray(s_star, float)
+    L = _true_interaction(s[:, 0], s[:, 1], np.asarray(Z, float))
+    return -gain * L.T @ (s - s_star).reshape(-1)
+
+
+def _ibvs_no_gain(s, s_star, Z, gain):
+    return _ibvs_lstsq(s, s_star, Z, 1.0)
+
+
+def _window_median_position(depth, uv, K):
+    """The lab's method: the median of the valid depths of the 5x5 window at round(uv),
+    back-projected through uv; ValueError when the window has none."""
+    u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
+    window = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
+    valid = window[np.isfinite(window) & (window > 0)]
+    if valid.size == 0:
+        raise ValueError(f"no depth measurement within 2 px of pixel ({u}, {v})")
+    Z = float(np.median(valid))
+    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+
+
+def _piece_pixel_only(depth, uv, K):
+    u, v = np.rint(np.asarray(uv, float)).astype(int)
+    Z = float(depth[v, u])
+    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+
+
+def _piece_uv_swapped(depth, uv, K):
+    return _window_median_position(depth, (uv[1], uv[0]), K)
+
+
+def _piece_mm(depth, uv, K):
+    return _window_median_position(depth, uv, K) * 1000.0
+
+
+INTERACTION_MISTAKES = (
+    CodeMistake("its rows are stacked x1..xn, then y1..yn: the rows go in pairs, point by point "
+                "(x1, y1, x2, y2, ...)", _interaction_stacked),
+    CodeMistake("the rotation columns (wx, wy, wz) have the wrong sign: a point's x row is "
+                "[-1/Z, 0, x/Z, x y, -(1 + x^2), y]", _interaction_rotation_sign),
+    CodeMistake("the depth is ignored (Z = 1): the translation columns divide by each point's "
+                "own depth Z", _interaction_no_depth),
+)
+IBVS_MISTAKES = (
+    CodeMistake("the gain's sign is flipped: v = -gain pinv(L) (s - s*) drives the features "
+                "towards s*; with +gain they run away", _ibvs_gain_flipped),
+    CodeMistake("L^T is used for pinv(L): the law is v = -gain pinv(L) (s - s*)",
+                _ibvs_transpose),
+    CodeMistake("the gain is ignored: multiply the twist by -gain", _ibvs_no_gain),
+)
+PIECE_MISTAKES = (
+    CodeMistake("this is the depth of the one pixel: it has holes (NaN) and noise; take the "
+                "median of the valid depths of the 5x5 window around it", _piece_pixel_only),
+    CodeMistake("u and v are swapped: u is the column (x), v the row (y); the image is "
+                "indexed depth[v, u]", _piece_uv_swapped),
+    CodeMistake("the position is in millimetres: the depth image is in metres already, the "
+                "course's unit", _piece_mm),
+)
+
+INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction,
+                             code_mistakes=INTERACTION_MISTAKES)
+IBVS_VELOCITY = replace(scoring.IBVS_VELOCITY, make_trial=_trial_ibvs,
+                        code_mistakes=IBVS_MISTAKES)
+PIECE_POSITION = replace(scoring.PIECE_POSITION, make_trial=_trial_piece,
+                         code_mistakes=PIECE_MISTAKES)
 
 SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)
 
-# What computes a graded quantity (a truth, the reference law): never in a student's copy.
+# What computes a graded quantity (a truth, the reference law, a mistaken answer): never in a
+# student's copy.
 ANSWERS = (_true_interaction, _reference_ibvs, _within_reach, _trial_interaction, _trial_ibvs,
-           _trial_piece)
+           _trial_piece, _interaction_stacked, _interaction_rotation_sign, _interaction_no_depth,
+           _ibvs_lstsq, _ibvs_gain_flipped, _ibvs_transpose, _ibvs_no_gain,
+           _window_median_position, _piece_pixel_only, _piece_uv_swapped, _piece_mm)

@@ -1,4 +1,5 @@
-"""Lab 4 (stereo single-shot hand-to-eye), private side: problems, truths and tolerances.
+"""Lab 4 (stereo single-shot hand-to-eye), private side: problems, truths, tolerances and the
+code mistakes (per_axis_rmse's are lab 1's, along the camera axes).
 
 The scoring is public, in :mod:`autograder.scoring.lab4_stereo`; this module draws the problems
 and computes their truths, and is never given to students:
@@ -24,7 +25,8 @@ import numpy as np
 
 from autograder import synthetic
 from autograder.scoring import lab4_stereo as scoring
-from autograder.spec_types import EXACT_TOL, Trial, random_pose
+from autograder.spec_types import EXACT_TOL, CodeMistake, Trial, random_pose
+from autograder.specs.lab1_flange import rmse_mistakes
 from robots import geometry as geo
 
 # --------------------------------------------------------------------------- three-point frame
@@ -168,14 +170,131 @@ def _trial_rmse(rng, index: int) -> Trial:
                  tol={"rmse": 1e-6}, label=f"{n} points")
 
 
-FRAME_FROM_THREE_POINTS = replace(scoring.FRAME_FROM_THREE_POINTS, make_trial=_trial_frame)
-REPROJECT = replace(scoring.REPROJECT, make_trial=_trial_reproject)
+# --------------------------------------------------------------------------- code mistakes
+
+
+def _pose(R, t) -> np.ndarray:
+    # Not geo.make_pose: a mistake may build a matrix that is no rotation, and it must
+    # return it as the student's code would.
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _frame_left_handed(p_origin, p_x, p_xy):
+    return _three_point_frame(*_points(p_origin, p_x, p_xy)) @ np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def _frame_y_copied(p_origin, p_x, p_xy):
+    o, px, pxy = _points(p_origin, p_x, p_xy)
+    x = (px - o) / np.linalg.norm(px - o)
+    y = (pxy - o) / np.linalg.norm(pxy - o)
+    return _pose(np.column_stack([x, y, np.cross(x, y)]), o)
+
+
+def _frame_inverse(p_origin, p_x, p_xy):
+    return geo.invert(_three_point_frame(*_points(p_origin, p_x, p_xy)))
+
+
+def _frame_transposed(p_origin, p_x, p_xy):
+    T = _three_point_frame(*_points(p_origin, p_x, p_xy))
+    T[:3, :3] = T[:3, :3].T
+    return T
+
+
+def _points(*points) -> list[np.ndarray]:
+    return [np.asarray(p, dtype=float) for p in points]
+
+
+def _reproject(u, v, d, Q) -> np.ndarray:
+    X, Y, Z, W = np.asarray(Q, dtype=float) @ np.array([u, v, d, 1.0])
+    return np.array([X, Y, Z]) / W
+
+
+def _reproject_by_z(u, v, d, Q):
+    h = np.asarray(Q, dtype=float) @ np.array([u, v, d, 1.0])
+    return h[:3] / h[2]
+
+
+def _reproject_no_shift(u, v, d, Q):
+    Q = np.array(Q, dtype=float)
+    Q[3, 3] = 0.0
+    return _reproject(u, v, d, Q)
+
+
+def _reproject_disparity_flipped(u, v, d, Q):
+    return _reproject(u, v, -d, Q)
+
+
+def _reproject_mm(u, v, d, Q):
+    return _reproject(u, v, d, Q) * 1000.0
+
+
+def _frames_of(cam_points, base_points) -> tuple[np.ndarray, np.ndarray]:
+    """(base_T_world, cam_T_world): the frames the three points span, seen from each side."""
+    return (_three_point_frame(*np.asarray(base_points, dtype=float)),
+            _three_point_frame(*np.asarray(cam_points, dtype=float)))
+
+
+def _hand_to_eye_inverse(cam_points, base_points):
+    base_T_world, cam_T_world = _frames_of(cam_points, base_points)
+    return cam_T_world @ geo.invert(base_T_world)
+
+
+def _hand_to_eye_reversed(cam_points, base_points):
+    base_T_world, cam_T_world = _frames_of(cam_points, base_points)
+    return geo.invert(cam_T_world) @ base_T_world
+
+
+def _hand_to_eye_not_inverted(cam_points, base_points):
+    base_T_world, cam_T_world = _frames_of(cam_points, base_points)
+    return base_T_world @ cam_T_world
+
+
+FRAME_MISTAKES = (
+    CodeMistake("the frame is left-handed or turned over: z = x cross (p_xy - p_origin) (in "
+                "that order), then y = z cross x", _frame_left_handed),
+    CodeMistake("p_xy - p_origin was used as the y axis: it is not perpendicular to x; build "
+                "z = x cross (p_xy - p_origin) first, then y = z cross x", _frame_y_copied),
+    CodeMistake("this is frame_T_parent, the inverse of parent_T_frame: the columns of R are "
+                "the frame's axes in the parent, the translation is p_origin", _frame_inverse),
+    CodeMistake("its rotation is transposed: the axes x, y, z are the columns of R "
+                "(np.column_stack), not its rows", _frame_transposed),
+)
+REPROJECT_MISTAKES = (
+    CodeMistake("it is divided by Z, not by W: Q @ [u, v, d, 1] = [X, Y, Z, W], the point is "
+                "[X, Y, Z] / W", _reproject_by_z),
+    CodeMistake("Q's last entry, (cx - cx')/Tx, was left out: use all of Q (it is not zero "
+                "when the principal points differ)", _reproject_no_shift),
+    CodeMistake("the disparity's sign is flipped: d = u_left - u_right, pass it as given",
+                _reproject_disparity_flipped),
+    CodeMistake("the point is in millimetres: the course works in metres (divide by 1000)",
+                _reproject_mm),
+)
+HAND_TO_EYE_MISTAKES = (
+    CodeMistake("this is cam_T_base, the inverse of base_T_cam: base_T_cam = base_T_world @ "
+                "inv(cam_T_world)", _hand_to_eye_inverse),
+    CodeMistake("the product is in reverse order: base_T_cam = base_T_world @ world_T_cam, "
+                "left to right", _hand_to_eye_reversed),
+    CodeMistake("cam_T_world was used as world_T_cam: invert it (base_T_cam = base_T_world @ "
+                "inv(cam_T_world))", _hand_to_eye_not_inverted),
+)
+
+FRAME_FROM_THREE_POINTS = replace(scoring.FRAME_FROM_THREE_POINTS, make_trial=_trial_frame,
+                                  code_mistakes=FRAME_MISTAKES)
+REPROJECT = replace(scoring.REPROJECT, make_trial=_trial_reproject,
+                    code_mistakes=REPROJECT_MISTAKES)
 HAND_TO_EYE = replace(scoring.HAND_TO_EYE, make_trial=_trial_hand_to_eye,
-                      substitutes=_hand_to_eye_substitutes)
-PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_rmse)
+                      substitutes=_hand_to_eye_substitutes, code_mistakes=HAND_TO_EYE_MISTAKES)
+PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_rmse,
+                        code_mistakes=rmse_mistakes("camera", "base"))
 
 SPECS = (FRAME_FROM_THREE_POINTS, REPROJECT, HAND_TO_EYE, PER_AXIS_RMSE)
 
-# What computes a graded quantity (a truth, the true frames): never in a student's copy.
+# What computes a graded quantity (a truth, the true frames, a mistaken answer): never in a
+# student's copy (the per-axis RMSE's mistakes are lab 1's, listed there).
 ANSWERS = (_three_point_frame, _hand_to_eye_substitutes, _true_rmse, _trial_frame,
-           _trial_reproject, _trial_hand_to_eye, _trial_rmse)
+           _trial_reproject, _trial_hand_to_eye, _trial_rmse, _frame_left_handed,
+           _frame_y_copied, _frame_inverse, _frame_transposed, _reproject, _reproject_by_z,
+           _reproject_no_shift, _reproject_disparity_flipped, _reproject_mm, _frames_of,
+           _hand_to_eye_inverse, _hand_to_eye_reversed, _hand_to_eye_not_inverted)

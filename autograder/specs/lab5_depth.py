@@ -1,5 +1,5 @@
 """Lab 5 (depth camera and flange; rectangle pose), private side: problems, truths, tolerances
-and the mistakes predictors.
+and the code mistakes.
 
 The scoring is public, in :mod:`autograder.scoring.lab5_depth`; this module draws the
 problems, computes their truths, and is never given to students. Every problem is what a
@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from autograder.scoring import lab5_depth as scoring
-from autograder.spec_types import Trial
+from autograder.spec_types import CodeMistake, Trial
 from robots import geometry as geo
 
 # --------------------------------------------------------------------------- shared
@@ -134,20 +134,50 @@ HOLES_WORDS = ("the holes (raw == 0) are points at z = 0: set them to NaN, a mis
                "measurement is not a point on the camera's centre")
 
 
-def _backproject_mistakes(trial: Trial) -> list:
-    raw, K, scale = trial.args
-    z = raw.astype(float) * scale
-    z[raw == 0] = np.nan
+DEPTH_SCALE_WORDS = ("depth_scale is taken as 0.001 m per unit: cameras differ (a D405 reports "
+                     "0.0001); multiply by the depth_scale argument")
+
+
+def _backproject_with(depth_raw, K, depth_scale, scale=None, swap=False, inverted=False,
+                      holes_nan=True) -> np.ndarray:
+    """Back-projection with one of the classic mistakes switched on."""
+    z = np.asarray(depth_raw, dtype=float) * (depth_scale if scale is None else scale)
+    if holes_nan:
+        z[np.asarray(depth_raw) == 0] = np.nan
     v, u = np.indices(z.shape)
+    if swap:
+        u, v = v, u
+    fx, fy = (1 / K[0, 0], 1 / K[1, 1]) if inverted else (K[0, 0], K[1, 1])
+    return np.stack([(u - K[0, 2]) * z / fx, (v - K[1, 2]) * z / fy, z], axis=-1)
 
-    def points(zz, uu, vv, fx, fy):
-        return np.stack([(uu - K[0, 2]) * zz / fx, (vv - K[1, 2]) * zz / fy, zz], axis=-1)
 
-    at_zero = np.nan_to_num(z, nan=0.0)
-    return [(MM_WORDS, points(z / scale, u, v, K[0, 0], K[1, 1])),
-            (UV_WORDS, points(z, v, u, K[0, 0], K[1, 1])),
-            (K_INVERTED_WORDS, points(z, u, v, 1 / K[0, 0], 1 / K[1, 1])),
-            (HOLES_WORDS, points(at_zero, u, v, K[0, 0], K[1, 1]))]
+def _backproject_units(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, scale=1.0)
+
+
+def _backproject_fixed_scale(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, scale=0.001)
+
+
+def _backproject_uv_swapped(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, swap=True)
+
+
+def _backproject_k_inverted(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, inverted=True)
+
+
+def _backproject_holes_at_zero(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, holes_nan=False)
+
+
+BACKPROJECT_MISTAKES = (
+    CodeMistake(MM_WORDS, _backproject_units),
+    CodeMistake(DEPTH_SCALE_WORDS, _backproject_fixed_scale),
+    CodeMistake(UV_WORDS, _backproject_uv_swapped),
+    CodeMistake(K_INVERTED_WORDS, _backproject_k_inverted),
+    CodeMistake(HOLES_WORDS, _backproject_holes_at_zero),
+)
 
 
 # --------------------------------------------------------------------------- RANSAC plane
@@ -242,9 +272,37 @@ def _svd_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centre, (-normal if normal @ centre > 0 else normal)
 
 
-def _plane_mistakes(trial: Trial) -> list:
-    centre, normal = trial.truth
-    return [(NO_RANSAC_WORDS, _svd_plane(trial.args[0])), (AWAY_WORDS, (centre, -normal))]
+def _ransac_plane(points, inlier_m, iterations=500, seed=0) -> tuple[np.ndarray, np.ndarray]:
+    """The lab's RANSAC: the plane of the random triple with the most inliers, refitted (SVD)
+    on them, its normal towards the camera."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    rng = np.random.default_rng(seed)
+    best = None
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        inliers = np.abs((pts - a) @ (n / np.linalg.norm(n))) < inlier_m
+        if best is None or inliers.sum() > best.sum():
+            best = inliers
+    return _svd_plane(pts[best])
+
+
+def _plane_all_points(points, inlier_m, iterations=500, seed=0):
+    return _svd_plane(np.asarray(points, dtype=float).reshape(-1, 3))
+
+
+def _plane_normal_away(points, inlier_m, iterations=500, seed=0):
+    centre, normal = _ransac_plane(points, inlier_m, iterations, seed)
+    return centre, -normal
+
+
+PLANE_MISTAKES = (
+    CodeMistake(NO_RANSAC_WORDS, _plane_all_points),
+    CodeMistake(AWAY_WORDS, _plane_normal_away),
+)
 
 
 # --------------------------------------------------------------------------- flange circle
@@ -340,9 +398,38 @@ def _kasa(rim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c0 + sol[0] * e1 + sol[1] * e2, n
 
 
-def _circle_mistakes(trial: Trial) -> list:
-    centre, normal = trial.truth
-    return [(KASA_WORDS, _kasa(trial.args[0])), (AWAY_WORDS, (centre, -normal))]
+def _refined_circle(rim_points, radius_m) -> tuple[np.ndarray, np.ndarray]:
+    """The lab's fit: the algebraic circle in the rim's plane, refined by Gauss-Newton on
+    |p - c| - r with the radius known."""
+    rim = np.asarray(rim_points, dtype=float)
+    c0, n = _svd_plane(rim)
+    e1, e2 = _plane_basis(n)
+    xy = np.column_stack([(rim - c0) @ e1, (rim - c0) @ e2])
+    A = np.column_stack([2 * xy, np.ones(len(xy))])
+    centre = np.linalg.lstsq(A, (xy ** 2).sum(axis=1), rcond=None)[0][:2]
+    for _ in range(50):
+        d = xy - centre
+        dist = np.linalg.norm(d, axis=1)
+        step = np.linalg.lstsq(-d / dist[:, None], dist - radius_m, rcond=None)[0]
+        centre = centre - step
+        if np.linalg.norm(step) < 1e-12:
+            break
+    return c0 + centre[0] * e1 + centre[1] * e2, n
+
+
+def _circle_unrefined(rim_points, radius_m):
+    return _kasa(np.asarray(rim_points, dtype=float))
+
+
+def _circle_normal_away(rim_points, radius_m):
+    centre, normal = _refined_circle(rim_points, radius_m)
+    return centre, -normal
+
+
+CIRCLE_MISTAKES = (
+    CodeMistake(KASA_WORDS, _circle_unrefined),
+    CodeMistake(AWAY_WORDS, _circle_normal_away),
+)
 
 
 # --------------------------------------------------------------------------- registration
@@ -395,13 +482,32 @@ RT_WORDS = ("its rotation is R^T: the cross-covariance was built the other way r
             "(base_i - c_base)^T")
 
 
-def _registration_mistakes(trial: Trial) -> list:
-    cam, flanges = trial.args
-    truth = trial.truth
-    base = np.asarray(flanges)[:, :3, 3]
-    Rt = truth[:3, :3].T
-    return [(INVERSE_WORDS, geo.invert(truth)),
-            (RT_WORDS, geo.make_pose(Rt, base.mean(axis=0) - Rt @ cam.mean(axis=0)))]
+def _register(cam_centres, base_T_flanges, base_first: bool = False) -> np.ndarray:
+    """base_T_cam by the SVD of the centres' cross-covariance (the lab's fit); with
+    ``base_first`` the covariance built the other way round, which gives R^T (the mistake)."""
+    a = np.asarray(cam_centres, dtype=float)
+    b = np.asarray(base_T_flanges, dtype=float)[:, :3, 3]
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    H = (b - cb).T @ (a - ca) if base_first else (a - ca).T @ (b - cb)
+    U, _, Vt = np.linalg.svd(H)
+    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, cb - R @ ca
+    return T
+
+
+def _registration_inverse(cam_centres, base_T_flanges):
+    return geo.invert(_register(cam_centres, base_T_flanges))
+
+
+def _registration_rt(cam_centres, base_T_flanges):
+    return _register(cam_centres, base_T_flanges, base_first=True)
+
+
+REGISTRATION_MISTAKES = (
+    CodeMistake(INVERSE_WORDS, _registration_inverse),
+    CodeMistake(RT_WORDS, _registration_rt),
+)
 
 
 # --------------------------------------------------------------------------- rectangle pose
@@ -466,14 +572,21 @@ def _trial_rectangle(rng, index: int) -> Trial:
 RECTANGLE_FACTOR = 8.0
 
 
-def _shape_pose(corners_px, width_m, height_m, K) -> np.ndarray:
-    """cam_T_rect by the shape constraint (vanishing points, nearest rotation, rays)."""
+def _vanishing_directions(corners_px, K):
+    """(the corners' rays (4, 3), the unit directions of the rectangle's x and y sides in
+    the camera frame, from the vanishing points of its opposite sides, signed along the
+    corner order 0 -> 1 and 0 -> 3)."""
     h = np.column_stack([corners_px, np.ones(4)]) @ np.linalg.inv(K).T
     dx = np.cross(np.cross(h[0], h[1]), np.cross(h[3], h[2]))
     dy = np.cross(np.cross(h[0], h[3]), np.cross(h[1], h[2]))
     dx = dx * (np.sign(dx[:2] @ (h[1, :2] - h[0, :2])) or 1.0)
     dy = dy * (np.sign(dy[:2] @ (h[3, :2] - h[0, :2])) or 1.0)
-    dx, dy = dx / np.linalg.norm(dx), dy / np.linalg.norm(dy)
+    return h, dx / np.linalg.norm(dx), dy / np.linalg.norm(dy)
+
+
+def _shape_pose(corners_px, width_m, height_m, K) -> np.ndarray:
+    """cam_T_rect by the shape constraint (vanishing points, nearest rotation, rays)."""
+    h, dx, dy = _vanishing_directions(corners_px, K)
     U, _, Vt = np.linalg.svd(np.column_stack([dx, dy, np.cross(dx, dy)]))
     R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     w, hh = width_m / 2, height_m / 2
@@ -523,31 +636,57 @@ SWAPPED_WORDS = ("width and height are swapped: width_m is the top edge's length
                  "height_m the left edge's (y, TL to BL)")
 
 
-def _rectangle_mistakes(trial: Trial) -> list:
-    uv, width, height, K = trial.args
-    if abs(width - height) < 1e-9:
-        return []
-    return [(SWAPPED_WORDS, _shape_pose(uv, height, width, K))]
+K_IGNORED_WORDS = ("K was not applied: pixels are not rays; turn the corners into rays with "
+                   "K^-1 [u, v, 1] first")
+NOT_ORTHOGONAL_WORDS = ("its rotation is not orthogonal: the vanishing directions dx, dy were "
+                        "used as they are; replace [dx, dy, dx x dy] by the nearest rotation "
+                        "(SVD)")
+
+
+def _rectangle_swapped(corners_px, width_m, height_m, K):
+    return _shape_pose(corners_px, height_m, width_m, K)
+
+
+def _rectangle_k_ignored(corners_px, width_m, height_m, K):
+    return _shape_pose(corners_px, width_m, height_m, np.eye(3))
+
+
+def _rectangle_not_orthogonal(corners_px, width_m, height_m, K):
+    _, dx, dy = _vanishing_directions(corners_px, K)
+    T = _shape_pose(corners_px, width_m, height_m, K)
+    T[:3, :3] = np.column_stack([dx, dy, np.cross(dx, dy)])
+    return T
+
+
+RECTANGLE_MISTAKES = (
+    CodeMistake(SWAPPED_WORDS, _rectangle_swapped),
+    CodeMistake(K_IGNORED_WORDS, _rectangle_k_ignored),
+    CodeMistake(NOT_ORTHOGONAL_WORDS, _rectangle_not_orthogonal),
+)
 
 
 BACKPROJECT = replace(scoring.BACKPROJECT, make_trial=_trial_backproject,
-                      mistakes=_backproject_mistakes)
+                      code_mistakes=BACKPROJECT_MISTAKES)
 FIT_PLANE_RANSAC = replace(scoring.FIT_PLANE_RANSAC, make_trial=_trial_plane,
-                           mistakes=_plane_mistakes)
+                           code_mistakes=PLANE_MISTAKES)
 FIT_FLANGE_CIRCLE = replace(scoring.FIT_FLANGE_CIRCLE, make_trial=_trial_circle,
-                            mistakes=_circle_mistakes)
+                            code_mistakes=CIRCLE_MISTAKES)
 BASE_T_CAM_FROM_FLANGES = replace(scoring.BASE_T_CAM_FROM_FLANGES,
                                   make_trial=_trial_registration,
-                                  mistakes=_registration_mistakes)
+                                  code_mistakes=REGISTRATION_MISTAKES)
 RECTANGLE_POSE = replace(scoring.RECTANGLE_POSE, make_trial=_trial_rectangle,
-                         mistakes=_rectangle_mistakes)
+                         code_mistakes=RECTANGLE_MISTAKES)
 
 SPECS = (BACKPROJECT, FIT_PLANE_RANSAC, FIT_FLANGE_CIRCLE, BASE_T_CAM_FROM_FLANGES,
          RECTANGLE_POSE)
 
-# What computes a graded quantity (a truth, a mistaken answer, a solution): never in a
+# What computes a graded quantity (a truth, a solution, a mistaken answer): never in a
 # student's copy.
-ANSWERS = (_true_backproject, _trial_backproject, _backproject_mistakes, _trial_plane,
-           _svd_plane, _plane_mistakes, _trial_circle, _kasa, _circle_mistakes,
-           _trial_registration, _registration_mistakes, _trial_rectangle, _shape_pose,
-           _homography_pose, _rectangle_sd, _method_sd, _rectangle_mistakes)
+ANSWERS = (_true_backproject, _trial_backproject, _backproject_with, _backproject_units,
+           _backproject_fixed_scale, _backproject_uv_swapped, _backproject_k_inverted,
+           _backproject_holes_at_zero, _trial_plane, _svd_plane, _ransac_plane,
+           _plane_all_points, _plane_normal_away, _trial_circle, _kasa, _refined_circle,
+           _circle_unrefined, _circle_normal_away, _trial_registration, _register,
+           _registration_inverse, _registration_rt, _trial_rectangle, _shape_pose,
+           _homography_pose, _rectangle_sd, _method_sd, _rectangle_swapped,
+           _rectangle_k_ignored, _rectangle_not_orthogonal, _vanishing_directions)
