@@ -113,7 +113,8 @@ def _build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--camera", default="", help="camera name to record (optional)")
     imp.add_argument("--force", action="store_true", help="overwrite an existing capture folder")
 
-    labs = sub.add_parser("labs", help="the students' copies of the labs (no solutions)")
+    labs = sub.add_parser("labs", help="the labs: new ones, their verification, the students' "
+                                       "copies (no solutions)")
     labs_sub = labs.add_subparsers(dest="labs_command", metavar="ACTION", required=True)
     student = labs_sub.add_parser(
         "student",
@@ -131,6 +132,48 @@ def _build_parser() -> argparse.ArgumentParser:
                          help="only this lab (repeat for several; default: every lab)")
     student.add_argument("--force", action="store_true",
                          help="replace notebooks already in DIR (they may hold a student's work)")
+    new = labs_sub.add_parser(
+        "new",
+        help="start a lab of your own in a course repository: from a skeleton, or a copy of a lab",
+        description=(
+            "Write a new lab NAME into the course folder: its nbgrader source notebook "
+            "(LABS/NAME/NAME.ipynb), its public scoring (LABS/NAME/scoring.py, released with "
+            "the notebook) and its private spec (.cobotlab/specs/NAME.py: the hidden problems, "
+            "their truths, the classic mistakes; never released). LABS is the first of the "
+            "lab_folders of the course's cobotlab.toml, which is created (lab_folders = "
+            "[\"labs\"]) if the course has none. Without --from the lab is a skeleton with one "
+            "graded function, ready to adapt; with --from it is a copy of that lab (built in or "
+            "the course's) under the new name. Nothing is written if anything is refused."
+        ),
+    )
+    new.add_argument("name", metavar="NAME",
+                     help="the lab's name: a folder, an nbgrader assignment and part of a Python "
+                          "module name (a letter, then letters, digits or _), e.g. lab6_gripper")
+    new.add_argument("--dir", default=None, metavar="DIR",
+                     help="the course folder (default: the current course, that of "
+                          "$COBOTLAB_COURSE or the nearest cobotlab.toml above the current "
+                          "folder, else the current folder)")
+    new.add_argument("--from", dest="from_lab", default=None, metavar="LAB",
+                     help="copy this lab (e.g. lab1_flange, or one of the course's) instead of "
+                          "starting from the skeleton")
+    verify = labs_sub.add_parser(
+        "verify",
+        help="check a lab's grading: correct code keeps full credit, each mistake loses it",
+        description=(
+            "Draw many sets of the hidden problems of the lab in PATH (its folder) and grade the "
+            "notebook's solution and each of the spec's code mistakes on them; record the "
+            "evidence beside the private specs, where `cobotlab grade` looks for it. Exits "
+            "non-zero when the lab fails."
+        ),
+    )
+    verify.add_argument("path", metavar="PATH", help="the lab: its folder (e.g. labs/lab6_gripper) or its name")
+    verify.add_argument("--draws", type=int, default=None, metavar="N",
+                        help="hidden draws per graded function (default 3688: with no loss, the "
+                             "95 %% bound on the reference's loss rate is below 1e-3; use "
+                             "10000 before a release)")
+    verify.add_argument("--json", default=None, metavar="FILE",
+                        help="write the JSON report to FILE instead of the course's "
+                             ".cobotlab/verified/<lab>.json (where `cobotlab grade` looks)")
 
     course = sub.add_parser("course", help="lay out an nbgrader course for the labs")
     course_sub = course.add_subparsers(dest="course_command", metavar="ACTION", required=True)
@@ -621,6 +664,23 @@ def _student_ids(spec: str | None) -> list[str] | None:
     return ids
 
 
+def _labs_new(name: str, course_dir, from_lab) -> None:
+    """``cobotlab labs new``: write the lab, then say what was written and what comes next."""
+    import os
+
+    from autograder import registry
+    from cobotlab.authoring import new_lab, next_steps
+
+    if course_dir is None:   # inside a course, its lab goes there, wherever the shell is
+        course_dir = registry.course_root() or "."
+    written = new_lab(name, course_dir, from_lab=from_lab)
+    for path in written:
+        print(f"wrote {os.path.relpath(path)}")
+    print("next:")
+    for number, step in enumerate(next_steps(written, course_dir), 1):
+        print(f"  {number}. {step}")
+
+
 def _grade(args) -> None:
     from autograder.course import grade_course
     from autograder.scratch import put_interpreter_on_path
@@ -692,6 +752,12 @@ def main(argv: list[str] | None = None) -> int:
 
             for path in write_student_labs(args.dir, labs=args.lab, force=args.force):
                 print(f"wrote {path}")
+        elif args.command == "labs" and args.labs_command == "new":
+            _labs_new(args.name, args.dir, args.from_lab)
+        elif args.command == "labs" and args.labs_command == "verify":
+            from cobotlab.verify import run_verify
+
+            return run_verify(args.path, draws=args.draws, json_out=args.json)
         elif args.command == "course" and args.course_command == "init":
             from autograder.course import init_course
 

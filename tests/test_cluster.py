@@ -21,7 +21,7 @@ import course_kit as kit
 import pytest
 from nbgrader.api import Gradebook
 
-from autograder import checks, cluster, grading, sandbox
+from autograder import checks, cluster, grading, registry, sandbox
 from autograder.course import grade_course
 from cobotlab.cli import main
 
@@ -272,3 +272,43 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
     assert any("graded on the Dask cluster" in n for n in run["notes"])
     assert not any(grading.load_secret(remote) in n for n in run["notes"])
 
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_course_lab_reaches_the_workers_only_with_the_course(tmp_path, monkeypatch):
+    """An instructor's own lab lives in the course folder, not in the workers' image: a
+    worker without the course is refused, naming the setting; with $COBOTLAB_COURSE on a
+    copy of the course, it proves the same lab version."""
+    from distributed import LocalCluster
+    from distributed.security import Security
+
+    from cobotlab.authoring import new_lab
+
+    course = tmp_path / "course"
+    new_lab("gauge_offset", course)
+    secret = "0123456789abcdef" * 4
+    monkeypatch.setenv(grading.SECRET_ENV, secret)
+    monkeypatch.delenv(registry.COURSE_ENV, raising=False)
+    monkeypatch.chdir(tmp_path)   # no cobotlab.toml at or above the workers' folder
+    security = Security.temporary()
+    try:
+        for workers_have_the_course in (False, True):
+            registry.use_course(course if workers_have_the_course else None)
+            with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                              protocol="tls", host="127.0.0.1", security=security,
+                              dashboard_address=None) as dask:
+                registry.use_course(course)   # the instructor's side knows its course
+                grader = cluster.connect(dask.scheduler_address, security=security)
+                try:
+                    if workers_have_the_course:
+                        assert "graded on the Dask cluster" in grader.check("gauge_offset",
+                                                                            secret)
+                    else:
+                        with pytest.raises(ValueError, match="cannot load the lab gauge_offset"
+                                           ".*COBOTLAB_COURSE"):
+                            grader.check("gauge_offset", secret)
+                finally:
+                    grader.close()
+    finally:
+        registry.use_course(None)

@@ -83,7 +83,8 @@ def new_env(path: Path) -> dict:
                      "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
     _link_tree(Path(sysconfig.get_paths()["purelib"]), site)
     env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "COBOTLAB_GRADING_SECRET")}
+           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "COBOTLAB_GRADING_SECRET",
+                        "COBOTLAB_COURSE")}
     env.update(PATH=f"{path / 'bin'}{os.pathsep}{env.get('PATH', '')}", VIRTUAL_ENV=str(path),
                MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     return env
@@ -102,6 +103,11 @@ def regular(tmp_path_factory):
     env = new_env(env_dir)
     run([str(env_dir / "bin" / "python"), "-m", "pip", "install", "--quiet", "--no-deps",
          "--no-index", "--no-compile", str(wheel)], env=env)
+    # The libraries were linked in, not installed, so pip wrote no `nbgrader` script: the
+    # one it would write for the course extra.
+    script = env_dir / "bin" / "nbgrader"
+    script.write_text(f'#!/bin/sh\nexec "{env_dir / "bin" / "python"}" -m nbgrader "$@"\n')
+    script.chmod(0o755)
     return env_dir, env
 
 
@@ -246,8 +252,11 @@ def plant_markers(package_root: Path, course: Path) -> tuple[list[str], list[str
         package_root / "autograder" / f"{TOKEN}.py": f"autograder.{TOKEN}",   # beside checks
         course / f"{TOKEN}.txt": None,
         course / "source" / "lab0_frames" / f"{TOKEN}.ipynb": None,
+        # where an instructor's own lab keeps its private spec (autograder.registry)
+        course / ".cobotlab" / "specs" / f"{TOKEN}.py": None,
     }
     for path in places:
+        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(f'MARKER = "{TOKEN}"\n')
     # The source notebook itself and the secret carry the token too.
     notebook = course / "source" / "lab0_frames" / "lab0_frames.ipynb"
@@ -315,3 +324,110 @@ def test_the_answer_key_is_out_of_reach_in_an_editable_install(editable, tmp_pat
     seen = probe_views(env_dir, env, tmp_path, tmp_path / "course",
                        paths + [str(lab_marker)], modules)
     assert_out_of_reach(seen, "editable")
+
+
+# --------------------------------------------------------------------------- docs/authoring.md
+
+AUTHORING = ROOT / "docs" / "authoring.md"
+
+
+def _authoring_blocks() -> list[str]:
+    import re
+
+    fence = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
+    return [body for lang, body in fence.findall(AUTHORING.read_text()) if lang == "bash"]
+
+
+def _bash(env: dict, home: Path, cwd: Path, blocks: list[str], check: bool = True
+          ) -> subprocess.CompletedProcess:
+    """The blocks in one bash shell (a `cd` carries over, as for a reader), HOME fresh."""
+    script = "\n".join(["set -euo pipefail", *blocks])
+    done = subprocess.run(["bash", "-c", script], cwd=cwd, env={**env, "HOME": str(home)},
+                          capture_output=True, text=True, timeout=900, check=False)
+    if check:
+        assert done.returncode == 0, (done.stdout[-4000:], done.stderr[-4000:])
+    return done
+
+
+def test_the_authoring_page_runs_as_written_from_a_regular_install(regular, tmp_path):
+    """A lab that is not built in: made, verified in the sandbox, added to the course,
+    released by nbgrader and graded by `cobotlab grade` with real nbgrader, from the wheel."""
+    env_dir, env = regular
+    home = tmp_path / "home"
+    home.mkdir()
+    blocks = _authoring_blocks()
+    assert len(blocks) >= 4 and "cobotlab labs new gauge_offset" in blocks[0]
+    assert "../" not in "\n".join(blocks) and ".venv" not in "\n".join(blocks)
+    done = _bash(env, home, tmp_path, blocks)
+    course = home / "course"
+    assert "gauge_offset" not in where(env_dir, env, tmp_path)["cobotlab_labs"]
+
+    report = json.loads((course / ".cobotlab" / "verified" / "gauge_offset.json").read_text())
+    assert report["passed"] and report["draws"] == 3688, report
+    (row,) = report["functions"]
+    variants = {v["variant"]: v for v in row["variants"]}
+    assert variants["reference"]["lost"] == 0 and variants["reference"]["draws"] == 3688
+    (mistake,) = [v for v in variants.values() if not v["correct"]]
+    assert mistake["lost"] == mistake["draws"] == 1000 and mistake["low"] >= 0.99
+    assert "gauge_offset: passed" in done.stdout
+
+    # The released notebook has no answer, and the private spec went nowhere near it.
+    released = (course / "release" / "gauge_offset" / "gauge_offset.ipynb").read_text()
+    assert "np.mean(measured - commanded" not in released and "hidden_test" not in released
+    assert not list((course / "release").rglob("*.py")) or all(
+        "make_trial=" not in p.read_text() or "make_trial=None" in p.read_text()
+        for p in (course / "release").rglob("*.py"))
+
+    # The scores, from nbgrader's gradebook.
+    code = textwrap.dedent("""
+        import json
+        from nbgrader.api import Gradebook
+        with Gradebook("sqlite:///gradebook.db") as gb:
+            print(json.dumps({s.student.id: [s.score, s.max_score]
+                              for s in gb.assignment_submissions("gauge_offset")}))
+    """)
+    scores = json.loads(run([str(env_dir / "bin" / "python"), "-c", code], env=env,
+                            cwd=course).stdout)
+    assert scores == {"reference": [2.0, 2.0], "mistake": [0.0, 2.0], "blank": [0.0, 2.0]}
+    feedback = (course / "feedback_cobotlab" / "mistake" / "gauge_offset" / "feedback.html")
+    assert "the offset has the wrong sign (commanded - measured)" in feedback.read_text()
+    run_entry = json.loads((course / ".cobotlab" / "runs.jsonl").read_text().splitlines()[-1])
+    assert run_entry["spec_hash"] == report["spec_hash"]
+    assert "never verified" not in done.stderr and "changed since" not in done.stderr
+
+
+def test_labs_verify_refuses_the_pages_lab_broken_two_ways(regular, tmp_path):
+    """A tolerance ten times too tight, then a code mistake equal to the reference: each
+    makes `labs verify` fail, saying what is wrong and the fix."""
+    env_dir, env = regular
+    home = tmp_path / "home"
+    home.mkdir()
+    _bash(env, home, tmp_path, _authoring_blocks()[:1])   # the lab, as the page makes it
+    course = home / "course"
+    spec = course / ".cobotlab" / "specs" / "gauge_offset.py"
+    good = spec.read_text()
+    verify = ["cobotlab labs verify labs/gauge_offset --draws 400"]
+
+    tight = good.replace("tol_mm = 6.0 * sigma", "tol_mm = 0.6 * sigma")
+    assert tight != good
+    spec.write_text(tight)
+    done = _bash(env, home, course, verify, check=False)
+    assert done.returncode == 1, done.stdout[-3000:]
+    assert "FAIL reference: mean_offset: the reference lost credit on" in done.stdout
+    assert "check offset" in done.stdout and "derive that problem's tolerance" in done.stdout
+    assert "gauge_offset: FAILED" in done.stdout
+
+    same = good.replace(
+        "return np.mean(commanded - np.asarray(measured, dtype=float), axis=0)",
+        "return np.mean(np.asarray(measured, dtype=float) - commanded, axis=0)")
+    assert same != good
+    spec.write_text(same)
+    done = _bash(env, home, course, verify, check=False)
+    assert done.returncode == 1, done.stdout[-3000:]
+    assert "FAIL mistake: mean_offset: the code mistake 'the offset has the wrong sign" \
+        in done.stdout
+    assert "lost credit on only 0 of 400 draws" in done.stdout
+    assert "is not a mistake" in done.stdout
+    assert "FAIL reference" not in done.stdout   # the reference itself is fine
+    report = json.loads((course / ".cobotlab" / "verified" / "gauge_offset.json").read_text())
+    assert not report["passed"] and [f["check"] for f in report["findings"]] == ["mistake"]

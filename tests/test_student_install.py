@@ -131,6 +131,7 @@ def test_the_wheel_holds_no_solutions(wheel):
     assert not any(n.endswith(".ipynb") for n in names)
     assert any(n.startswith("autograder/data/") and n.endswith(".npz") for n in names)
     assert not any(n.startswith("autograder/specs/") for n in names), names
+    assert not any(n.startswith("cobotlab/templates/") for n in names), names   # labs new
     assert "autograder/scoring/__init__.py" in names and "autograder/practice.py" in names
     assert any(n.startswith("sim_backends/urdf/") for n in names)
 
@@ -147,7 +148,12 @@ def test_student_pyproject_keeps_up_with_the_main_one():
     assert student["project"]["version"] == main["project"]["version"]
     main_data = main["tool"]["setuptools"]["package-data"]
     student_data = student["tool"]["setuptools"]["package-data"]
-    assert student_data == {k: v for k, v in main_data.items() if k in PACKAGES}
+    # Except the skeleton of `cobotlab labs new`: its private spec template is an answer key
+    # (a lab made from it unchanged grades on exactly those problems), and students write
+    # no labs.
+    assert main_data["cobotlab"] == ["templates/*/*"]
+    assert student_data == {k: v for k, v in main_data.items()
+                            if k in PACKAGES and k != "cobotlab"}
     included = student["tool"]["setuptools"]["packages"]["find"]["include"]
     assert sorted(included) == sorted(f"{name}*" for name in PACKAGES)
     # The private side (generators, truths, answer functions) stays out; the rest is kept.

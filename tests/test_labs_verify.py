@@ -1,0 +1,199 @@
+"""`cobotlab labs verify`: the author's gate (issue 30, items 4 and 6).
+
+Each test makes the skeleton lab with `cobotlab labs new` in a fresh course folder, breaks it
+one way and checks that verify fails, names the file or the function, and says the fix,
+without a traceback from inside the grader. The static checks run without the sandbox (the
+test says so by making bubblewrap "unavailable", which verify reports as a failure of its
+own); the statistical ones run the reference in the real bubblewrap worker. The walk-through
+of docs/authoring.md (a passing lab from a wheel install, and the lab broken by a tight
+tolerance and by a mistake equal to the reference) is in tests/test_course_install.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from autograder import grading, registry, sandbox
+from cobotlab import cli
+from cobotlab.authoring import new_lab
+from cobotlab.verify import verify_lab
+
+LAB = "gauge_offset"
+needs_bwrap = pytest.mark.skipif(not sandbox.capabilities().bwrap,
+                                 reason="verify runs the reference in bubblewrap")
+
+
+@pytest.fixture
+def lab(tmp_path):
+    """(course folder, lab folder, private spec) of a fresh skeleton lab."""
+    course = tmp_path / "course"
+    new_lab(LAB, course)
+    registry.use_course(course)
+    yield course, course / "labs" / LAB, course / ".cobotlab" / "specs" / f"{LAB}.py"
+    registry.use_course(None)
+
+
+@pytest.fixture
+def no_sandbox(monkeypatch):
+    monkeypatch.setattr(grading, "sandbox_available", lambda: False)
+
+
+def _edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, (path, old)
+    path.write_text(text.replace(old, new))
+    registry.use_course(registry.course_root())   # drop what was loaded before the edit
+
+
+def _edit_cell(notebook: Path, grade_id: str, edit) -> None:
+    nb = json.loads(notebook.read_text())
+    (cell,) = [c for c in nb["cells"] if c["metadata"].get("nbgrader", {}).get("grade_id")
+               == grade_id]
+    edit(cell)
+    notebook.write_text(json.dumps(nb, indent=1))
+
+
+def _findings(**kwargs) -> dict[str, list[str]]:
+    report = verify_lab(LAB, progress=False, **kwargs)
+    found: dict[str, list[str]] = {}
+    for f in report.findings:
+        found.setdefault(f.check, []).append(f.message)
+    return found
+
+
+def _source(cell) -> str:
+    return "".join(cell["source"]) if isinstance(cell["source"], list) else cell["source"]
+
+
+def test_without_bubblewrap_verify_fails_and_says_how_to_get_it(lab, no_sandbox):
+    found = _findings(draws=10)
+    assert list(found) == ["sandbox"], found   # the skeleton itself is clean
+    assert "sudo apt-get install bubblewrap" in found["sandbox"][0]
+
+
+def test_a_spec_that_fails_to_import_names_its_file_and_line(lab, no_sandbox, capsys):
+    _, _, spec = lab
+    _edit(spec, "BOX_SIDE_M = 0.5", "BOX_SIDE_M = 0.5 +")
+    found = _findings(draws=10)
+    assert list(found) == ["spec"], found
+    assert str(spec) in found["spec"][0] and "line" in found["spec"][0]
+    # The command: exit 1, the table's FAIL line, no traceback.
+    assert cli.main(["labs", "verify", str(lab[1]), "--draws", "10"]) == 1
+    out = capsys.readouterr()
+    assert f"FAIL spec: {spec}" in out.out and "Traceback" not in out.out + out.err
+
+
+@pytest.mark.parametrize("body, expected", [
+    ("raise ZeroDivisionError('no stops')", "the generator raised on a first draw: "
+                                            "ZeroDivisionError: no stops"),
+    ("return Trial(args=(0, 0), truth=np.full(3, np.nan), tol={'offset': 1.0})",
+     "the truth is NaN"),
+    ("return Trial(args=(0, 0), truth=np.zeros(3), tol={'offset': float('nan')})",
+     "are not finite positive numbers"),
+    ("return _trial_mean_offset(np.random.default_rng(7), index)", "ignores its rng"),
+    ("return _trial_mean_offset(np.random.default_rng(), index)",
+     "the same rng gave other problems"),
+], ids=["raises", "nan-truth", "nan-tolerance", "ignores-rng", "own-random-source"])
+def test_a_broken_generator_is_named_with_its_file(lab, no_sandbox, body, expected):
+    _, _, spec = lab
+    _edit(spec, "SPECS = (MEAN_OFFSET,)", f"def _broken(rng, index):\n    {body}\n\n\n"
+                                          "SPECS = (replace(MEAN_OFFSET, make_trial=_broken),)")
+    found = _findings(draws=10)
+    assert set(found) == {"generator", "sandbox"}, found
+    (message,) = found["generator"]
+    assert message.startswith("mean_offset: ") and expected in message, message
+    assert str(spec) in message
+
+
+def test_a_notebook_without_the_graded_function_or_any_solution_region(lab, no_sandbox):
+    _, folder, _ = lab
+    notebook = folder / f"{LAB}.ipynb"
+
+    def rename(cell):
+        cell["source"] = _source(cell).replace("def mean_offset(", "def mean_offsets(")
+    _edit_cell(notebook, "mean_offset", rename)
+    found = _findings(draws=10)
+    assert any("no solution cell defines mean_offset" in m for m in found["solution region"])
+
+    def no_region(cell):
+        cell["source"] = "\n".join(line for line in _source(cell).splitlines()
+                                   if "SOLUTION" not in line)
+    _edit_cell(notebook, "mean_offset", no_region)
+    found = _findings(draws=10)
+    assert any("no cell holds a ### BEGIN SOLUTION" in m for m in found["solution region"])
+    assert "reference" not in found   # nothing to run, so no statistics
+
+
+def test_parameters_points_and_outputs_must_match_the_spec(lab, no_sandbox):
+    _, folder, _ = lab
+    notebook = folder / f"{LAB}.ipynb"
+
+    def other_order(cell):
+        cell["source"] = _source(cell).replace("def mean_offset(measured, commanded)",
+                                               "def mean_offset(commanded, measured=None)")
+    _edit_cell(notebook, "mean_offset", other_order)
+
+    def three_points_and_an_output(cell):
+        cell["metadata"]["nbgrader"]["points"] = 3
+        cell["outputs"] = [{"output_type": "stream", "name": "stdout", "text": "2 / 2\n"}]
+    _edit_cell(notebook, "test_mean_offset", three_points_and_an_output)
+    found = _findings(draws=10)
+    (parameters,) = found["parameters"]
+    assert "def mean_offset(commanded, measured=None) but the spec says (measured, " \
+        "commanded)" in parameters
+    assert "test_mean_offset is worth 3 points, the spec 2" in found["points"][0]
+    assert "hold outputs; clear them" in found["outputs"][0]
+
+
+def test_a_function_graded_twice_and_a_test_cell_without_a_spec(lab, no_sandbox):
+    course, folder, spec = lab
+    _edit(folder / "scoring.py", "SPECS = (MEAN_OFFSET,)", "SPECS = (MEAN_OFFSET, MEAN_OFFSET)")
+    found = _findings(draws=10)
+    assert list(found) == ["spec"], found
+    assert "mean_offset" in found["spec"][0] and "twice" in found["spec"][0]
+
+
+def test_a_forbidden_routine_that_names_nothing(lab, no_sandbox):
+    _, folder, _ = lab
+    _edit(folder / "scoring.py", 'parameters="measured, commanded",',
+          'parameters="measured, commanded", forbidden=("numpy.meen",),')
+    found = _findings(draws=10)
+    assert "'numpy.meen' names nothing importable" in found["forbidden"][0]
+
+
+@needs_bwrap
+def test_a_hidden_problem_equal_to_a_practice_one_is_refused(lab):
+    """A generator choosing among a handful of fixed problems repeats check()'s practice
+    problems in the hidden set, where their answers are known."""
+    _, _, spec = lab
+    _edit(spec, "SPECS = (MEAN_OFFSET,)", "def _few(rng, index):\n"
+                                          "    return _trial_mean_offset(np.random.default_rng("
+                                          "int(rng.integers(3))), index)\n\n\n"
+                                          "SPECS = (replace(MEAN_OFFSET, make_trial=_few),)")
+    found = _findings(draws=20)
+    assert "a hidden problem equals a practice problem" in found["practice"][0]
+    assert "draw from a wider range" in found["practice"][0]
+
+
+@needs_bwrap
+def test_a_reference_that_needs_a_package_outside_the_allow_list_fails_in_the_sandbox(lab):
+    """The reference imports a library that is installed here but not on the grader's
+    allow list: verify finds it where the students' code would, and names the setting."""
+    course, folder, _ = lab
+    notebook = folder / f"{LAB}.ipynb"
+
+    def import_pytest(cell):
+        cell["source"] = "import pytest\n" + _source(cell)
+    _edit_cell(notebook, "imports", import_pytest)
+    found = _findings(draws=5)
+    assert "raised while loading in the sandbox" in found["reference"][0]
+    assert "pytest" in found["reference"][0] and "notebook_packages" in found["reference"][0]
+    # With the package on the course's list the worker imports it.
+    (course / "cobotlab.toml").write_text('lab_folders = ["labs"]\n'
+                                          'notebook_packages = ["pytest"]\n')
+    registry.use_course(course)
+    found = _findings(draws=5)
+    assert "reference" not in found, found
