@@ -204,9 +204,11 @@ def _forbidden(specs) -> list[Finding]:
 # --------------------------------------------------------------------------- the generators
 
 
-def _fingerprint(trial: Trial) -> str:
-    """A hash of a problem's inputs (what a student's function is given)."""
-    body = json.dumps(wire.encode(tuple(trial.args)), sort_keys=True, default=str)
+def _fingerprint(spec: FunctionSpec, trial: Trial) -> str:
+    """A hash of a problem's inputs: what a student's function is given, which for a closed
+    loop (``drive``) is the loop's set-up, kept in the truth."""
+    given = (tuple(trial.args), trial.truth) if spec.drive is not None else tuple(trial.args)
+    body = json.dumps(wire.encode(given), sort_keys=True, default=str)
     return hashlib.sha256(body.encode()).hexdigest()
 
 
@@ -276,7 +278,7 @@ def _generator(lab: str, spec: FunctionSpec) -> list[Finding]:
         trials, finding = _draw(lab, spec, rng, where)
         if finding:
             return [finding]
-        drawn.append([_fingerprint(t) for t in trials])
+        drawn.append([_fingerprint(spec, t) for t in trials])
     if drawn[0] != drawn[1]:
         return [Finding("generator", f"{spec.name}: the same rng gave other problems: the "
                         "generator draws from a random source of its own (np.random.*, "
@@ -292,7 +294,7 @@ def _generator(lab: str, spec: FunctionSpec) -> list[Finding]:
 
 def _practice_fingerprints(lab: str, spec: FunctionSpec) -> set[str]:
     seeds = tuple(checks.PUBLIC_SEEDS) + tuple(checks.KERNEL_SEEDS)
-    return {_fingerprint(t) for seed in seeds for t in checks.public_trials(spec, seed)}
+    return {_fingerprint(spec, t) for seed in seeds for t in checks.public_trials(spec, seed)}
 
 
 # --------------------------------------------------------------------------- the reference
@@ -465,7 +467,7 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
         return grading.problem_rng(SECRET, None, lab, student, spec.name)
 
     def watched(spec_, trial):
-        if not seen_practice and _fingerprint(trial) in practice:
+        if not seen_practice and _fingerprint(spec_, trial) in practice:
             seen_practice.append(trial.label)
         return reference(spec_, trial)
 

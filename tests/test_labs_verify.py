@@ -197,3 +197,25 @@ def test_a_reference_that_needs_a_package_outside_the_allow_list_fails_in_the_sa
     registry.use_course(course)
     found = _findings(draws=5)
     assert "reference" not in found, found
+
+
+@pytest.mark.parametrize("builtin", registry.builtin_names())
+def test_every_built_in_lab_agrees_with_its_spec(builtin):
+    """The built-in labs pass the same static gate: each graded def takes the spec's
+    parameters, each test cell is worth the spec's points and calls check(), outputs are
+    clear, the release is clean, forbidden routines exist."""
+    from cobotlab import verify
+
+    specs = registry.specs(builtin)
+    findings = verify._static(registry.find_lab(builtin), specs) + verify._forbidden(specs)
+    assert findings == [], findings
+
+
+def test_a_closed_loop_problem_is_told_apart_by_its_set_up():
+    """ibvs_velocity's problems have no arguments (the loop calls the law): its set-up,
+    in the truth, is what differs between students."""
+    from cobotlab import verify
+
+    (spec,) = [s for s in registry.specs("lab3_servoing") if s.name == "ibvs_velocity"]
+    assert spec.drive is not None
+    assert verify._generator("lab3_servoing", spec) == []
