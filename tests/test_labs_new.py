@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from nbclient import NotebookClient
 
-from autograder import checks, registry
+from autograder import checks, registry, sandbox
 from cobotlab.authoring import new_lab
 from cobotlab.labs import RELEASE_LEAKS, write_student_labs
 
@@ -235,3 +235,38 @@ def test_the_command_reports_a_bad_name_in_one_line(tmp_path):
     assert good.returncode == 0, good.stderr
     assert "wrote" in good.stdout and "cobotlab labs verify labs/by_cli" in good.stdout
     assert (course / "labs" / "by_cli" / "by_cli.ipynb").is_file()
+
+
+@pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="grading runs in bubblewrap")
+def test_a_course_lab_grades_in_a_shard_and_merges_into_the_home_course(tmp_path):
+    """A cluster job grades its copy of the course (the lab's folder and private spec come
+    with it); `merge` at home finds the lab in the home course's own folders."""
+    import course_kit as kit
+
+    from autograder.course import grade_course, init_course
+    from autograder.shards import merge_shard
+
+    home = tmp_path / "home" / "course"
+    new_lab("gauge", home)
+    init_course(home)
+    kit.nbgrader(home, "generate_assignment", "gauge")
+    job = kit.fresh_course(home, tmp_path / "job")
+    source = (job / "source" / "gauge" / "gauge.ipynb").read_text()
+    wrong = source.replace("measured - commanded, axis", "commanded - measured, axis")
+    assert wrong != source
+    for student, text in (("ref", source), ("wrong", wrong)):
+        folder = job / "submitted" / student / "gauge"
+        folder.mkdir(parents=True)
+        (folder / "gauge.ipynb").write_text(text)
+    registry.use_course(None)
+    rows = grade_course(job, "gauge", quiet=True, students=["ref", "wrong"], run_nbgrader=True)
+    assert {r["student_id"]: float(r["score"]) for r in rows} == {"ref": 2.0, "wrong": 0.0}
+
+    registry.use_course(None)
+    merged = merge_shard(home, "gauge", job, quiet=True)
+    assert {r["student_id"]: float(r["raw_score"]) for r in merged} == {"ref": 2.0,
+                                                                      "wrong": 0.0}
+    assert {s: float(r["score"]) for s, r in kit.read_grades(home).items()} == {
+        "ref": 2.0, "wrong": 0.0}
+    page = home / "feedback_cobotlab" / "wrong" / "gauge" / "feedback.html"
+    assert "the offset has the wrong sign" in page.read_text()
