@@ -333,8 +333,8 @@ def worker_jail(limits: Limits) -> sandbox.Jail:
     from autograder.registry import notebook_packages
     from autograder.views import worker_view
 
-    return sandbox.Jail.of_view(worker_view(notebook_packages()), scratch_mb=limits.scratch_mb, chdir="/tmp",
-                                env=_worker_env("/tmp"))
+    return sandbox.Jail.of_view(worker_view(notebook_packages()), scratch_mb=limits.scratch_mb,
+                                chdir="/tmp", env=_worker_env("/tmp"))
 
 
 class WorkerFailure(Exception):

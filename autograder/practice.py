@@ -92,7 +92,14 @@ def _built_for(assignment: str, name: str, seed: int, spec_hash: str) -> tuple:
     spec = _full_spec(assignment, name)
     rng = practice_rng(seed)
     n = spec.practice_trials or spec.n_trials
-    return tuple(_encode_trial(spec, spec.make_trial(rng, i)) for i in range(n))
+    try:
+        return tuple(_encode_trial(spec, spec.make_trial(rng, i)) for i in range(n))
+    except Exception as exc:  # noqa: BLE001 - the author's generator: say which and where
+        raise registry.LabError(
+            f"{registry.spec_path(assignment)}: the generator of {name} raised while drawing "
+            f"practice problems (seed {seed}): {type(exc).__name__}: {exc} "
+            f"({registry.raised_at(exc)}); fix make_trial, then run `cobotlab labs verify` "
+            "on the lab") from None
 
 
 def _default_seeds() -> tuple[int, ...]:

@@ -41,8 +41,9 @@ from pathlib import Path
 __all__ = ["CONFIG_NAME", "COURSE_ENV", "NAME_PATTERN", "PRIVATE_DIR", "SCORING_FILE", "Lab",
            "LabError", "all_labs", "builtin_folder", "builtin_names", "course_root",
            "find_lab", "lab_folders", "lab_names", "loaded_specs", "notebook_packages",
-           "private_available", "public_scoring", "scoring", "source_folders", "spec_hash",
-           "spec_path", "specs", "use_course", "verification_note", "verification_path"]
+           "private_available", "public_scoring", "raised_at", "scoring", "source_folders",
+           "spec_hash", "spec_path", "specs", "use_course", "verification_note",
+           "verification_path"]
 
 CONFIG_NAME = "cobotlab.toml"
 COURSE_ENV = "COBOTLAB_COURSE"
@@ -308,6 +309,14 @@ def _load_file(module_name: str, path: Path, what: str, fix: str):
         raise LabError(f"{path}{line}: {what} failed to load: {type(exc).__name__}: {exc}; "
                        f"fix the file, then run `cobotlab labs verify` on the lab") from None
     return module
+
+
+def raised_at(exc: BaseException) -> str:
+    """Where ``exc`` was raised: "FILE, line N" of its innermost frame."""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    return f"{frames[-1].filename}, line {frames[-1].lineno}" if frames else "no traceback"
 
 
 def _specs_of(module, path, what: str) -> tuple:

@@ -250,7 +250,8 @@ def _draw(lab: str, spec: FunctionSpec, rng, where: str
         trials = checks.make_trials(spec, rng)
     except Exception as exc:  # noqa: BLE001 - the author's generator: say where it failed
         return None, Finding("generator", f"{spec.name}: the generator raised on {where}: "
-                             f"{type(exc).__name__}: {exc} ({_where_raised(exc)}); {fix}",
+                             f"{type(exc).__name__}: {exc} ({registry.raised_at(exc)}); "
+                             f"{fix}",
                              spec.name)
     for i, trial in enumerate(trials):
         problem = _trial_problem(trial)
@@ -259,14 +260,6 @@ def _draw(lab: str, spec: FunctionSpec, rng, where: str
                                  f"({getattr(trial, 'label', '')!r}): {problem}; {fix}",
                                  spec.name)
     return trials, None
-
-
-def _where_raised(exc: BaseException) -> str:
-    """The innermost frame of ``exc``'s traceback: 'file, line n'."""
-    import traceback
-
-    frames = traceback.extract_tb(exc.__traceback__)
-    return f"{frames[-1].filename}, line {frames[-1].lineno}" if frames else "no traceback"
 
 
 def _generator(lab: str, spec: FunctionSpec) -> list[Finding]:

@@ -219,3 +219,15 @@ def test_a_closed_loop_problem_is_told_apart_by_its_set_up():
     (spec,) = [s for s in registry.specs("lab3_servoing") if s.name == "ibvs_velocity"]
     assert spec.drive is not None
     assert verify._generator("lab3_servoing", spec) == []
+
+
+def test_course_init_with_a_broken_lab_names_it_and_writes_nothing(lab, capsys):
+    course, _, spec = lab
+    _edit(spec, "n = int(rng.integers(5, 41))", "n = int(rng.integers(5, 41)) / 0")
+    before = sorted(p.relative_to(course) for p in course.rglob("*"))
+    assert cli.main(["course", "init", str(course)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cobotlab: error: ") and str(spec) in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert sorted(p.relative_to(course) for p in course.rglob("*")
+                  if "__pycache__" not in p.parts) == before
