@@ -572,7 +572,12 @@ def short_name(mistake) -> str:
 def variants(assignment: str) -> dict[str, list[Variant]]:
     """{function: its correct variants (the notebook's solution first), then the spec's code
     mistakes} for every graded function of ``assignment``."""
-    table = LABS[assignment](notebook_solutions(assignment))
+    solutions = notebook_solutions(assignment)
+    if assignment in LABS:
+        table = LABS[assignment](solutions)
+    else:   # a course's own lab: no alternatives listed here, the notebook's solutions only
+        table = {spec.name: [Variant("notebook solution", True, solutions[spec.name])]
+                 for spec in checks.SPECS[assignment]}
     for spec in checks.SPECS[assignment]:
         table[spec.name] = table[spec.name] + [Variant(short_name(m), False, m.func)
                                                for m in spec.code_mistakes]
@@ -725,7 +730,9 @@ def main(argv=None) -> int:
     parser.add_argument("--mistake-draws", type=int, default=1000,
                         help="draws on which the mistakes are scored (the first ones)")
     parser.add_argument("--quick", action="store_true", help="300 draws (a smoke run)")
-    parser.add_argument("--labs", default="", help="comma-separated assignments (default all)")
+    parser.add_argument("--labs", default="", help="comma-separated assignments (default: the "
+                        "built-in labs; a course's own lab with $COBOTLAB_COURSE or run in "
+                        "its course folder)")
     parser.add_argument("--functions", default="", help="comma-separated function names")
     parser.add_argument("--workers", type=int, default=1, help="processes (2 on a quiet machine)")
     parser.add_argument("--no-write", action="store_true", help="print only")
@@ -761,7 +768,12 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - started
     print(f"\n{draws} draws per function, {len(results)} functions, {wall:.0f} s wall "
           f"with {args.workers} worker(s)")
-    if not args.no_write:
+    own = sorted(set(labs) - set(LABS))
+    if own and not args.no_write:
+        print(f"not written to {RESULTS_MD.relative_to(ROOT)}: {', '.join(own)} is a course's "
+              "own lab (its evidence is `cobotlab labs verify --draws 10000`, kept beside its "
+              "spec)")
+    elif not args.no_write:
         with open(Path(tempfile.gettempdir()) / "grading_fairness.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)  # runs per lab may finish at the same time
             _store(results, argv)

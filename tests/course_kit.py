@@ -18,12 +18,15 @@ from pathlib import Path
 import nbformat
 from nbclient import NotebookClient
 
-from autograder import grading
+from autograder import grading, registry
 from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
 
 
 def source_notebook(assignment: str) -> Path:
-    return LABS_DIR / assignment / f"{assignment}.ipynb"
+    """The source notebook of a built-in lab, or of the current course's own lab."""
+    lab = registry.find_lab(assignment)
+    return lab.notebook if lab.notebook is not None else \
+        LABS_DIR / assignment / f"{assignment}.ipynb"
 
 
 def nbgrader(course: Path, *args: str) -> subprocess.CompletedProcess:

@@ -176,3 +176,24 @@ def test_pose_checks_weigh_what_the_function_teaches():
     frame = checks.evaluate(frame_origin_only, "frame_from_three_points",
                             assignment="lab4_stereo")
     assert frame.fraction <= 0.1 + 1e-9, frame.summary()
+
+
+def test_the_fairness_run_takes_a_course_lab_and_leaves_the_projects_table_alone(
+        tmp_path, monkeypatch, capsys):
+    from autograder import registry
+    from cobotlab.authoring import new_lab
+
+    course = tmp_path / "course"
+    new_lab("gauge", course)
+    monkeypatch.chdir(course)   # found as a user finds it: the course folder's cobotlab.toml
+    registry.use_course(None)
+    before = benchmark.RESULTS_MD.read_bytes()
+    try:
+        assert benchmark.main(["--labs", "gauge", "--draws", "40", "--mistake-draws", "40"]) == 0
+    finally:
+        registry.use_course(None)
+    out = capsys.readouterr().out
+    assert "+ notebook solution" in out and "0/40" in out
+    assert "- the offset has the wrong sign" in out and "40/40" in out
+    assert "is a course's own lab" in out
+    assert benchmark.RESULTS_MD.read_bytes() == before
