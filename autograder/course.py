@@ -12,7 +12,6 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import re
@@ -88,9 +87,10 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
                          "or pass labs_dir=")
     sources = registry.source_folders(labs_dir)
     # Every lab's spec is loaded and its practice problems drawn before anything is written:
-    # a broken lab stops the init with its file named, not halfway through the course.
-    documents = {name: _practice_document(name, registry.spec_hash(name))
-                 for name in sources if name in checks.SPECS}
+    # a broken lab stops the init with its file named, not halfway through the course. The
+    # draws are cached per spec version (autograder.practice): the generators' closed loops
+    # and depth images take seconds, and a process laying out several courses pays once.
+    documents = {name: build_practice(name) for name in sources if name in checks.SPECS}
     root.mkdir(parents=True, exist_ok=True)
     config = root / "nbgrader_config.py"
     if not config.exists():
@@ -136,14 +136,6 @@ def _sync_folder(folder: Path, target: Path) -> None:
         if not dest.is_file() or dest.read_bytes() != path.read_bytes():
             dest.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, dest)
-
-
-@functools.cache
-def _practice_document(assignment: str, spec_hash: str) -> dict:
-    """The practice data of ``assignment``, built once per process (the generators' closed
-    loops and depth images take seconds; a process that lays out several courses, or the
-    same course again, pays once)."""
-    return build_practice(assignment)
 
 
 def run_nbgrader_autograde(course_dir, assignment: str, student_id,

@@ -53,6 +53,7 @@ from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
 
 __all__ = [
     "SECRET_ENV",
+    "cell_source",
     "PRIVATE_DIR",
     "Limits",
     "SubmissionGrade",
@@ -204,7 +205,8 @@ def problem_rng(secret: str, nonce: str | None, assignment: str, student_id: str
 # --------------------------------------------------------------------------- notebook reading
 
 
-def _cell_source(cell) -> str:
+def cell_source(cell) -> str:
+    """A notebook cell's source as one string ("" for anything that is not one)."""
     source = cell.get("source", "") if isinstance(cell, dict) else ""
     if isinstance(source, list):
         source = "".join(s for s in source if isinstance(s, str))
@@ -263,7 +265,7 @@ def extract_code(notebook_paths, with_origins: bool = False, tests: set[int] | N
         for position, cell in enumerate(raw_cells if isinstance(raw_cells, list) else [], 1):
             if not isinstance(cell, dict) or cell.get("cell_type") != "code":
                 continue
-            source = _cell_source(cell)
+            source = cell_source(cell)
             prompt += bool(source.strip())
             is_test = tests is not None and _is_test_cell(cell)
             if HIDDEN_MARK in source and not is_test:

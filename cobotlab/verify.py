@@ -84,11 +84,6 @@ def _cells(path: Path) -> list[dict]:
     return json.loads(path.read_text(encoding="utf-8"))["cells"]
 
 
-def _source(cell: dict) -> str:
-    source = cell.get("source", "")
-    return "".join(source) if isinstance(source, list) else source
-
-
 def _meta(cell: dict) -> dict:
     meta = cell.get("metadata", {}).get("nbgrader", {})
     return meta if isinstance(meta, dict) else {}
@@ -101,7 +96,7 @@ def _solution_defs(cells: list[dict]) -> dict[str, list[ast.FunctionDef]]:
         if cell.get("cell_type") != "code" or not _meta(cell).get("solution"):
             continue
         try:
-            tree = ast.parse(_source(cell))
+            tree = ast.parse(grading.cell_source(cell))
         except SyntaxError:
             continue
         for node in tree.body:
@@ -120,7 +115,7 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
     findings: list[Finding] = []
     notebook = lab.notebook
     cells = _cells(notebook)
-    if not any(SOLUTION_BEGIN in _source(c) for c in cells):
+    if not any(SOLUTION_BEGIN in grading.cell_source(c) for c in cells):
         findings.append(Finding("solution region", f"{notebook}: no cell holds a "
                                 f"{SOLUTION_BEGIN} ... {SOLUTION_END} region; put the "
                                 "reference code of each graded function between them, in a "
@@ -162,7 +157,7 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
                                     f"test_{name}; add one holding check({name}), the sanity "
                                     "asserts and the hidden-test region", name))
             continue
-        if f"check({name}" not in _source(test):
+        if f"check({name}" not in grading.cell_source(test):
             findings.append(Finding("test cell", f"{notebook}: cell test_{name} does not call "
                                     f"check({name}); students see their score there", name))
         points = _meta(test).get("points")
@@ -301,10 +296,10 @@ def reference_notebook(source: Path) -> dict:
     from cobotlab.labs import release_notebook
 
     released = release_notebook(source)
-    solutions = {_meta(c).get("grade_id"): _source(c) for c in _cells(source)
+    solutions = {_meta(c).get("grade_id"): grading.cell_source(c) for c in _cells(source)
                  if _meta(c).get("solution")}
     for cell in released.cells:
-        grade_id = cell.get("metadata", {}).get("nbgrader", {}).get("grade_id")
+        grade_id = _meta(cell).get("grade_id")
         if grade_id in solutions:
             cell.source = "\n".join(line for line in solutions[grade_id].splitlines()
                                     if line.strip() not in (SOLUTION_BEGIN, SOLUTION_END))
