@@ -19,7 +19,8 @@ import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["Caps", "Frozen", "freeze_submissions", "student_id_problem", "printable"]
+__all__ = ["Caps", "Frozen", "EXCHANGE_FILES", "freeze_submissions", "student_id_problem",
+           "exchange_file_problem", "printable"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,15 @@ class Frozen:
     notes: list[str] = field(default_factory=list)
     flags: list[str] = field(default_factory=list)
     accepted: bool = True
+    # nbgrader's exchange files of the submission, as frozen and checked (:data:`EXCHANGE_FILES`)
+    exchange: dict[str, bytes] = field(default_factory=dict)
+
+
+# What `nbgrader submit` writes beside the notebooks. `nbgrader release_feedback` reads both
+# from each student's feedback folder (which `generate_feedback` fills from autograded/) to
+# name the released page after the submission's secret, so that only that submission's
+# author finds it; plain `nbgrader autograde` copies them into autograded/.
+EXCHANGE_FILES = ("timestamp.txt", "submission_secret.txt")
 
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -174,6 +184,37 @@ def _check_notebook(path: Path, caps: Caps, frozen: Frozen) -> bool:
     return False
 
 
+def exchange_file_problem(name: str, data: bytes) -> str | None:
+    """Why ``data`` is not what nbgrader's exchange writes as ``name`` (one of
+    :data:`EXCHANGE_FILES`), or None. A student can write anything in them."""
+    if name == "timestamp.txt":
+        text = data.decode("utf-8", "replace").strip()
+        return None if 0 < len(text) <= 64 and printable(text) == text else \
+            "not a timestamp (one line, at most 64 characters)"
+    # nbgrader's is 128 hex digits; it hashes the file's text exactly as read
+    if 0 < len(data) <= 1024 and all(0x21 <= byte <= 0x7e for byte in data):
+        return None
+    return "not a secret as nbgrader writes it (printable ASCII without blanks)"
+
+
+def _exchange_files(frozen: Frozen) -> dict[str, bytes]:
+    """The frozen copy's :data:`EXCHANGE_FILES` that are usable (a note for each one that
+    is not: that submission's feedback cannot be released through the exchange)."""
+    out = {}
+    for name in EXCHANGE_FILES:
+        path = frozen.folder / name if frozen.folder is not None else None
+        if path is None or not path.is_file() or path.is_symlink():
+            continue
+        data = path.read_bytes()
+        problem = exchange_file_problem(name, data)
+        if problem is None:
+            out[name] = data
+        else:
+            frozen.notes.append(f"{name}: {problem}; this submission's feedback cannot be "
+                                "released through nbgrader's exchange")
+    return out
+
+
 def freeze_submissions(submitted: Path, assignment: str, expected: set[str], store: Path,
                        caps: Caps = Caps()) -> list[Frozen]:
     """Freeze ``submitted/*/<assignment>/`` into ``store/<student>/``, one entry per student.
@@ -218,6 +259,7 @@ def freeze_submissions(submitted: Path, assignment: str, expected: set[str], sto
             if stamp.is_file():
                 text = stamp.read_text(errors="replace").strip()
                 frozen.timestamp = text if len(text) <= 64 and printable(text) == text else ""
+            frozen.exchange = _exchange_files(frozen)
         if not frozen.notebooks:
             frozen.notes.append("no notebook to grade")
     return out

@@ -29,7 +29,8 @@ from pathlib import Path
 from autograder.freeze import printable
 
 __all__ = ["backup_gradebook", "gradebook_problem", "restore_gradebook", "record_nbgrader",
-           "record_cobotlab", "write_file", "write_csv", "update_csv", "csv_cell", "RUN_MARKER"]
+           "record_cobotlab", "write_file", "remove_file", "write_csv", "update_csv", "csv_cell",
+           "RUN_MARKER"]
 
 RUN_MARKER = "grading-in-progress"
 
@@ -88,6 +89,24 @@ def write_file(root: Path, relative: str, data: bytes) -> Path:
     finally:
         os.close(fd)
     return Path(root) / relative
+
+
+def remove_file(root: Path, relative: str) -> bool:
+    """Remove ``root/relative`` if it is there (a link is removed, never followed), without
+    following any symlink below ``root`` on the way. Returns whether something was removed;
+    a folder there is left alone."""
+    parts = relative.split("/")
+    try:
+        fd = _safe_dir(Path(root), parts[:-1])
+    except (OSError, ValueError):
+        return False
+    try:
+        os.unlink(parts[-1], dir_fd=fd)
+        return True
+    except (FileNotFoundError, IsADirectoryError, PermissionError):
+        return False
+    finally:
+        os.close(fd)
 
 
 def csv_cell(value):
