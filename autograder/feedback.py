@@ -23,7 +23,7 @@ from autograder.checks import CheckResult, FunctionResult
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
 
-__all__ = ["feedback_html", "function_verdict", "error_lines"]
+__all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
 
 MAX_TEXT = 300            # characters of one error or note shown
 MAX_LINES = 8             # distinct errors shown per function, and notes per page
@@ -262,15 +262,19 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     return "".join(parts)
 
 
+# The notes a student may read, about running their own notebook; every other note (the
+# grader's retries, its sandbox, nbgrader's cross-check) is the instructor's, whatever it says.
+_STUDENT_NOTE = re.compile(r"^(?:cell error: |no code cells found|the memory limit \(|"
+                           r"[^:]*\.ipynb: unreadable notebook \()")
+
+
 def _notebook_notes(grade: SubmissionGrade) -> list[str]:
     """The notes about running the student's notebook, each distinct one once with a count."""
     merged: Counter = Counter()
     for note in grade.notes:
         note = str(note).strip()
-        if note.startswith("nbgrader") or not any(
-                key in note for key in ("cell error", "unreadable", "no code cells",
-                                        "memory limit")):
-            continue  # nbgrader's cross-check is the instructor's business
+        if not _STUDENT_NOTE.match(note):
+            continue
         note = re.sub(r"^cell error: (.*?)(?: \(\))?$", r"\1", note)
         merged[student_location(printable(note, MAX_TEXT), grade.cell_origins)] += 1
     lines = [f"{note} (in {n} cells)" if n > 1 else note
@@ -280,15 +284,11 @@ def _notebook_notes(grade: SubmissionGrade) -> list[str]:
     return lines
 
 
-def feedback_html(grade: SubmissionGrade) -> str:
-    """The feedback page of one submission: a summary table of its functions, then per
-    function the checks (error against tolerance, with units) and each distinct error once.
-    Every text from the submission is escaped and capped; no test code or true answers."""
-    title = f"{_esc(grade.assignment, 80)} feedback"
+def _body(grade: SubmissionGrade, heading: str, anchor: str) -> list[str]:
+    """The page's content: ``heading``, the score, a summary table of the functions, then per
+    function the checks and errors, and the notes; ``anchor`` prefixes the link targets."""
     failing = [f for f in grade.functions if f.points < f.max_points]
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title>"
-             f"<style>{_STYLE}</style></head><body>",
-             f"<h1>{_esc(grade.assignment, 80)}: {_esc(grade.student_id, 80)}</h1>",
+    parts = [f"<h1>{heading}</h1>",
              f"<p class='score'>Score: {grade.score:g} / {grade.max_score:g}</p>",
              "<p>Each function was run on hidden problems from the same generator as "
              "<code>check(...)</code> in your notebook; errors are measured against the true "
@@ -300,19 +300,63 @@ def feedback_html(grade: SubmissionGrade) -> str:
         problems = (f"failed on {f.n_failed} of {f.n_problems}" if f.n_failed
                     else f"all {f.n_problems} right") if f.n_problems else ""
         row = css if css in ("passed", "partial") else "failed"
+        target = anchor + _esc(f.name, 80)
         parts.append(f"<tr class='row-{row}'>"
-                     f"<td><a href='#{_esc(f.name, 80)}'>{_esc(f.name, 80)}</a></td>"
+                     f"<td><a href='#{target}'>{_esc(f.name, 80)}</a></td>"
                      f"<td class='num'>{f.points:g} / {f.max_points:g}</td>"
                      f"<td><span class='badge {css}'>{label}</span></td><td>{problems}</td></tr>")
     parts.append("</table>")
     if failing:
         parts.append(f"<p>{len(failing)} of {len(grade.functions)} functions lost points.</p>")
     for f in grade.functions:
-        parts.append(f"<a id='{_esc(f.name, 80)}'></a>" + _function_section(f, grade.cell_origins))
+        parts.append(f"<a id='{anchor}{_esc(f.name, 80)}'></a>"
+                     + _function_section(f, grade.cell_origins))
     notes = _notebook_notes(grade)
     if notes:
         parts.append("<section class='function'><h2>While running your notebook</h2><ul>"
                      + "".join(f"<li><code>{_esc(n, 2 * MAX_TEXT)}</code></li>" for n in notes)
                      + "</ul></section>")
-    parts.append("</body></html>")
+    return parts
+
+
+def feedback_html(grade: SubmissionGrade) -> str:
+    """The feedback page of one submission: a summary table of its functions, then per
+    function the checks (error against tolerance, with units) and each distinct error once.
+    Every text from the submission is escaped and capped; no test code or true answers."""
+    title = f"{_esc(grade.assignment, 80)} feedback"
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title>"
+             f"<style>{_STYLE}</style></head><body>",
+             *_body(grade, f"{_esc(grade.assignment, 80)}: {_esc(grade.student_id, 80)}", ""),
+             "</body></html>"]
     return "\n".join(parts)
+
+
+SECTION_CLASS = "cobotlab-feedback"
+
+
+def _scoped_style(scope: str) -> str:
+    """:data:`_STYLE` restricted to the elements under ``scope`` (its ``body`` rule styles
+    ``scope`` itself), so the section does not restyle the page it is put in."""
+    rules = []
+    for rule in _STYLE.split("}"):
+        if "{" not in rule:
+            continue
+        selectors, declarations = rule.split("{", 1)
+        scoped = ", ".join(scope if s.strip() == "body" else f"{scope} {s.strip()}"
+                           for s in selectors.split(","))
+        rules.append(f"{scoped} {{{declarations}}}")
+    # framed, and headings the size of the page's own (its Bootstrap's are larger)
+    rules.append(f"{scope} {{ border: 1px solid #ccc; border-radius: 4px; padding: 0 1em 1em; "
+                 f"margin: 0 0 1.5em 0; }}\n{scope} h1 {{ font-size: 1.7em; }}\n"
+                 f"{scope} h2 {{ font-size: 1.3em; }}")
+    return "\n".join(rules)
+
+
+def feedback_section(grade: SubmissionGrade) -> str:
+    """The same feedback as :func:`feedback_html`, as one ``<div>`` to put at the top of
+    another page (nbgrader's feedback page: :mod:`autograder.nbgrader_hooks`), its style
+    scoped to it and its link targets prefixed so they do not clash with the page's."""
+    heading = f"cobotlab: {_esc(grade.assignment, 80)}, {_esc(grade.student_id, 80)}"
+    return "".join([f"<div class='{SECTION_CLASS}'>",
+                    f"<style>{_scoped_style('div.' + SECTION_CLASS)}</style>",
+                    *_body(grade, heading, "cobotlab-"), "</div>"])
