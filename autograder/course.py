@@ -27,6 +27,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from autograder import checks, feedback, freeze, grading, record, registry, sandbox, scratch
+from autograder.feedback_release import (
+    config_problem,
+    unreleasable_note,
+    write_exchange_files,
+    write_section,
+)
 from autograder.freeze import printable
 from autograder.practice import build_practice, save_practice
 from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
@@ -56,10 +62,12 @@ c.ClearSolutions.code_stub = {{"python": "# YOUR CODE HERE\\nraise NotImplemente
 # default is the same name, writes its own file (`--to` still chooses another).
 c.ExportPlugin.to = "nbgrader_grades.csv"
 # nbgrader's feedback (generate_feedback, formgrader's buttons) reads the autograded
-# notebooks, which hold the hidden tests: they and their outputs are cut out first.
+# notebooks, which hold the hidden tests: they and their outputs are cut out first. Then
+# cobotlab's own feedback goes on top of each page, so release_feedback carries it too.
 c.GenerateFeedback.preprocessors = [
     "nbgrader.preprocessors.GetGrades",
     "autograder.nbgrader_hooks.HideHiddenTests",
+    "autograder.nbgrader_hooks.AddCobotlabFeedback",
     "nbconvert.preprocessors.CSSHTMLHeaderPreprocessor",
 ]
 '''
@@ -324,7 +332,8 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     Returns the gradebook rows (dicts with :data:`GRADE_COLUMNS` keys, ``flags`` a
     ``;``-separated string), also written to ``course_dir/grades.csv``, one per submission
     whatever it did, with feedback in
-    ``course_dir/feedback_cobotlab/<student>/<assignment>/feedback.html``.
+    ``course_dir/feedback_cobotlab/<student>/<assignment>/feedback.html`` (and, for nbgrader's
+    generate_feedback and release_feedback, :mod:`autograder.feedback_release`'s files).
 
     ``cluster``: an :class:`autograder.cluster.ClusterGrader`: stage 2 grades each
     submission on a worker of its Dask cluster, in the same sandbox, instead of here
@@ -364,6 +373,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
             print(f"warning: {unverified}", file=sys.stderr)
     if cluster_note:
         run_notes.append(cluster_note)
+    old_config = config_problem(root)   # students' feedback would lack cobotlab's, or worse
+    if old_config:
+        run_notes.append(f"warning: {old_config}")
+        if not quiet:
+            print(f"warning: {old_config}", file=sys.stderr)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         # 1. freeze
         frozen = _freeze(root, assignment, Path(store), caps, students)
@@ -372,6 +386,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                                    nonce, limits, run_nbgrader, nbgrader_kernel,
                                    nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
                                    progress, cluster, template and cluster is None)
+    unreleasable = unreleasable_note(assignment, frozen)
+    if unreleasable and run_nbgrader:
+        run_notes.append(unreleasable)
     ungraded = [g.student_id for g in grades if not g.graded]
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
@@ -623,6 +640,8 @@ def _record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
                            present)
     for name, data in result.notebooks.items():
         record.write_file(root, f"autograded/{sub.student_id}/{assignment}/{name}.ipynb", data)
+    if result.notebooks:   # what nbgrader's release_feedback reads beside them
+        write_exchange_files(root, assignment, sub)
 
 
 def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> list[dict]:
@@ -672,6 +691,7 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
             try:
                 record.write_file(root, f"feedback_cobotlab/{grade.student_id}/{assignment}/"
                                   "feedback.html", feedback.feedback_html(grade).encode("utf-8"))
+                write_section(root, assignment, grade, sub.timestamp)
             except (OSError, ValueError) as exc:
                 grade.notes.append(f"feedback not written: {printable(exc)}")
     # every assignment graded so far, one row per student and assignment (this run's replace)

@@ -3,17 +3,24 @@
 :class:`HideHiddenTests` keeps the hidden tests out of the feedback nbgrader makes
 (``nbgrader generate_feedback``, formgrader's "Generate Feedback" / "Release Feedback"): it
 reads the autograded notebooks, whose test cells nbgrader restored from the source with
-their hidden tests in them. nbgrader imports this module by name, so it stays light (no
-grader, no numpy) and runs wherever nbgrader runs from the course's virtual environment.
+their hidden tests in them. :class:`AddCobotlabFeedback` puts cobotlab's own feedback on top
+of the same pages, so that ``release_feedback`` and the students' ``fetch_feedback`` carry it
+(:mod:`autograder.feedback_release`). nbgrader imports this module by name, so it stays light
+(no grader, no numpy) and runs wherever nbgrader runs from the course's virtual environment.
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 from nbconvert.preprocessors import Preprocessor
-from nbformat.v4 import new_output
+from nbformat.v4 import new_code_cell, new_output
 from traitlets import Bool, List, Unicode
 
-__all__ = ["HideHiddenTests"]
+from autograder import feedback_release, freeze
+
+__all__ = ["HideHiddenTests", "AddCobotlabFeedback"]
 
 # nbgrader's own delimiters (ClearHiddenTests' defaults), which the labs use.
 BEGIN = "BEGIN HIDDEN TESTS"
@@ -74,3 +81,52 @@ class HideHiddenTests(Preprocessor):
             if cell.get("cell_type") == "code":
                 cell.outputs = [new_output("stream", name="stdout", text=self.note + "\n")]
         return cell, resources
+
+
+class AddCobotlabFeedback(Preprocessor):
+    """Put cobotlab's feedback of the submission (what ``cobotlab grade`` wrote to
+    ``feedback_cobotlab/<student>/<assignment>/``, :func:`autograder.feedback_release.
+    write_section`) at the top of its nbgrader feedback page, as the output of a cell without
+    source. A submission cobotlab has not graded, or whose autograded notebook is of another
+    submission than the one cobotlab graded (their timestamps differ: a newer one collected
+    and autograded by nbgrader alone), keeps nbgrader's page alone, with a warning in
+    nbgrader's log: a report on another submission would be a wrong answer."""
+
+    enabled = Bool(True, help="run this preprocessor").tag(config=True)
+    max_bytes = 4 * 2**20   # a section is tens of kilobytes
+
+    def preprocess(self, nb, resources):
+        from nbgrader.coursedir import CourseDirectory
+
+        info = resources.get("nbgrader", {})
+        student, assignment = info.get("student"), info.get("assignment")
+        if not student or not assignment:
+            return nb, resources
+        coursedir = CourseDirectory(config=self.config)
+        path = Path(coursedir.root) / feedback_release.section_path(student, assignment)
+        data, why = freeze._read_regular(path, self.max_bytes)
+        if data is None:
+            self.log.warning("no cobotlab feedback for %s's %s (%s: %s): run `cobotlab grade` "
+                             "first; their page has nbgrader's part only", student, assignment,
+                             path, why)
+            return nb, resources
+        try:
+            section = json.loads(data.decode("utf-8"))
+            html, graded = str(section["html"]), str(section.get("timestamp") or "")
+        except (ValueError, KeyError, TypeError):
+            self.log.warning("%s is not cobotlab's feedback section: run `cobotlab grade` again",
+                             path)
+            return nb, resources
+        stamp = Path(coursedir.format_path(coursedir.autograded_directory, student,
+                                           assignment)) / "timestamp.txt"
+        autograded = stamp.read_text(errors="replace").strip() if stamp.is_file() else ""
+        if autograded != graded:
+            self.log.warning("cobotlab graded %s's submission of %s, the autograded notebook is "
+                             "of %s: run `cobotlab grade` again; their page has nbgrader's part "
+                             "only", student, graded or "an unknown time",
+                             autograded or "an unknown time")
+            return nb, resources
+        cell = new_code_cell(source="", metadata={"transient": {"remove_source": True}},
+                             outputs=[new_output("display_data", data={"text/html": html})])
+        nb.cells.insert(0, cell)
+        return nb, resources
