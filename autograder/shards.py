@@ -23,7 +23,7 @@ import os
 import stat
 from pathlib import Path
 
-from autograder import checks, course, freeze, grading, record, registry, scratch
+from autograder import checks, course, feedback_release, freeze, grading, record, registry, scratch
 
 __all__ = ["merge_shard"]
 
@@ -96,13 +96,21 @@ def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
 
 
 def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: list[str]) -> None:
-    """The student's feedback page and autograded notebooks, regular files only."""
-    for folder, pattern in (("feedback_cobotlab", "feedback.html"), ("autograded", "*.ipynb")):
+    """The student's feedback page and section, autograded notebooks and the exchange files
+    nbgrader's release_feedback reads beside them, regular files only."""
+    exchange = freeze.EXCHANGE_FILES
+    for folder, pattern in (("feedback_cobotlab", "feedback.html"),
+                            ("feedback_cobotlab", feedback_release.SECTION),
+                            ("autograded", "*.ipynb"), *(("autograded", n) for n in exchange)):
         base = shard / folder / sid / assignment
         for path in sorted(base.glob(pattern)) if base.is_dir() else []:
             try:
-                record.write_file(home, f"{folder}/{sid}/{assignment}/{path.name}",
-                                  _read(path, "shard file"))
+                data = _read(path, "shard file")
+                problem = freeze.exchange_file_problem(path.name, data) \
+                    if path.name in exchange else None
+                if problem:
+                    raise ValueError(problem)
+                record.write_file(home, f"{folder}/{sid}/{assignment}/{path.name}", data)
             except (OSError, ValueError) as exc:
                 notes.append(f"{sid}: {folder}/{path.name} not copied: {freeze.printable(exc)}")
 
