@@ -29,10 +29,14 @@ def source_notebook(assignment: str) -> Path:
         LABS_DIR / assignment / f"{assignment}.ipynb"
 
 
-def nbgrader(course: Path, *args: str) -> subprocess.CompletedProcess:
-    """Run nbgrader in ``course`` without the grading secret in its environment."""
+def nbgrader(course: Path, *args: str, home: Path | None = None) -> subprocess.CompletedProcess:
+    """Run nbgrader in ``course`` without the grading secret in its environment (and with
+    ``home`` as HOME: a student's own ~/.jupyter config and nbgrader cache)."""
     env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
     env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
+    if home is not None:   # Jupyter's config and data folders follow HOME, as on a hub
+        env = {k: v for k, v in env.items() if not k.startswith("JUPYTER")}
+        env["HOME"] = str(home)
     done = subprocess.run([sys.executable, "-m", "nbgrader", *args], cwd=course, env=env,
                           capture_output=True, text=True, timeout=600, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
@@ -316,5 +320,6 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
         for wanted in case["flags"]:
             assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
     secret = grading.load_secret(course)
-    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
+    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html"),
+                 *(course / "feedback_cobotlab").rglob("*.json")]:   # nbgrader's section too
         assert secret not in path.read_text(), path

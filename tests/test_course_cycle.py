@@ -7,6 +7,12 @@ adversarial corpus, graded in one batch, is in tests/test_corpus_batch_*.py.
 
 from __future__ import annotations
 
+import html
+import json
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import course_kit as kit
@@ -101,3 +107,67 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
         text = path.read_text()
         assert "hidden_test" not in text and "HIDDEN" not in text and secret not in text
     assert secret not in (course / "grades.csv").read_text()
+
+
+# --------------------------------------------------------------------------- feedback
+
+
+def test_feedback_reaches_the_student_through_the_exchange(released, tmp_path):
+    """The term's last step as nbgrader runs it: a student fetches and submits through the
+    exchange, the instructor collects and runs `cobotlab grade`, then nbgrader's
+    generate_feedback and release_feedback; the student's fetch_feedback brings back
+    nbgrader's page with cobotlab's feedback on top, and nothing that is not theirs."""
+    course = _fresh_course(released, tmp_path)
+    exchange = course / "exchange"
+    instructor, student = tmp_path / "instructor", tmp_path / "student"
+    work = student / "work"
+    for folder in (instructor, work, student / ".jupyter"):
+        folder.mkdir(parents=True)
+    # the student's own config names the course's exchange, as on a hub
+    (student / ".jupyter" / "nbgrader_config.py").write_text(
+        f"c = get_config()  # noqa: F821\nc.Exchange.root = {str(exchange)!r}\n"
+        "c.CourseDirectory.course_id = 'cobotlab'\n")
+    _nbgrader(course, "release_assignment", ASSIGNMENT, home=instructor)
+    _nbgrader(work, "fetch_assignment", ASSIGNMENT, home=student)
+
+    # a classic mistake (-t for the inverse's translation), and a cell the grader flags
+    fetched = work / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
+    nb = json.loads(fetched.read_text())
+    solutions = _solution_sources()
+    answers = dict(solutions, invert_pose=solutions["invert_pose"].replace("-R.T @ t", "-t"))
+    for cell in nb["cells"]:
+        gid = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if gid in answers:
+            cell["source"] = answers[gid]
+    nb["cells"].append({"cell_type": "code", "metadata": {}, "execution_count": None,
+                        "outputs": [], "source": "import os\nwhere = os.environ.get('HOME')"})
+    fetched.write_text(json.dumps(nb))
+    _nbgrader(work, "submit", ASSIGNMENT, home=student)
+    _nbgrader(course, "collect", ASSIGNMENT, home=instructor)
+    [sid] = [p.name for p in (course / "submitted").iterdir()]
+
+    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    env["HOME"] = str(instructor)
+    done = subprocess.run([sys.executable, "-m", "cobotlab.cli", "grade", str(course),
+                           ASSIGNMENT, "--no-template"], env=env, capture_output=True,
+                          text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    row = _read_grades(course)[sid]
+    assert float(row["score"]) == 8.5   # 1.5 of invert_pose's 3 points: its rotation only
+    assert "suspicious_secret_probe" in row["flags"].split(";")
+
+    _nbgrader(course, "generate_feedback", ASSIGNMENT, home=instructor)
+    _nbgrader(course, "release_feedback", ASSIGNMENT, home=instructor)
+    _nbgrader(work, "fetch_feedback", ASSIGNMENT, home=student)
+    [page] = (work / ASSIGNMENT / "feedback").glob(f"*/{ASSIGNMENT}.html")
+    raw = html.unescape(page.read_text())
+    text = html.unescape(re.sub(r"<[^>]+>", "", page.read_text()))   # as the browser shows it
+    # cobotlab's own feedback, on top of nbgrader's page
+    assert "Score: 8.5 / 10<" in raw   # cobotlab's; nbgrader's heading says "8.5 / 10.0)"
+    assert "classic mistake: its translation is -t, not -R^T t" in text
+    assert text.index("classic mistake") < text.index("def invert_pose")
+    # nothing the student must not see: flags, the cross-check, hidden tests, secrets
+    submission_secret = (course / "submitted" / sid / ASSIGNMENT / "submission_secret.txt")
+    for needle in ("suspicious_", "Flags", "nbgrader's own", "cross-check", "BEGIN HIDDEN",
+                   "hidden_test(", grading.load_secret(course), submission_secret.read_text()):
+        assert needle not in text and needle not in raw, needle

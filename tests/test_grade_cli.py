@@ -141,6 +141,8 @@ def test_a_shard_grades_only_its_students_and_merges_back_into_the_home_course(r
     home = kit.fresh_course(released, tmp_path / "home")
     for course in (shard, home):
         _submit_class(course)
+    # as `nbgrader submit` leaves it: release_feedback at home needs it beside ada's notebook
+    (shard / "submitted" / "ada" / ASSIGNMENT / "submission_secret.txt").write_text("ab" * 64)
     calls = []
     rows = grade_course(shard, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
                         run_nbgrader=True,  # as the CLI does: autograded notebooks too
@@ -168,6 +170,12 @@ def test_a_shard_grades_only_its_students_and_merges_back_into_the_home_course(r
         assert page.read_bytes() == (shard / page.relative_to(home)).read_bytes()
         notebook = home / "autograded" / sid / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
         assert notebook.read_bytes() == (shard / notebook.relative_to(home)).read_bytes()
+        for copied in (page.with_name("nbgrader_section.json"),
+                       notebook.with_name("timestamp.txt")):
+            assert copied.read_bytes() == (shard / copied.relative_to(home)).read_bytes()
+    secret = home / "autograded" / "ada" / ASSIGNMENT / "submission_secret.txt"
+    assert secret.read_text() == "ab" * 64
+    assert not (home / "autograded" / "cy" / ASSIGNMENT / "submission_secret.txt").exists()
     ledger = json.loads((home / ".cobotlab" / "nbgrader_cells.json").read_text())
     assert set(ledger[ASSIGNMENT]) == {"ada", "cy"}
     assert record.gradebook_problem(home / "gradebook.db") is None

@@ -275,3 +275,6 @@ def test_cobotlab_scores_are_what_nbgrader_shows_and_its_feedback_hides_the_test
     # the flags and the cross-check are the instructor's (formgrader shows them), not feedback
     assert fooled not in fools_page and "nbgrader&#39;s own" not in fools_page
     assert "nbgrader's own" not in html.unescape(fools_page)
+    # after nbgrader's own autograde too, cobotlab's feedback is on top of each page
+    section = fools_page[fools_page.index("cobotlab-feedback"):]
+    assert "Score: 0 / 10<" in section and "suspicious_" not in fools_page
