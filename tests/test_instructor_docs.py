@@ -65,6 +65,12 @@ def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
     assert (course / "feedback_cobotlab" / getpass.getuser() / "lab0_frames"
             / "feedback.html").is_file()
     assert "graded 1 submissions in" in done.stdout and "wall clock" in done.stdout, log
+    # the feedback block: the student fetched nbgrader's page with cobotlab's on top
+    [page] = (home / "dry-run" / "lab0_frames" / "feedback").glob("*/lab0_frames.html")
+    text = page.read_text()
+    assert "cobotlab-feedback" in text and "Not implemented yet" in text, text[:2000]
+    assert text.index("cobotlab-feedback") < text.index("Lab 0: frames and poses")
+    assert (course / ".cobotlab" / "secret").read_text().strip() not in text
     if sandbox.capabilities().bwrap:
         assert "sandbox:rlimits_only" not in mine[0]["flags"]
 
