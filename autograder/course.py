@@ -654,6 +654,7 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     if not damaged:
         _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
                          run_notes)
+        _withdraw_ungraded(root, assignment, grades, frozen, run_notes)
         damaged = _check_gradebook(root, private, run_notes)
     # names, timestamps and late penalties as the gradebook has them now, our scores in it
     nb_results = {} if damaged else _nbgrader_results(
@@ -677,6 +678,27 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     return rows
+
+
+def _withdraw_ungraded(root: Path, assignment: str, grades, frozen, run_notes) -> None:
+    """No score in gradebook.db for a submission the grader failed on: grades.csv leaves
+    its score empty, and nbgrader's export and formgrader must not show one that cobotlab
+    did not give (an earlier trusting ``nbgrader autograde``'s, say)."""
+    for grade, sub in zip(grades, frozen):
+        if grade.graded or not sub.accepted:
+            continue
+        try:
+            emptied = record.withdraw_scores(
+                root, assignment, grade.student_id,
+                "cobotlab: not graded (the grader failed on every attempt); no score is "
+                "recorded, and the next `cobotlab grade` grades it again.")
+        except Exception as exc:  # noqa: BLE001 - said in the run notes, the row stays empty
+            run_notes.append(f"could not empty the gradebook's scores of "
+                             f"{printable(grade.student_id)}: {printable(exc, 200)}")
+            continue
+        if emptied:
+            grade.notes.append(f"{emptied} automatic score(s) in gradebook.db emptied: "
+                               "cobotlab did not give them")
 
 
 def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | None,

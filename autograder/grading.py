@@ -438,6 +438,18 @@ class Worker:
             self.shared = len(template.cells)
         else:
             self._spawn(limits, cgroup, cpu_s, control_fd)
+        try:
+            self._load(cells, skip, budget, template, first, started)
+        except BaseException:
+            # Whatever stopped the load (a cell that hung, a reply the grader refused, an
+            # interrupt), no process or scratch folder of this worker outlives it.
+            self.close()
+            raise
+
+    def _load(self, cells, skip, budget: LoadBudget, template, first: bool,
+              started: float) -> None:
+        """Wait for the worker's hello, then run the notebook's cells (see the class)."""
+        limits = self.limits
         self._wait_ready(first)
         self.start_s = time.monotonic() - started
         for reply in template.replies if template is not None else ():
@@ -452,7 +464,6 @@ class Worker:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
                 continue
             if budget.exhausted:
-                self.close()
                 raise WorkerFailure(f"the notebook did not load within "
                                     f"{limits.load_timeout_s:g} s of CPU time")
             cpu = min(limits.cell_timeout_s, budget.cpu_s)
@@ -553,16 +564,19 @@ class Worker:
             wire.send(self._req_w, message)
             return wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
         except (wire.WireError, OSError) as exc:
-            timed_out = "timed out" in str(exc)
             self.close()
             code = self.proc.returncode
-            if timed_out:
+            if isinstance(exc, wire.WireTimeout):
                 raise WorkerFailure(f"timed out after {timeout_s:g} s") from None
-            reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
-                      -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
-            if "exceeds" in str(exc):
+            if isinstance(exc, wire.WireTooLarge):
                 raise WorkerFailure(f"the reply was too large ({exc}; the cap is "
                                     f"{max_bytes // 1024} KB)") from None
+            if isinstance(exc, wire.WireError) and not isinstance(exc, wire.WireClosed):
+                # Only student code in the worker can have written it: the worker's own
+                # encoder refuses what the grader would.
+                raise WorkerFailure(f"the worker sent a malformed reply ({exc})") from None
+            reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
+                      -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
             raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
                                 "are enforced)") from None
 

@@ -9,6 +9,9 @@
 * :func:`record_cobotlab` puts cobotlab's per-function scores in the same cells (scaled to
   each cell's points), and its findings in the auto comments formgrader shows; an
   instructor's manual score or comment is never touched, so it wins on every regrade.
+* :func:`withdraw_scores` empties the automatic scores of a submission cobotlab could not
+  grade, so nbgrader's gradebook and export hold no score that cobotlab did not give (an
+  earlier, trusting ``nbgrader autograde`` may have scored a notebook built to fool it).
 * :func:`write_file` writes atomically (temp file + rename in the same folder) and never
   follows a symlink on the way; :func:`write_csv` escapes cells a spreadsheet would run,
   :func:`update_csv` replaces only the rows of this run and keeps the others.
@@ -29,7 +32,7 @@ from pathlib import Path
 from autograder.freeze import printable
 
 __all__ = ["backup_gradebook", "gradebook_problem", "restore_gradebook", "record_nbgrader",
-           "record_cobotlab", "write_file", "write_csv", "update_csv", "csv_cell", "RUN_MARKER"]
+           "record_cobotlab", "withdraw_scores", "write_file", "write_csv", "update_csv", "csv_cell", "RUN_MARKER"]
 
 RUN_MARKER = "grading-in-progress"
 
@@ -305,3 +308,32 @@ def record_cobotlab(root: Path, assignment: str, student: str, timestamp: str,
                 root, student, total, float(submission.total_seconds_late or 0.0)) or None
         gb.db.commit()
     return written
+
+
+def withdraw_scores(root: Path, assignment: str, student: str, comment: str) -> int:
+    """Empty every automatic score of ``student``'s submission of ``assignment`` (the
+    grader could not grade it): ``auto_score`` None, each cell marked for manual grading,
+    ``comment`` as the auto comment of every comment cell. A manual score an instructor
+    gave stays, and wins, as everywhere. Returns how many scores were emptied; nothing is
+    made for a student or submission the gradebook does not hold."""
+    from nbgrader.api import MissingEntry
+    from sqlalchemy.exc import SAWarning
+
+    emptied = 0
+    with warnings.catch_warnings(), _open_gradebook(root) as gb:
+        warnings.simplefilter("ignore", SAWarning)
+        try:
+            submission = gb.find_submission(assignment, student)
+        except MissingEntry:
+            return 0
+        for notebook in submission.notebooks:
+            for grade in notebook.grades:
+                if grade.auto_score is not None:
+                    emptied += 1
+                grade.auto_score = None
+                grade.needs_manual_grade = True
+            for cell in notebook.comments:
+                cell.auto_comment = comment
+            notebook.late_submission_penalty = None
+        gb.db.commit()
+    return emptied
