@@ -7,38 +7,41 @@ so formgrader, manual overrides and ``nbgrader export`` see them as if HOME had 
 their rows into HOME's ``grades.csv``, their feedback pages and autograded notebooks, and the
 cross-check ledger, so the next regrade at home still compares with nbgrader's own values.
 
-The shard's files are read as data, as a submission is: only regular files (never a link),
-student ids that are safe folder names, scores that are numbers within their cell's points,
-and only for students whose row the shard's ``grades.csv`` has. HOME's gradebook is backed
-up first and checked after, as in ``grade_course``; a late penalty is HOME's rule again.
+The shard's files are read as data, as a submission is (through
+:mod:`autograder.safe_files`: regular files only, no link followed at any depth), student
+ids that are safe folder names, scores that are numbers within their cell's points, and
+only for students whose row the shard's ``grades.csv`` has.
+HOME's gradebook is backed up first and checked after, as in ``grade_course``; a late
+penalty is HOME's rule again.
 """
 
 from __future__ import annotations
 
 import csv
+import fnmatch
 import io
 import json
 import math
-import os
-import stat
+import tempfile
 from pathlib import Path
 
-from autograder import checks, course, freeze, grading, record, registry, scratch
+from autograder import checks, course, freeze, grading, record, registry, safe_files, scratch
 
 __all__ = ["merge_shard"]
 
-_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook
+_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook, or grades.csv
+_GRADEBOOK_CAP = 4 * 2**30
 
 
-def _read(path: Path, what: str) -> bytes:
-    data, why = freeze._read_regular(path, _CAP_BYTES)
-    if data is None:
-        raise ValueError(f"{what} {path}: {why}")
-    return data
+def _read(shard: Path, relative: str, what: str) -> bytes:
+    try:
+        return safe_files.read_file(shard, relative, _CAP_BYTES)
+    except safe_files.Refused as exc:
+        raise ValueError(f"{what}: {exc}") from None
 
 
 def _shard_rows(shard: Path, assignment: str) -> list[dict]:
-    text = _read(shard / course.GRADES_CSV, "the shard's grades").decode("utf-8")
+    text = _read(shard, course.GRADES_CSV, "the shard's grades").decode("utf-8")
     rows = [r for r in csv.DictReader(io.StringIO(text)) if r.get("assignment") == assignment]
     if not rows:
         raise ValueError(f"{shard / course.GRADES_CSV} has no row of {assignment!r}: grade the "
@@ -67,25 +70,33 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
 def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
     """{student: (timestamp, {(notebook, grade id): (score, points)}, {comment: text})}
     from the shard's gradebook, scores checked against their cells' points."""
+    with tempfile.TemporaryDirectory(prefix="cobotlab-shard-") as private:
+        copy = Path(private) / "gradebook.db"   # nbgrader opens a path: a private copy's
+        try:
+            safe_files.copy_file(shard, "gradebook.db", copy, _GRADEBOOK_CAP)
+        except safe_files.Refused as exc:
+            raise ValueError(f"the shard's gradebook: {exc}") from None
+        return _gradebook_cells(copy, shard / "gradebook.db", assignment, students)
+
+
+def _gradebook_cells(db: Path, named: Path, assignment: str, students: list[str]) -> dict:
+    """:func:`_shard_gradebook` of the gradebook copied to ``db`` (``named`` in messages)."""
     from nbgrader.api import Gradebook, MissingEntry
 
-    db = shard / "gradebook.db"
-    if not (os.path.lexists(db) and stat.S_ISREG(os.lstat(db).st_mode)):
-        raise ValueError(f"the shard's gradebook {db} is missing or not a regular file")
     out = {}
     with Gradebook(f"sqlite:///{db}") as gb:
         for sid in students:
             try:
                 sub = gb.find_submission(assignment, sid)
             except MissingEntry:
-                raise ValueError(f"{db} has no submission of {assignment!r} by {sid}, yet its "
+                raise ValueError(f"{named} has no submission of {assignment!r} by {sid}, yet its "
                                  "grades.csv has a row: the shard's copy is incomplete") from None
             scores, comments = {}, {}
             for nb in sub.notebooks:
                 for g in nb.grades:
                     value, top = float(g.auto_score or 0.0), float(g.max_score or 0.0)
                     if not (math.isfinite(value) and 0.0 <= value <= top):
-                        raise ValueError(f"{db}: cell {g.name!r} of {sid} scores {value:g} "
+                        raise ValueError(f"{named}: cell {g.name!r} of {sid} scores {value:g} "
                                          f"of {top:g} points")
                     scores[(nb.name, g.name)] = (value, top)
                 for c in nb.comments:
@@ -98,13 +109,23 @@ def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
 def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: list[str]) -> None:
     """The student's feedback page and autograded notebooks, regular files only."""
     for folder, pattern in (("feedback_cobotlab", "feedback.html"), ("autograded", "*.ipynb")):
-        base = shard / folder / sid / assignment
-        for path in sorted(base.glob(pattern)) if base.is_dir() else []:
-            try:
-                record.write_file(home, f"{folder}/{sid}/{assignment}/{path.name}",
-                                  _read(path, "shard file"))
-            except (OSError, ValueError) as exc:
-                notes.append(f"{sid}: {folder}/{path.name} not copied: {freeze.printable(exc)}")
+        relative = f"{folder}/{sid}/{assignment}"
+        try:
+            base = safe_files.open_folder(shard, relative)
+        except safe_files.Refused as exc:
+            if exc.why is not safe_files.Why.MISSING:
+                notes.append(f"{sid}: {relative} not copied: {freeze.printable(exc)}")
+            continue
+        with base:
+            for entry in base.entries():
+                if not fnmatch.fnmatchcase(entry.name, pattern):
+                    continue
+                try:
+                    record.write_file(home, f"{relative}/{entry.name}",
+                                      base.read(entry.name, _CAP_BYTES))
+                except (OSError, ValueError) as exc:   # safe_files.Refused is a ValueError
+                    notes.append(f"{sid}: {folder}/{freeze.printable(entry.name)} not copied: "
+                                 f"{freeze.printable(exc)}")
 
 
 def _check_assignment(home: Path, assignment: str) -> None:
