@@ -12,6 +12,7 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -893,7 +894,8 @@ def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
     log = ["sandbox: " + sandbox.mode(), *("  " + e for e in sandbox.capabilities().evidence),
            *run_notes, ""]
     for g in grades:
-        log.append(f"{printable(g.student_id)}: " + " | ".join(printable(n) for n in g.notes))
+        log.append(f"{printable(g.student_id, 2000)}: "
+                   + " | ".join(printable(n) for n in g.notes))
         if g.student_id in nb_runs:
             log.append("  nbgrader: " + nb_runs[g.student_id].log[-1500:])
     record.write_file(private, "last_run.log", "\n".join(log).encode("utf-8"))
@@ -922,7 +924,12 @@ def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_no
           f"{ours:.1f} s, summed over submissions); sandbox: {mode}{warn}")
     for note in run_notes:
         print(f"  note: {printable(note)}")
-    names = [printable(g.student_id, 60) for g in grades]
+    # a long id is cut to fit the column, with a short hash of the whole so that two ids
+    # alike in their first characters (refused ones may run to 1000) still differ here
+    names = [printable(g.student_id) if len(g.student_id) <= 60 else
+             printable(g.student_id, 48) + "#"
+             + hashlib.sha256(g.student_id.encode("utf-8", "backslashreplace")).hexdigest()[:8]
+             for g in grades]
     width = max([10] + [len(n) for n in names])
     print(f"{'student':<{width}}  {'score':>11}  failed checks / flags")
     for name, g in zip(names, grades):

@@ -6,7 +6,8 @@ are copied (a symlink to ``source/`` or to a classmate's folder, at any depth, a
 like the notebook, a socket or a device is skipped with a note), sizes and counts are
 capped, and a notebook that is not JSON (or has too many cells) is dropped and scored zero
 with a note. Everything after this stage reads only the frozen copy, before any student
-code has run. Student ids with control characters or path separators are refused.
+code has run. Student ids with control characters or path separators are refused; their
+rows are keyed by :func:`student_key`, an escape no other folder name shares.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from pathlib import Path
 from autograder import safe_files
 from autograder.safe_files import Why
 
-__all__ = ["Caps", "Frozen", "freeze_submissions", "student_id_problem", "printable"]
+__all__ = ["Caps", "Frozen", "freeze_submissions", "student_id_problem", "student_key",
+           "printable"]
 
 
 @dataclass(frozen=True)
@@ -39,8 +41,9 @@ class Caps:
 
 @dataclass
 class Frozen:
-    """One submission, frozen. ``student_id`` is printable; ``accepted`` is False for a
-    refused id (the row then says why and nothing is graded or recorded)."""
+    """One submission, frozen. ``student_id`` is the folder name's :func:`student_key`
+    (the name itself when accepted); ``accepted`` is False for a refused id (the row then
+    says why and nothing is graded or recorded)."""
 
     student_id: str
     folder: Path | None = None
@@ -54,17 +57,43 @@ class Frozen:
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 
+def _hidden(ch: str) -> bool:
+    """A character a terminal, log or spreadsheet would act on or not show: controls,
+    invisible format characters, line and paragraph separators, and the lone surrogates
+    Python reads a file name's non-UTF-8 bytes as (they cannot even be written as UTF-8)."""
+    return bool(_CONTROL.match(ch)) or unicodedata.category(ch) in ("Cf", "Zl", "Zp", "Cs")
+
+
 def printable(text, limit: int = 400) -> str:
     """``text`` with control and invisible format characters escaped (``\\n``, ``\\x1b``,
     ``\\u202e``), cut to ``limit`` characters: safe in a log, a summary or a CSV cell."""
-    out = []
-    for ch in str(text):
-        if ch in "\t\n\r" or _CONTROL.match(ch) or unicodedata.category(ch) in ("Cf", "Zl", "Zp"):
-            out.append(ch.encode("unicode_escape").decode("ascii"))
-        else:
-            out.append(ch)
-    text = "".join(out)
+    text = "".join(ch.encode("unicode_escape").decode("ascii") if _hidden(ch) else ch
+                   for ch in str(text))
     return text if len(text) <= limit else text[:limit] + "..."
+
+
+def student_key(name: str) -> str:
+    """The student id of the folder ``submitted/<name>`` in grades.csv rows, the summary and
+    the run log: ``name`` itself when it is accepted (:func:`student_id_problem`), so
+    existing gradebooks keep their rows; else ``name`` escaped as Python's
+    ``unicode_escape`` codec would escape it, for a backslash, a hidden character
+    (``\\n``, ``\\x1b``, ``\\u202e``, ``\\udcff`` for a byte that is not UTF-8) and a
+    leading ``- = + @`` (``\\x3d``), all of it, never cut.
+
+    So no two folders share a key: every backslash in a refused name's key starts an escape
+    (``key.encode("ascii", "backslashreplace").decode("unicode_escape")`` gives the name
+    back), and no accepted id equals a refused one's key, because an accepted id has no
+    backslash, no surrounding blank, at most 128 characters and no leading ``- = + @``,
+    while each refused key has one of these. A spreadsheet shows the key as written: no
+    cell of it starts a formula, so :func:`autograder.record.csv_cell` leaves it alone.
+    (Percent-encoding is reversible too, but an accepted id may hold ``%``, so a refused
+    name's encoding could be an accepted id; no accepted id holds a backslash.)
+    """
+    if student_id_problem(name) is None:
+        return name
+    key = "".join(ch.encode("unicode_escape").decode("ascii") if ch == "\\" or _hidden(ch)
+                  else ch for ch in name)
+    return f"\\x{ord(key[0]):02x}{key[1:]}" if key[:1] in ("-", "=", "+", "@") else key
 
 
 def student_id_problem(student_id: str) -> str | None:
@@ -169,7 +198,7 @@ def _freeze_one(top: safe_files.Folder, entry: safe_files.Entry, assignment: str
         except safe_files.Refused as exc:   # swapped since the listing, or unreadable
             problem = _unusable("student folder", exc)
         sid = entry.name
-        frozen = Frozen(printable(sid, 200))
+        frozen = Frozen(student_key(sid))
         if why := student_id_problem(sid):
             frozen.accepted = False
             frozen.flags.append("rejected_student_id")

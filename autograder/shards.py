@@ -10,7 +10,9 @@ cross-check ledger, so the next regrade at home still compares with nbgrader's o
 The shard's files are read as data, as a submission is (through
 :mod:`autograder.safe_files`: regular files only, no link followed at any depth), student
 ids that are safe folder names, scores that are numbers within their cell's points, and
-only for students whose row the shard's ``grades.csv`` has.
+only for students whose row the shard's ``grades.csv`` has. A row of a refused folder
+(flagged ``rejected_student_id``, keyed by :func:`autograder.freeze.student_key`) is
+carried over as a row only: it has nothing in the gradebook and no files.
 HOME's gradebook is backed up first and checked after, as in ``grade_course``; a late
 penalty is HOME's rule again.
 """
@@ -40,6 +42,12 @@ def _read(shard: Path, relative: str, what: str) -> bytes:
         raise ValueError(f"{what}: {exc}") from None
 
 
+def _refused_row(row: dict) -> bool:
+    """Whether a grades.csv row is a refused folder's (``rejected_student_id``): a row only,
+    nothing in the gradebook, no feedback."""
+    return "rejected_student_id" in row.get("flags", "").split(";")
+
+
 def _shard_rows(shard: Path, assignment: str) -> list[dict]:
     text = _read(shard, course.GRADES_CSV, "the shard's grades").decode("utf-8")
     rows = [r for r in csv.DictReader(io.StringIO(text)) if r.get("assignment") == assignment]
@@ -52,7 +60,14 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
             continue   # the shard's grader failed on it: nothing to merge (see merge_shard)
         sid = row.get("student_id", "")
         problem = freeze.student_id_problem(sid)
-        if problem:
+        if _refused_row(row):
+            # its key must be one no accepted id can be (freeze.student_key), so that it can
+            # never stand in for a student's real row at home
+            if problem is None or freeze.printable(sid, 10**6) != sid:
+                raise ValueError(f"the shard's grades.csv flags {freeze.printable(sid, 80)!r} "
+                                 "as a refused folder, but that is not how a refused folder "
+                                 "is named there: was the file edited?")
+        elif problem:
             raise ValueError(f"the shard's grades.csv names a student id that is {problem}: "
                              f"{freeze.printable(sid, 80)!r}")
         try:
@@ -60,6 +75,9 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
         except (KeyError, ValueError):
             raise ValueError(f"the shard's row of {sid} has no numeric raw_score / max_score") \
                 from None
+        if _refused_row(row) and raw != 0:
+            raise ValueError(f"the shard's row of the refused folder {freeze.printable(sid, 80)!r}"
+                             f" scores {raw:g}: a refused folder is never graded")
         if not (math.isfinite(raw) and abs(top - max_points) < 1e-9 and 0 <= raw <= top):
             raise ValueError(
                 f"the shard's row of {sid} scores {raw:g} / {top:g}, but {assignment} is out of "
@@ -177,7 +195,9 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     rows = _shard_rows(shard, assignment)
     ungraded = [r["student_id"] for r in rows if r.get("raw_score") == ""]
     rows = [r for r in rows if r.get("raw_score") != ""]
-    if not rows:
+    refused = [r for r in rows if _refused_row(r)]   # rows only: no gradebook entry, no files
+    rows = [r for r in rows if not _refused_row(r)]
+    if not rows and not refused:
         raise ValueError(f"the shard {shard} graded none of its students (grader errors: "
                          f"{', '.join(ungraded)}): grade the shard again")
     students = [r["student_id"] for r in rows]
@@ -212,6 +232,11 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
         merged.append(course.grade_row(assignment, row["student_id"], nb,
                                        float(row["raw_score"]), float(row["max_score"]), flags,
                                        row.get("timestamp", "")))
+    for row in refused:
+        merged.append(course.grade_row(assignment, row["student_id"],
+                                       {"duedate": row.get("duedate", "")},
+                                       float(row["raw_score"]), float(row["max_score"]),
+                                       row.get("flags", ""), row.get("timestamp", "")))
     record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
                       key=("assignment", "student_id"))
     notes.append(f"merged {len(merged)} student(s) from the shard {shard}")

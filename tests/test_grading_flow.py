@@ -33,7 +33,7 @@ FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 SLICE = ("gradebook_overwrite", "config_injection", "copy_source", "overwrite_classmate",
          "neutralise_hidden_tests", "env_and_localhost", "grades_csv_symlink", "write_outside",
          "symlink_notebook", "symlink_folder", "fifo_notebook", "newline_student_id",
-         "import_solutions")
+         "invisible_twin_student_id", "escaped_twin_student_id", "import_solutions")
 TOKEN = "instructor-token-5f1e"
 SERVICE_PORT = 47613
 ROOT = Path(__file__).resolve().parent.parent
