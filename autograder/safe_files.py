@@ -328,9 +328,10 @@ def _copy_into(src: Folder, dest: Path, caps: TreeCaps, ignore, bad_name, depth:
 
     try:
         entries = src.entries()
-    except OSError as exc:
+    except (OSError, Refused) as exc:
+        why = exc.detail if isinstance(exc, Refused) else exc.strerror
         skipped.append(Skipped(prefix.rstrip("/"), src.where.rsplit("/", 1)[-1],
-                               Why.UNREADABLE, f"cannot be listed ({exc.strerror})", "folder"))
+                               Why.UNREADABLE, f"cannot be listed ({why})", "folder"))
         return
     for entry in entries:
         if entry.name in ignore:
