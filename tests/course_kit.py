@@ -197,9 +197,13 @@ def submit_case(course: Path, assignment: str, name: str, case: dict) -> str:
     """Hand in corpus case ``name`` (its cells and its ``layout:``); returns its folder name.
 
     Layouts: ``symlink_notebook_to_source``, ``symlink_folder_to_victim`` (a student named
-    ``victim`` must be submitted too), ``fifo_notebook``.
+    ``victim`` must be submitted too), ``fifo_notebook``. ``@COURSE@`` in the case's code
+    becomes the course's path on the host (what an attack would have to guess).
     """
     student = case["student"] or name
+    here = str(course.resolve())
+    case = dict(case, extra=case["extra"] and case["extra"].replace("@COURSE@", here),
+                replace={k: v.replace("@COURSE@", here) for k, v in case["replace"].items()})
     folder = course / "submitted" / student / assignment
     layout = case["layout"]
     if layout == "symlink_folder_to_victim":
