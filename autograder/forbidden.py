@@ -2,20 +2,57 @@
 
 A function spec names them (``FunctionSpec.forbidden``: ``"cv2.calibrateHandEye"``,
 ``"robots.geometry.invert"``, ...); ``solutions`` (the reference solvers) is forbidden to
-every function. Two independent nets find a use:
+every function. A notebook cell that calls ``cv2.calibrateHandEye`` to compare against
+OpenCV is fine; the graded function, or anything it reaches, doing so is not.
 
-* :func:`static_hits`, run by the trusted grader on the frozen notebook code, from whatever
-  the notebook binds to the graded name (every ``def`` and assignment at module level: a
-  lambda, an alias of the routine, a ``functools.partial``): every name, attribute chain,
-  ``from ... import`` alias and string handed to ``importlib`` / ``__import__`` /
-  ``getattr`` / ``eval`` reachable from there (through the notebook's own helpers,
-  module-level aliases and the objects they fill) is resolved to a dotted name and compared
-  with the forbidden ones; a computed lookup in a module that holds a forbidden routine
-  (``vars(m)[name]``, ``getattr(m, name)``) or of a module or code named at run time counts
-  as a use. A notebook cell that calls ``cv2.calibrateHandEye`` to
-  compare against OpenCV is fine; the graded function (or a helper it calls) doing so is not.
-* :class:`Tripwire`, inside the sandbox and in ``check()``: a profile hook that records every
-  call of a forbidden routine while the graded function runs, however it was reached.
+The rule, and who decides
+-------------------------
+The verdict is the trusted grader's. The worker runs student code, so what it reports can be
+forged or left out; it can only *add* a violation, never clear one, and a forbidden routine
+called while a graded function runs answers nothing the grader would credit, whatever the
+worker reports. Three nets:
+
+* :func:`static_hits`, in the grader, on the frozen notebook code: authoritative. It starts
+  from everything the notebook binds to the graded name at module level (every ``def``,
+  every assignment, wherever it sits: a lambda, an alias of the library routine, a
+  ``functools.partial``, an instance of a class with ``__call__``, a decorated function, a
+  name declared ``global`` in a function) and follows every name those reach to the
+  notebook's own definitions, assignments and import aliases. What a module-level object
+  is given counts as part of it (``box.f = ...``, ``box[k] = ...``, ``queue.put(...)`` in a
+  function that does not own ``queue``): a thread started at load time that hands its
+  results over a queue is reached through the queue. A dotted name, alias, ``from ...
+  import``, or a constant string handed to ``getattr`` / ``importlib`` / ``__import__`` /
+  ``eval`` / ``sys.modules[...]`` / ``vars(m)[...]`` is resolved and compared with the
+  forbidden names. Dynamic lookups count as uses: a module that holds a forbidden routine
+  (``robots.geometry`` holds ``robots.geometry.invert``; ``robots`` and ``cv2`` count too)
+  used as a value rather than through a plain attribute (``vars(geo)``, ``geo.__dict__``,
+  ``getattr(geo, name)``, ``helper(geo)``) uses every forbidden routine it holds; a module,
+  namespace or code named at run time (``importlib.import_module(name)``,
+  ``sys.modules`` or ``globals()`` looked up by a computed key, ``eval(text)``) uses
+  every forbidden routine of the spec.
+* The worker's :class:`Guard` (with :class:`Tripwire`), inside the sandbox: while a graded
+  function runs, each forbidden routine is *poisoned*: the routine object itself (so every
+  alias, saved reference, ``partial`` and dynamic lookup of it, in every thread, with or
+  without a profile hook) runs code that records the call and raises
+  :class:`ForbiddenCall` instead of answering. A Python function gets its ``__code__``
+  swapped for the call's duration; a C routine (``cv2.*``) is replaced in every loaded
+  module by a pass-through Python function before any student code runs, and that is
+  poisoned in turn. So a call the static scan could not see earns nothing: the answer is
+  missing, no report needed. The worker turns what a returned object does on conversion
+  (a list subclass's ``__iter__``) into plain values while still poisoned.
+* :class:`Tripwire`'s profile hook (``sys.setprofile``, and ``threading.setprofile`` for
+  threads started during the call), in the worker and in ``check()`` in the student's
+  kernel, where nothing is poisoned: it records calls of the routines' own code objects
+  and C functions, so a copy made with ``types.FunctionType(f.__code__, ...)`` is seen too.
+  A hook removed during the call (``sys.setprofile(None)``) or a poisoned routine whose
+  code was put back counts as a call of every forbidden routine of the spec.
+
+What no in-process net can settle, and the static scan is there for: student code may
+rewrite the worker itself (its modules are reachable through ``sys.modules`` and the
+garbage collector), undo a poisoning it can see, or rebuild a routine from its source file;
+rebuilding is indistinguishable from copying the routine's code into the notebook, which
+no grader tells apart from writing it. Such code, where the graded function reaches it,
+names the routine or its module and is caught by :func:`static_hits`.
 
 Standard library only: the worker imports this module next to student code.
 """
@@ -28,7 +65,8 @@ import sys
 import threading
 import types
 
-__all__ = ["ALWAYS_FORBIDDEN", "Tripwire", "is_reference_solver", "matches", "static_hits"]
+__all__ = ["ALWAYS_FORBIDDEN", "ForbiddenCall", "Guard", "Tripwire", "is_reference_solver",
+           "matches", "static_hits"]
 
 ALWAYS_FORBIDDEN = ("solutions",)
 # CPython 3.11 builds AST objects with interpreter-wide recursion bookkeeping: two threads
@@ -429,6 +467,11 @@ def static_hits(cells: list[str], function: str, forbidden,
 # --------------------------------------------------------------------------- at run time
 
 
+class ForbiddenCall(BaseException):
+    """What a poisoned forbidden routine raises while a graded function runs in the worker:
+    a BaseException, so a student's ``except Exception`` fallback does not swallow it."""
+
+
 def _resolve(dotted: str):
     """The object ``dotted`` names, importing its module; None when it does not exist."""
     parts = dotted.split(".")
@@ -446,32 +489,156 @@ def _resolve(dotted: str):
     return None
 
 
+_STUBS: dict[int, types.CodeType] = {}
+
+
+def _stub_code(cells: int) -> types.CodeType:
+    """The code a poisoned routine runs: it calls its ``_forbidden_call`` default (which
+    records the call and raises), whatever it is given. ``cells`` unused free variables: a
+    function's code can only be swapped for code with as many as its closure holds."""
+    if cells not in _STUBS:
+        names = [f"_cell{i}" for i in range(cells)]
+        source = "def _outer():\n" + "".join(f"    {n} = None\n" for n in names) + \
+            "    def _poisoned(*args, _forbidden_call=None, **kwargs):\n" + \
+            (f"        ({', '.join(names)},)\n" if names else "") + \
+            "        return _forbidden_call()\n    return _poisoned\n"
+        scope: dict = {}
+        exec(compile(source, "<forbidden routine>", "exec"), scope)
+        _STUBS[cells] = scope["_outer"]().__code__
+    return _STUBS[cells]
+
+
+def _pass_through(real):
+    """A Python function that calls the C routine ``real``: unlike ``real``, its code can be
+    swapped while a graded function runs."""
+    def routine(*args, **kwargs):
+        return real(*args, **kwargs)
+
+    routine.__name__ = routine.__qualname__ = getattr(real, "__name__", "routine")
+    routine.__doc__ = getattr(real, "__doc__", None)
+    routine.__module__ = getattr(real, "__module__", None)
+    return routine
+
+
+class _Routine:
+    """A forbidden routine as the library defines it: ``function`` is what gets poisoned
+    (the routine itself, or the pass-through put in place of a C routine ``c_function``),
+    ``code`` its own code."""
+
+    __slots__ = ("function", "code", "c_function")
+
+    def __init__(self, function, c_function=None):
+        self.function, self.code, self.c_function = function, function.__code__, c_function
+
+
+class Guard:
+    """The worker's hold on the forbidden routines, taken before any student code runs.
+
+    :meth:`add` resolves each name once, to the object the library defines (student code
+    that later rebinds the module attribute changes nothing here), and puts a pass-through
+    in place of a C routine in every loaded module, so that every reference student code can
+    take is to a Python function. :class:`Tripwire` then poisons them for each graded call.
+    """
+
+    def __init__(self):
+        self._routines: dict[str, _Routine | None] = {}
+
+    def add(self, names) -> None:
+        """Take hold of the routines ``names`` (dotted; module names are left to the
+        profile hook)."""
+        for name in names:
+            if "." in name and name not in self._routines:
+                self._routines[name] = self._hold(_resolve(name))
+
+    @staticmethod
+    def _hold(obj) -> _Routine | None:
+        function = getattr(obj, "__func__", obj)   # a method: the function behind it
+        if isinstance(function, types.FunctionType):
+            return _Routine(function)
+        if obj is None or isinstance(obj, type) or not callable(obj):
+            return None
+        routine = _pass_through(obj)
+        for module in list(sys.modules.values()):
+            try:
+                namespace = vars(module)
+            except TypeError:
+                continue
+            for key, value in list(namespace.items()):
+                if value is obj:
+                    namespace[key] = routine
+        return _Routine(routine, obj)
+
+    def routines(self, names) -> dict[str, _Routine]:
+        """The routines of ``names`` held, by name."""
+        return {n: r for n in names if (r := self._routines.get(n)) is not None}
+
+    def poison(self, names, record) -> list[tuple]:
+        """Make each routine of ``names`` call ``record(name)`` instead of answering, in
+        every thread and through every reference; returns what :meth:`restore` needs."""
+        self.add(names)
+        swapped = []
+        for name, routine in self.routines(names).items():
+            function = routine.function
+            kwdefaults = function.__kwdefaults__
+            stub = _stub_code(len(function.__code__.co_freevars))
+            # the routine's own keyword defaults stay: a thread already inside it keeps them
+            function.__kwdefaults__ = {**(kwdefaults or {}),
+                                       "_forbidden_call": lambda name=name: record(name)}
+            function.__code__ = stub
+            swapped.append((function, routine.code, kwdefaults, stub))
+        return swapped
+
+    @staticmethod
+    def restore(swapped: list[tuple]) -> bool:
+        """Undo :meth:`poison`; True when student code had put other code in a routine."""
+        changed = False
+        for function, code, kwdefaults, stub in swapped:
+            changed |= function.__code__ is not stub
+            function.__code__ = code
+            function.__kwdefaults__ = kwdefaults
+        return changed
+
+
 class Tripwire:
     """Record calls of the forbidden routines made while the ``with`` block runs.
 
-    A profile hook compares each called C function (``cv2.calibrateHandEye``) by identity
-    and each Python function (``robots.geometry.invert``) by its code object, so an alias,
-    a ``getattr`` or a reference saved before the call is caught as well. Importing
-    ``solutions`` is caught by name. ``hits`` holds what was called.
+    A profile hook (this thread's, and that of every thread started inside the block)
+    compares each called C function (``cv2.calibrateHandEye``) by identity and each Python
+    function (``robots.geometry.invert``) by its code object, so an alias, a ``getattr``, a
+    reference saved before the call or a copy of the function is caught as well. Importing
+    ``solutions`` is caught by name. With a :class:`Guard` (the worker), the routines are
+    also poisoned for the block: a call raises :class:`ForbiddenCall`, from any thread.
+    A profile hook removed, or a poisoned routine's code replaced, counts as a call of every
+    routine of ``forbidden``. ``hits`` holds what was called.
     """
 
-    def __init__(self, forbidden, always=ALWAYS_FORBIDDEN):
+    def __init__(self, forbidden, always=ALWAYS_FORBIDDEN, guard: Guard | None = None):
         self.hits: set[str] = set()
+        self._names = tuple(f for f in forbidden if "." in f)
+        self._guard = guard
         self._c: dict[int, str] = {}
         self._code: dict[types.CodeType, str] = {}
         self._modules = [f for f in tuple(forbidden) + tuple(always) if "." not in f]
-        for name in forbidden:
-            if "." not in name:
-                continue
-            obj = _resolve(name)
-            code = getattr(obj, "__code__", None)
-            if isinstance(code, types.CodeType):
-                self._code[code] = name
-            elif obj is not None:
-                self._c[id(obj)] = name
-        self._previous = None
+        if guard is not None:
+            guard.add(self._names)
+            for name, routine in guard.routines(self._names).items():
+                if routine.c_function is not None:
+                    self._c[id(routine.c_function)] = name
+                else:
+                    self._code[routine.code] = name
+        else:
+            for name in self._names:
+                obj = _resolve(name)
+                code = getattr(obj, "__code__", None)
+                if isinstance(code, types.CodeType):
+                    self._code[code] = name
+                elif obj is not None:
+                    self._c[id(obj)] = name
+        self._hook = self._profile   # bound once: sys.getprofile() is compared with it
+        self._previous = self._previous_threads = None
+        self._swapped: list[tuple] = []
 
-    def _hook(self, frame, event, arg):
+    def _profile(self, frame, event, arg):
         if event == "c_call":
             name = self._c.get(id(arg))
             if name:
@@ -485,11 +652,24 @@ class Tripwire:
                 if module == m or str(module).startswith(m + "."):
                     self.hits.add(m)
 
+    def _record(self, name: str):
+        self.hits.add(name)
+        raise ForbiddenCall(f"{name} was called: it is one of the routines this function "
+                            "must not use")
+
     def __enter__(self):
-        self._previous = sys.getprofile()
+        if self._guard is not None:
+            self._swapped = self._guard.poison(self._names, self._record)
+        self._previous, self._previous_threads = sys.getprofile(), threading.getprofile()
+        threading.setprofile(self._hook)
         sys.setprofile(self._hook)
         return self
 
     def __exit__(self, *exc):
+        removed = sys.getprofile() is not self._hook
         sys.setprofile(self._previous)
+        threading.setprofile(self._previous_threads)
+        if Guard.restore(self._swapped) or removed:
+            self.hits.update(self._names)
+        self._swapped = []
         return False
