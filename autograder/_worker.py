@@ -14,11 +14,13 @@ Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}``
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
 the cell wrote to stdout and to stderr;
+``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
+routines graded functions must not call (:class:`autograder.forbidden.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
-"substitutes": {name: [[args, value], ...]}}`` calls a function by name, with a tripwire on
-the routines it must not call (reported as ``"forbidden"`` in the reply; the grader's own
-static scan is the authoritative rule) and the stand-ins of :mod:`autograder.standin`;
-``{"op": "quit"}``.
+"substitutes": {name: [[args, value], ...]}}`` calls a function by name, those routines
+poisoned and a tripwire on them (calls seen are reported as ``"forbidden"`` in the reply;
+the grader's own static scan is the authoritative rule, the report can only add to it),
+with the stand-ins of :mod:`autograder.standin`; ``{"op": "quit"}``.
 """
 
 from __future__ import annotations
@@ -106,6 +108,23 @@ def _run_guarded(fn, cpu_s: float, wall_s: float):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0.0)
         signal.setitimer(signal.ITIMER_PROF, 0.0)
+
+
+class _Unsendable(Exception):
+    """A graded function's value that is not made of arrays, numbers, lists and the like."""
+
+
+def _settled(value):
+    """``value`` rebuilt from plain lists, tuples, dicts, numbers and arrays.
+
+    Done inside the graded call, while the forbidden routines are poisoned: a returned
+    object whose conversion runs code (a list subclass's ``__iter__``, an array subclass)
+    runs it there, not while the reply is sent.
+    """
+    try:
+        return wire.decode(wire.encode(value))
+    except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
+        raise _Unsendable(str(exc)) from None
 
 
 def _limits_of(request: dict) -> tuple[float, float]:
@@ -196,16 +215,18 @@ def main(argv: list[str]) -> int:
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
     _stub_viewer()
+    guard = forbidden.Guard()
     # Before any student code: the grader knows the sandbox started (a failure until here
     # is the grader's, retried in a fresh sandbox, never a student's zero).
     wire.send(rep_fd, {"op": "ready"})
-    return _serve(req_fd, rep_fd, namespace, out, err, control_fd)
+    return _serve(req_fd, rep_fd, namespace, out, err, guard, control_fd)
 
 
 def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
-           err: _CappedWriter, control_fd: int | None = None) -> int:
+           err: _CappedWriter, guard: forbidden.Guard, control_fd: int | None = None) -> int:
     """Answer requests until "quit" or the grader closes the pipe; returns the exit code."""
-    send, receive = wire.send, wire.receive  # bound now: student code may patch the module
+    # bound now: student code may patch the modules
+    send, receive, tripwire_of = wire.send, wire.receive, forbidden.Tripwire
     while True:
         try:
             request = receive(req_fd)
@@ -215,7 +236,14 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
         if op == "quit":
             return 0
         if op == "template" and control_fd is not None:
-            return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err)
+            return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err, guard)
+        if op == "forbid":
+            try:
+                guard.add(str(n) for n in request.get("names", []))
+                send(rep_fd, {"ok": True})
+            except Exception as exc:  # noqa: BLE001 - no student code yet: the grader's error
+                send(rep_fd, {"ok": False, "error": _describe(exc)})
+            continue
         if op == "preload" and control_fd is not None:
             send(rep_fd, _preload(request))
             continue
@@ -242,12 +270,15 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 continue
             args = request.get("args", [])
             names = [str(n) for n in request.get("forbidden", [])]
-            tripwire = forbidden.Tripwire(names)
+            tripwire = tripwire_of(names, guard=guard)
             started, cpu_started = time.monotonic(), time.process_time()
             try:
                 with standin.substituted(namespace, _tables(request)), tripwire:
-                    value = _run_guarded(lambda: func(*args), *_limits_of(request))
+                    value = _run_guarded(lambda: _settled(func(*args)), *_limits_of(request))
                 reply = {"ok": True, "value": value}
+            except _Unsendable as exc:
+                reply = {"ok": False, "error": f"returned a value that is not an array or "
+                                               f"number ({exc})"}
             except BaseException as exc:  # noqa: BLE001
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
             if tripwire.hits:
@@ -304,7 +335,7 @@ def _single_threaded() -> str | None:
 
 
 def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
-                 out: _CappedWriter, err: _CappedWriter) -> int:
+                 out: _CappedWriter, err: _CappedWriter, guard: forbidden.Guard) -> int:
     """The template's loop: one fork per request on the control socket (fds attached:
     the submission's request and reply pipes, its stderr file, its cgroups' procs files)."""
     busy = _single_threaded()
@@ -331,7 +362,7 @@ def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
             pid = os.fork()
             if pid == 0:
                 _become_submission(control, fds, request, (req_fd, rep_fd), namespace, out,
-                                   err)
+                                   err, guard)
             for fd in fds:
                 os.close(fd)
             control.send(json.dumps({"pid": pid}).encode())
@@ -360,7 +391,7 @@ def _reap(exited: dict[int, int]) -> None:
         exited[pid] = os.waitstatus_to_exitcode(status)
 
 
-def _become_submission(control, fds, request, template_fds, namespace, out, err):
+def _become_submission(control, fds, request, template_fds, namespace, out, err, guard):
     """In the fork: leave the template's namespaces, fork process 1 of a PID namespace of
     its own, and serve the submission there. Never returns."""
     req_r, rep_w, err_w, *cgroups = fds
@@ -391,7 +422,7 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err)
     except BaseException as exc:  # noqa: BLE001
         _refuse(rep_w, exc)
     wire.send(rep_w, {"op": "ready"})
-    os._exit(_serve(req_r, rep_w, namespace, out, err))
+    os._exit(_serve(req_r, rep_w, namespace, out, err, guard))
 
 
 def _close_all_but(keep: set[int]) -> None:

@@ -503,7 +503,9 @@ def _static_forbidden(func, spec: FunctionSpec, always=forbidden.ALWAYS_FORBIDDE
             header.append(f"import {target} as {alias}" if inspect.ismodule(value)
                           else f"from {target.rsplit('.', 1)[0]} import "
                                f"{target.rsplit('.', 1)[1]} as {alias}")
-    return forbidden.static_hits(header + [source], func.__name__, spec.forbidden, always)
+    # a lambda's source is the line that binds it: scanned under the graded name it is bound to
+    name = func.__name__ if func.__name__.isidentifier() else spec.name
+    return forbidden.static_hits(header + [source], name, spec.forbidden, always)
 
 
 def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,

@@ -411,6 +411,8 @@ class Worker:
     run here) and loading starts after them; it raises
     :class:`TemplateUnavailable` when the template cannot fork.
     ``control_fd`` starts a template instead (its end of the control socket).
+    ``forbidden``: the routines the graded functions must not call, which the worker takes
+    hold of before any of the submission's cells runs (:class:`autograder.forbidden.Guard`).
     ``start_s`` and ``cells_s`` are the wall-clock seconds until the worker was ready and
     of the cells it ran itself.
     """
@@ -418,7 +420,7 @@ class Worker:
     def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
                  cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
                  budget: LoadBudget | None = None, first: bool = True,
-                 template=None, control_fd: int | None = None):
+                 template=None, control_fd: int | None = None, forbidden=()):
         self.limits = limits
         budget = budget or LoadBudget.of(limits)
         started = time.monotonic()
@@ -451,6 +453,8 @@ class Worker:
         """Wait for the worker's hello, then run the notebook's cells (see the class)."""
         limits = self.limits
         self._wait_ready(first)
+        if forbidden:   # a fork too: the template's cells are the instructor's, not student code
+            self._request({"op": "forbid", "names": sorted(forbidden)}, WORKER_START_S)
         self.start_s = time.monotonic() - started
         for reply in template.replies if template is not None else ():
             seconds = float(reply.get("seconds", 0.0))
@@ -671,6 +675,7 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     if not cells:
         grade.notes.append("no code cells found")
     banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
+    routines = sorted({name for spec in specs for name in spec.forbidden})
 
     caps = sandbox.capabilities()
     cgroup = None
@@ -703,12 +708,13 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
             starts += 1
             try:
                 worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1, template=template)
+                                       worker_cpu_s, first=starts == 1, template=template,
+                                       forbidden=routines)
             except TemplateUnavailable as exc:
                 grade.notes.append(f"started without the template ({exc})")
                 template = None
                 worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1)
+                                       worker_cpu_s, first=starts == 1, forbidden=routines)
             profile["start_s"] += worker.start_s
             profile["cells_s"] += worker.cells_s
             if worker.shared:
@@ -845,7 +851,7 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
                   budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
-                  first: bool, template=None) -> Worker:
+                  first: bool, template=None, forbidden=()) -> Worker:
     """A loaded worker (a fork of ``template`` when given); cells that hang or time out are
     skipped on every later restart. ``first``: no worker of this submission has started
     yet (see :class:`GraderError`)."""
@@ -855,7 +861,7 @@ def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
                                 "of CPU time")
         try:
             worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first,
-                            template=template)
+                            template=template, forbidden=forbidden)
         except CellHang as exc:
             first = False
             skip.add(exc.index)
