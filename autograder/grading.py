@@ -441,7 +441,7 @@ class Worker:
         else:
             self._spawn(limits, cgroup, cpu_s, control_fd)
         try:
-            self._load(cells, skip, budget, template, first, started)
+            self._load(cells, skip, budget, template, first, started, forbidden)
         except BaseException:
             # Whatever stopped the load (a cell that hung, a reply the grader refused, an
             # interrupt), no process or scratch folder of this worker outlives it.
@@ -449,7 +449,7 @@ class Worker:
             raise
 
     def _load(self, cells, skip, budget: LoadBudget, template, first: bool,
-              started: float) -> None:
+              started: float, forbidden=()) -> None:
         """Wait for the worker's hello, then run the notebook's cells (see the class)."""
         limits = self.limits
         self._wait_ready(first)
