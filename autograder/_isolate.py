@@ -16,7 +16,9 @@ the forked process moves into namespaces of its own:
   once cannot talk to each other.
 
 Then the process drops every capability (bounding set too), keeps ``no_new_privs`` and
-may not create further user namespaces, as bubblewrap's ``--disable-userns`` has it.
+may not create further user namespaces, as bubblewrap's ``--disable-userns`` has it; the
+worker then gives it a session keyring of its own and the keyring filter
+(:mod:`autograder._syscalls`).
 Standard library only (ctypes for the system calls Python 3.11 lacks): this module runs in
 the worker's view.
 """
