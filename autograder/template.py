@@ -259,6 +259,11 @@ class ForkedProcess:
     def kill(self) -> None:
         sandbox.kill_below(self.pid)
 
+    def submission_pid(self) -> int | None:
+        """The host PID of the submission's process 1 (the fork's one child), or None."""
+        children = sandbox._children(self.pid)
+        return children[0] if len(children) == 1 else None
+
     def wait(self, timeout: float | None = None) -> int:
         deadline = None if timeout is None else time.monotonic() + timeout
         while self.poll() is None:
