@@ -5,12 +5,14 @@ AFS and NFS tokens, ecryptfs and fscrypt keys) and a keyring per user id. A proc
 possesses its session keyring's keys, whoever it runs as, and inherits that keyring from
 its parent; the user keyring is shared by every process of one uid. So student code
 started by the grader could read the instructor's tokens, and a key one submission put in
-the sandbox user's keyring could be read by the next. Two measures, both before any
+the sandbox user's keyring could be read by the next. Three measures, all before any
 student code runs:
 
 * every sandbox starts in a new, empty session keyring (:func:`new_session_keyring`):
   :func:`main` joins one on the host before it starts bubblewrap, and a template's fork
   joins its own before it serves a submission;
+* ``/proc/keys`` and ``/proc/key-users``, which name the keys of the sandbox's uid in
+  every session, are empty there (:data:`KEY_LISTS`);
 * in the sandbox the keyring system calls (``add_key``, ``request_key``, ``keyctl``) fail
   with EPERM, through a seccomp filter (:func:`program`, the one builder of it): bubblewrap
   loads it (``--seccomp``) for a cold worker and nbgrader's kernel, and a template's fork
@@ -61,6 +63,10 @@ ABIS: dict[str, tuple[tuple[int, tuple[int, int, int], int | None], ...]] = {
 }
 _ALIASES = {"amd64": "x86_64", "arm64": "aarch64"}
 KEYCTL_JOIN_SESSION_KEYRING = 1
+# Procfs lists every key its reader's uid may view, in any session of that uid, and every
+# uid's key counts: read with no system call the filter could stop, and an unprivileged
+# grader's sandbox runs as the instructor's own uid. Each sandbox sees them empty.
+KEY_LISTS = ("/proc/keys", "/proc/key-users")
 
 
 class UnsupportedMachine(RuntimeError):

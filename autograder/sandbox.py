@@ -146,6 +146,9 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     args += ["--proc", "/proc", "--dev", "/dev",
              "--size", str(int(jail.scratch_mb) * 1024 * 1024), "--perms", "1777",
              "--tmpfs", "/tmp"]
+    # /dev/null over procfs's key lists (a --ro-bind would be nodev: unreadable)
+    args += [arg for path in _syscalls.KEY_LISTS if os.path.exists(path)
+             for arg in ("--dev-bind", "/dev/null", path)]
     # Mount points above the binds: traversable (0711), not listable, so the sandbox user
     # can reach a bound package without seeing what else its parent held on the host.
     system = ("/usr", "/etc", "/proc", "/dev")

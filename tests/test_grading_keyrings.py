@@ -32,8 +32,10 @@ TOKEN, USER_TOKEN = "cobotlab-instructor-token", "cobotlab-instructor-user-token
 PLANTED = "cobotlab-planted-by-a-submission"
 
 # What a submission tries, with ctypes: find and read the instructor's tokens and a key an
-# earlier submission planted, in every keyring it can name, list /proc/keys, then plant a
-# key of its own (readable by its uid) in its session and user keyrings.
+# earlier submission planted, in every keyring it can name; list the keys and key users
+# procfs shows it (as the instructor's own uid, every key of the instructor's, in any
+# session); then plant a key of its own (readable by its uid) in its session and user
+# keyrings.
 PROBE = f"""
 import ctypes, json, platform
 _NR = {{"x86_64": (248, 249, 250), "aarch64": (217, 218, 219)}}[platform.machine()]
@@ -52,7 +54,7 @@ def keys():
                 buf = ctypes.create_string_buffer(256)
                 n = _call(keyctl, 11, key, buf, 256)                   # KEYCTL_READ
                 found[f"{{ring}} {{name}}"] = buf.raw[:n].decode() if n >= 0 else n
-    listed = [line for line in open("/proc/keys") if "cobotlab" in line]
+    listed = open("/proc/keys").readlines() + open("/proc/key-users").readlines()
     planted = []
     for ring in (-3, -4):
         key = _call(add_key, b"user", {PLANTED!r}.encode(), b"from a submission", 17, ring)

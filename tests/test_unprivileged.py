@@ -338,22 +338,27 @@ def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
 
 
 # Run as the user, against its installed cobotlab: with no cgroup of its own, each
-# submission's CPU is read from its worker process.
+# submission's CPU is read from its worker process. Not the template's forks: bubblewrap's
+# --disable-userns leaves the user's template no user namespace to fork a sandbox into, so
+# the user's grading starts every submission cold.
 AS_THE_USER = ("test_grading_keyrings.py", "test_grading_contention.py")
+NOT_AS_THE_USER = "not correct_submission and not template_fork"
 
 
 @pytest.mark.timeout(300)
 def test_keyrings_and_a_busy_core_as_the_user(ta):
-    """tests/test_grading_keyrings.py (cold worker, template fork, nbgrader's kernel jail)
-    and the worker part of tests/test_grading_contention.py (a starved cell or call is the
-    grader's failure, a sleeping one the student's), run by the user."""
+    """tests/test_grading_keyrings.py (cold worker and nbgrader's kernel jail: the user's
+    own keys, in any session, unlisted) and the worker part of
+    tests/test_grading_contention.py (a starved cell or call is the grader's failure, a
+    sleeping one or one crowded out by its own processes the student's), run by the
+    user."""
     tests = ta.base / "tests"
     tests.mkdir(exist_ok=True)
     for name in (*AS_THE_USER, "course_kit.py", "conftest.py"):
         shutil.copy2(Path(__file__).with_name(name), tests / name)
     _give(tests, ta.user)
     done = ta.run(["python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "-k",
-                   "not correct_submission", *AS_THE_USER], cwd=tests)
+                   NOT_AS_THE_USER, *AS_THE_USER], cwd=tests)
     assert " passed" in done.stdout and "skipped" not in done.stdout, done.stdout[-3000:]
 
 
