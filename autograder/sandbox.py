@@ -310,7 +310,9 @@ class Cgroup:
             _LIVE_CGROUPS.discard(self)
         self.kill_all()
         for d in self.dirs:
-            for _ in range(50):
+            # Up to 5 s: killed processes leave the group only once they have run their exit,
+            # which a core crowded with the submission's own twenty takes its time to give.
+            for _ in range(250):
                 try:
                     d.rmdir()
                     break
