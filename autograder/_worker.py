@@ -39,7 +39,7 @@ import time
 import traceback
 import types
 
-from autograder import _isolate, forbidden, standin, wire
+from autograder import _isolate, _syscalls, forbidden, standin, wire
 
 OUTPUT_KEEP = 4096
 
@@ -415,6 +415,12 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err,
     try:
         _isolate.enter_own_pid_namespace()
         _isolate.drop_privileges()
+        # The template's session keyring is every fork's: each leaves it for one of its
+        # own, then may make no keyring call at all (the template has no filter, or no
+        # fork could join one).
+        if _syscalls.supported():
+            _syscalls.new_session_keyring()
+            _syscalls.install()
         os.dup2(err_w, 2)
         _close_all_but({0, 1, 2, req_r, rep_w})   # the template's files and pipes too
         cpu_s = int(request.get("cpu_s", 60))

@@ -14,7 +14,12 @@ process:
    one cgroup (memory and process count), with per-process limits (address space, CPU
    seconds, file size). Time limits count the CPU seconds of the student's process, so a
    grade does not depend on how busy the grading machine is; a wall clock several times
-   longer backs each of them up with a hard kill. Where bubblewrap cannot run,
+   longer backs each of them up with a hard kill. The cgroup has the CPU weight of one
+   busy process, so another submission cannot crowd this one out; and a cell or call the
+   wall clock stopped under its CPU limit while it waited for a CPU most of that time was
+   starved by the machine: the grader's failure (:class:`GraderError`, graded again in a
+   fresh sandbox), where one that slept is the student's time-out (:meth:`Worker._judge`,
+   from the kernel's counts, never the worker's report). Where bubblewrap cannot run,
    rlimits alone remain and every row says so (``sandbox:rlimits_only``).
 3. Problems are drawn from the secret seed, the assignment, the student id and the function
    name only, so a regrade gives the same submission the same problems and the same score.
@@ -344,9 +349,10 @@ class WorkerFailure(Exception):
 
 
 class GraderError(RuntimeError):
-    """The grader could not grade: its sandbox did not start, before any student code ran.
-    Never the submission's fault: :func:`autograder.course.grade_course` retries it in a
-    fresh sandbox and, if it persists, records no score."""
+    """The grader could not grade: its sandbox did not start, before any student code ran,
+    or the machine starved a cell or call (:meth:`Worker._judge`). Never the submission's
+    fault: :func:`autograder.course.grade_course` retries it in a fresh sandbox and, if it
+    persists, records no score."""
 
 
 class TemplateUnavailable(RuntimeError):
@@ -388,6 +394,60 @@ class LoadBudget:
         self.wall_s -= wall_s
 
 
+# A cell or call stopped by the wall clock under its CPU limit was starved, not asleep, when
+# it waited in the run queue for at least this share of the wall clock. Its wall clock is
+# WALL_BACKSTOP_FACTOR times its CPU limit, so it got under a quarter of a CPU: the rest of
+# the time it was either waiting for one (starved) or sleeping (its own doing).
+STARVED_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class _Usage:
+    """A worker's time as the kernel counts it, read by the grader (nothing the student's
+    code reports): ``cpu_s`` of its submission's cgroup (without one: of the worker
+    process, its reaped children included) and ``waited_s`` its threads spent runnable
+    but not running, at ``at`` (monotonic)."""
+
+    at: float
+    cpu_s: float
+    waited_s: float
+
+
+def _process_times(pid: int) -> tuple[int, float, float] | None:
+    """(start time in ticks, CPU seconds with reaped children, run-queue wait seconds of
+    its threads) of process ``pid``, from /proc; None when it is gone or unreadable."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+        cpu = sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+        start = int(fields[19])
+        waited = 0
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            try:
+                with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as f:
+                    waited += int(f.read().split()[1])
+            except (OSError, ValueError, IndexError):   # a thread that just ended
+                pass
+    except (OSError, ValueError, IndexError):
+        return None
+    return start, cpu, waited / 1e9
+
+
+def _student_process(proc) -> tuple[int, int] | None:
+    """(host pid, start time) of the process that runs a worker's student code: a
+    template's fork's process 1, process 2 of a bubblewrap sandbox (1 is bubblewrap's
+    reaper), or the worker itself without a sandbox. Found by the grader, not told."""
+    fork_pid = getattr(proc, "submission_pid", None)
+    if fork_pid is not None:
+        pid = fork_pid()
+    elif sandbox_available():
+        pid = sandbox.host_pid(2, proc.pid)
+    else:
+        pid = proc.pid
+    times = _process_times(pid) if pid is not None else None
+    return (pid, times[0]) if times is not None else None
+
+
 def _reported_cpu(reply: dict, wall_s: float) -> float:
     """The CPU seconds a reply claims, clipped to [0, wall clock x cores]: the worker is
     untrusted, and a forged figure must not stretch a budget past its wall backstop."""
@@ -422,6 +482,7 @@ class Worker:
                  budget: LoadBudget | None = None, first: bool = True,
                  template=None, control_fd: int | None = None, forbidden=()):
         self.limits = limits
+        self._cgroup, self._student = cgroup, None
         budget = budget or LoadBudget.of(limits)
         started = time.monotonic()
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
@@ -453,6 +514,7 @@ class Worker:
         """Wait for the worker's hello, then run the notebook's cells (see the class)."""
         limits = self.limits
         self._wait_ready(first)
+        self._student = _student_process(self.proc)
         if forbidden:   # a fork too: the template's cells are the instructor's, not student code
             self._request({"op": "forbid", "names": sorted(forbidden)}, WORKER_START_S)
         self.start_s = time.monotonic() - started
@@ -475,7 +537,8 @@ class Worker:
             cell_started = time.monotonic()
             try:
                 reply = self._request({"op": "cell", "index": index, "source": source,
-                                       "timeout": cpu, "wall": wall}, wall + 2.0)
+                                       "timeout": cpu, "wall": wall}, wall + 2.0,
+                                      limits=(cpu, wall, f"cell {index}"))
             except WorkerFailure as exc:
                 budget.spend(0.0, time.monotonic() - cell_started)
                 raise CellHang(index, f"cell {index}: {exc}") from None
@@ -494,8 +557,9 @@ class Worker:
         if control_fd is not None:
             python.append(str(control_fd))
             passed += (control_fd,)
-        if sandbox_available():
-            command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
+        if sandbox_available():   # a template's forks install the keyring filter themselves
+            command, env = sandbox.command(python, worker_jail(limits), cgroup,
+                                           syscall_filter=control_fd is None), {}
         else:  # rlimits only: the worker still starts in an empty directory with a clean env
             command, env = python, _worker_env(self.workdir)
         self.proc = subprocess.Popen(
@@ -563,11 +627,18 @@ class Worker:
         :class:`WorkerFailure`."""
         return self._request(message, timeout_s, max_bytes)
 
-    def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
+    def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024,
+                 limits: tuple[float, float, str] | None = None) -> dict:
+        """:meth:`request`; with ``limits`` (CPU seconds, wall-clock seconds, what runs) a
+        cell or call, which raises :class:`GraderError` when it failed at the wall clock
+        because the machine starved it (see :meth:`_judge`)."""
+        before = self._usage() if limits is not None else None
         try:
             wire.send(self._req_w, message)
-            return wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
+            reply = wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
         except (wire.WireError, OSError) as exc:
+            if limits is not None:   # before the worker is killed: its counters go with it
+                self._judge(before, *limits)
             self.close()
             code = self.proc.returncode
             if isinstance(exc, wire.WireTimeout):
@@ -583,6 +654,45 @@ class Worker:
                       -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
             raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
                                 "are enforced)") from None
+        if limits is not None and reply.get("ok") is not True:
+            self._judge(before, *limits)
+        return reply
+
+    def _usage(self, children: bool = False) -> _Usage | None:
+        """The trusted sample :meth:`_judge` compares (None where the kernel does not say).
+        Without the cgroup's count, ``children`` counts every live process of the sandbox,
+        all of its CPU so far: judged at the end of a cell, a submission that crowds out
+        its own worker with busy processes of its own has then used its limit."""
+        if self._student is None:
+            return None
+        pid, start = self._student
+        times = _process_times(pid)
+        if times is None or times[0] != start:   # gone, or its pid reused
+            return None
+        cpu = self._cgroup.cpu_seconds() if self._cgroup is not None else None
+        if cpu is None and children:   # everything in the sandbox, orphans included
+            tree = {self.proc.pid, *sandbox._descendants(self.proc.pid)}
+            cpu = sum(t[1] for t in map(_process_times, tree) if t)
+        return _Usage(time.monotonic(), times[1] if cpu is None else cpu, times[2])
+
+    def _judge(self, before: _Usage | None, cpu_s: float, wall_s: float, what: str) -> None:
+        """Raise :class:`GraderError` (the worker killed) when the cell or call that began
+        at ``before`` and has just failed was starved: it ran ``wall_s`` of wall clock, its
+        submission used under ``cpu_s`` of CPU, and the worker waited in the run queue for
+        at least :data:`STARVED_SHARE` of that time (runnable, not running). A cell that
+        sleeps or blocks is not runnable, so its time-out stays the submission's."""
+        after = self._usage(children=True)
+        if before is None or after is None:
+            return
+        elapsed = after.at - before.at
+        cpu = after.cpu_s - before.cpu_s
+        waited = after.waited_s - before.waited_s
+        if elapsed >= wall_s and cpu < cpu_s and waited >= STARVED_SHARE * elapsed:
+            self.close()
+            raise GraderError(
+                f"{what} was stopped by the {wall_s:g} s wall clock having had {cpu:.1f} s of "
+                f"its {cpu_s:g} s of CPU: it waited {waited:.0f} s for a CPU (the machine "
+                "was too busy: the grader's failure, not the submission's)") from None
 
     def call(self, name: str, args: tuple, timeout_s: float,
              forbidden_names=(), substitutes: dict | None = None) -> checks.TrialOutcome:
@@ -597,7 +707,8 @@ class Worker:
                                "timeout": timeout_s, "wall": wall,
                                "forbidden": list(forbidden_names),
                                "substitutes": substitutes or {}},
-                              wall + 2.0, self.limits.reply_kb * 1024)
+                              wall + 2.0, self.limits.reply_kb * 1024,
+                              limits=(timeout_s, wall, f"a call of {name}"))
         elapsed = time.monotonic() - started
         tripped = reply.get("forbidden")
         if isinstance(tripped, list):
@@ -800,6 +911,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     sorted({n for names in banned.values() for n in names})]
     if not caps.bwrap:
         grade.flags.append("sandbox:rlimits_only")
+    elif not caps.syscall_filter:   # a machine the keyring filter does not know
+        grade.flags.append("sandbox:no_keyring_filter")
     grade.seconds = time.monotonic() - started
     return grade
 

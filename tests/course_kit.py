@@ -6,6 +6,7 @@ autograder.course.grade_course. Each lab's test file uses these with its own ass
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import json
@@ -259,6 +260,41 @@ def serve_localhost(port: int, reply: bytes, stop) -> bool:
 
     threading.Thread(target=serve, daemon=True).start()
     return True
+
+
+@contextlib.contextmanager
+def instructor_keyring(session_token: bytes, user_token: bytes | None = None):
+    """This thread (and what it starts from now on) as an instructor's SSH login: a new
+    session keyring holding ``session_token`` (as pam_keyinit's holds a login's tokens) and,
+    when given, ``user_token`` in its user keyring; both removed afterwards. Keys named
+    ``cobotlab-instructor-token`` and ``cobotlab-instructor-user-token``."""
+    import ctypes
+    import platform
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.syscall.restype = ctypes.c_long
+    add_key, keyctl = {"x86_64": (248, 250), "aarch64": (217, 219)}[platform.machine()]
+
+    def call(*args) -> int:
+        result = libc.syscall(*args)
+        if result < 0:
+            raise OSError(ctypes.get_errno(), "keyring call")
+        return result
+
+    call(keyctl, 1, None)   # KEYCTL_JOIN_SESSION_KEYRING, anonymous: this thread's own
+    planted = [(call(add_key, b"user", b"cobotlab-instructor-token", session_token,
+                     len(session_token), -3), -3)]
+    if user_token is not None:
+        planted.append((call(add_key, b"user", b"cobotlab-instructor-user-token", user_token,
+                             len(user_token), -4), -4))
+    try:
+        yield
+    finally:
+        for key, ring in planted:
+            try:
+                call(keyctl, 9, key, ring)   # KEYCTL_UNLINK
+            except OSError:
+                pass
 
 
 # nbgrader's own (trusting) autograde runs, for the cross-check, on the cases built to fool it

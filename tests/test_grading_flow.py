@@ -33,7 +33,8 @@ FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 SLICE = ("gradebook_overwrite", "config_injection", "copy_source", "overwrite_classmate",
          "neutralise_hidden_tests", "env_and_localhost", "grades_csv_symlink", "write_outside",
          "symlink_notebook", "symlink_folder", "fifo_notebook", "newline_student_id",
-         "invisible_twin_student_id", "escaped_twin_student_id", "import_solutions")
+         "invisible_twin_student_id", "escaped_twin_student_id", "import_solutions",
+         "keyring")
 TOKEN = "instructor-token-5f1e"
 SERVICE_PORT = 47613
 ROOT = Path(__file__).resolve().parent.parent
@@ -116,10 +117,11 @@ def test_the_corpus_slice_through_cobotlab_grade(tmp_path):
     env = dict(os.environ, HOME=str(home), COBOTLAB_TEST_INSTRUCTOR_TOKEN=TOKEN)
     env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
     try:
-        done = subprocess.run([str(Path(sys.executable).parent / "cobotlab"), "grade", str(course),
-                               ASSIGNMENT,
-                               "--workers", "2"], env=env, capture_output=True, text=True,
-                              timeout=1500, check=False)
+        # the instructor's login keeps a token in its session keyring (pam_keyinit)
+        with kit.instructor_keyring(TOKEN.encode()):
+            done = subprocess.run([str(Path(sys.executable).parent / "cobotlab"), "grade",
+                                   str(course), ASSIGNMENT, "--workers", "2"], env=env,
+                                  capture_output=True, text=True, timeout=1500, check=False)
     finally:
         stop.set()
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
