@@ -72,7 +72,77 @@ class _CappedWriter(io.TextIOBase):
         return text
 
 
+# The wall clock is the backstop for code that sleeps or blocks, so it counts the time the
+# cell or call could have run: seconds it spent runnable in the run queue, waiting for a CPU
+# that other graders held, are added back, up to this many times the wall-clock limit (past
+# that the grader judges it starved: see autograder.grading.Worker._judge).
+WALL_STRETCH = 3.0
+
+
+class _Clock:
+    """The running cell's or call's limits and the counters at its start, for the alarm."""
+
+    active = False
+    started = waited = sandbox_cpu = cpu_s = wall_s = 0.0
+
+
+def _waited_s() -> float:
+    """Seconds this process's threads spent runnable but not running (schedstat)."""
+    total = 0
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return 0.0
+    for tid in tasks:
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+                total += int(f.read().split()[1])
+        except (OSError, ValueError, IndexError):   # a thread that just ended
+            pass
+    return total / 1e9
+
+
+def _sandbox_cpu_s() -> float | None:
+    """CPU seconds of every process in this sandbox's PID namespace, reaped children
+    included; None outside one (the host's processes are not the submission's)."""
+    if os.getpid() > 2:   # a sandbox's worker is process 1 (a fork) or 2 (bubblewrap's)
+        return None
+    total = 0
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                with open(f"/proc/{pid}/stat", "rb") as f:
+                    total += sum(int(x) for x in f.read().rsplit(b")", 1)[1].split()[11:15])
+            except (OSError, ValueError, IndexError):
+                pass
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _wall_left(now: float) -> float:
+    """Seconds of wall clock the running cell or call still has: its limit less the time it
+    could run, when it was starved by other processes (not by its own: their CPU counts
+    against its limit) and is within :data:`WALL_STRETCH`; else 0."""
+    cpu = _sandbox_cpu_s()
+    if not _Clock.active or cpu is None or cpu - _Clock.sandbox_cpu >= _Clock.cpu_s:
+        return 0.0
+    elapsed = now - _Clock.started
+    could_run = elapsed - (_waited_s() - _Clock.waited)
+    left = min(_Clock.wall_s - could_run, WALL_STRETCH * _Clock.wall_s - elapsed)
+    return left if left > 0.01 else 0.0
+
+
 def _on_alarm(signum, frame):
+    # Raised inside the tripwire's profile hook, the time-out would make CPython drop the
+    # hook, which the tripwire must read as student code removing it (every forbidden
+    # routine flagged). So it is put off by a millisecond, to the student's next line.
+    if forbidden.Tripwire.is_hook(frame):
+        signal.setitimer(signal.ITIMER_REAL, 0.001)
+        return
+    if signum == signal.SIGALRM:
+        left = _wall_left(time.monotonic())
+        if left:
+            signal.setitimer(signal.ITIMER_REAL, left)
+            return
     raise _Timeout()
 
 
@@ -95,12 +165,16 @@ def _where(exc: BaseException) -> str:
 
 def _run_guarded(fn, cpu_s: float, wall_s: float):
     """``fn()`` stopped by :class:`_Timeout` after ``cpu_s`` seconds of this process's CPU
-    time or ``wall_s`` seconds of wall clock, whichever comes first.
+    time or ``wall_s`` seconds of wall clock (less the time it waited for a CPU, see
+    :data:`WALL_STRETCH`), whichever comes first.
 
     CPU time is the limit that counts: it does not grow when other graders share the
     machine, so the same code meets the same limit on a quiet laptop and on a loaded CI
     runner. The wall clock is the backstop for code that sleeps or blocks.
     """
+    _Clock.started, _Clock.cpu_s, _Clock.wall_s = time.monotonic(), float(cpu_s), float(wall_s)
+    _Clock.waited, _Clock.sandbox_cpu = _waited_s(), _sandbox_cpu_s() or 0.0
+    _Clock.active = True
     signal.setitimer(signal.ITIMER_PROF, max(0.001, float(cpu_s)))
     signal.setitimer(signal.ITIMER_REAL, max(0.001, float(wall_s)))
     try:
@@ -108,6 +182,7 @@ def _run_guarded(fn, cpu_s: float, wall_s: float):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0.0)
         signal.setitimer(signal.ITIMER_PROF, 0.0)
+        _Clock.active = False
 
 
 class _Unsendable(Exception):

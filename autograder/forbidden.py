@@ -652,6 +652,12 @@ class Tripwire:
                 if module == m or str(module).startswith(m + "."):
                     self.hits.add(m)
 
+    @staticmethod
+    def is_hook(frame) -> bool:
+        """True when ``frame`` is a tripwire's profile hook running: an exception raised
+        there (a time-out's) would make CPython remove the hook."""
+        return frame is not None and frame.f_code is Tripwire._profile.__code__
+
     def _record(self, name: str):
         self.hits.add(name)
         raise ForbiddenCall(f"{name} was called: it is one of the routines this function "

@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from autograder import checks, sandbox, wire
+from autograder._worker import WALL_STRETCH
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
 
 __all__ = [
@@ -395,9 +396,10 @@ class LoadBudget:
 
 
 # A cell or call stopped by the wall clock under its CPU limit was starved, not asleep, when
-# it waited in the run queue for at least this share of the wall clock. Its wall clock is
-# WALL_BACKSTOP_FACTOR times its CPU limit, so it got under a quarter of a CPU: the rest of
-# the time it was either waiting for one (starved) or sleeping (its own doing).
+# it waited in the run queue for at least this share of the wall clock and could run for
+# less than its wall-clock limit. The worker adds run-queue waits back to the wall clock (up
+# to WALL_STRETCH times it), so this is a machine too busy even for that, or a worker with
+# no view of its run queue.
 STARVED_SHARE = 0.5
 
 
@@ -537,7 +539,8 @@ class Worker:
             cell_started = time.monotonic()
             try:
                 reply = self._request({"op": "cell", "index": index, "source": source,
-                                       "timeout": cpu, "wall": wall}, wall + 2.0,
+                                       "timeout": cpu, "wall": wall},
+                                      WALL_STRETCH * wall + 2.0,
                                       limits=(cpu, wall, f"cell {index}"))
             except WorkerFailure as exc:
                 budget.spend(0.0, time.monotonic() - cell_started)
@@ -679,15 +682,17 @@ class Worker:
         """Raise :class:`GraderError` (the worker killed) when the cell or call that began
         at ``before`` and has just failed was starved: it ran ``wall_s`` of wall clock, its
         submission used under ``cpu_s`` of CPU, and the worker waited in the run queue for
-        at least :data:`STARVED_SHARE` of that time (runnable, not running). A cell that
-        sleeps or blocks is not runnable, so its time-out stays the submission's."""
+        at least :data:`STARVED_SHARE` of that time (runnable, not running) and could run
+        for less than ``wall_s``. A cell that sleeps or blocks is not runnable, so its
+        time-out stays the submission's."""
         after = self._usage(children=True)
         if before is None or after is None:
             return
         elapsed = after.at - before.at
         cpu = after.cpu_s - before.cpu_s
         waited = after.waited_s - before.waited_s
-        if elapsed >= wall_s and cpu < cpu_s and waited >= STARVED_SHARE * elapsed:
+        if elapsed >= wall_s and cpu < cpu_s and waited >= STARVED_SHARE * elapsed \
+                and elapsed - waited < wall_s:
             self.close()
             raise GraderError(
                 f"{what} was stopped by the {wall_s:g} s wall clock having had {cpu:.1f} s of "
@@ -707,7 +712,7 @@ class Worker:
                                "timeout": timeout_s, "wall": wall,
                                "forbidden": list(forbidden_names),
                                "substitutes": substitutes or {}},
-                              wall + 2.0, self.limits.reply_kb * 1024,
+                              WALL_STRETCH * wall + 2.0, self.limits.reply_kb * 1024,
                               limits=(timeout_s, wall, f"a call of {name}"))
         elapsed = time.monotonic() - started
         tripped = reply.get("forbidden")

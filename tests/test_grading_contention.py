@@ -5,7 +5,9 @@ Each submission's processes share one cgroup with the CPU weight of one busy pro
 more of the machine from the one graded beside it than one busy process would; and a cell
 or call stopped by the wall clock while under its CPU limit, having waited for a CPU most
 of that time, is the grader's failure (GraderError: graded again in a fresh sandbox), while
-one that sleeps past the wall clock is still the student's time-out.
+one that sleeps past the wall clock is still the student's time-out. The wall clock counts
+only the time the worker could run (the seconds it waited for a CPU are added back, up to
+three times the limit), so a cell that is only slowed by a busy machine is simply graded.
 
 Contention is made real by pinning the grader, and so every sandbox it starts, to one core
 beside the busy processes, whatever else the machine runs. Real bubblewrap, real cgroups,
@@ -131,6 +133,15 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
                 with pytest.raises(grading.GraderError, match="cell 1 was stopped"):
                     grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
                                    template=template)
+            # Beside two busy processes it needs 2.4 s of wall clock for its 0.8 s: the
+            # time it waited for the core is added back to its 2 s (up to three times
+            # that), so it is graded, not retried nor timed out
+            with _busy(core, 2):
+                with grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
+                                    template=template) as w:
+                    assert w.load_report[1]["ok"], w.load_report
+                    outcome = w.call("slow", (), 1)
+                    assert outcome.value == 1 and outcome.seconds > 2.0, outcome
             # Its own eight busy processes leave its cell a ninth of what it gets: the
             # submission used its CPU, so the time-out is its own, not a retry.
             with grading.Worker([BURN, CROWD], CROWD_LIMITS, cgroup=cgroup,
