@@ -16,7 +16,9 @@ the forked process moves into namespaces of its own:
   once cannot talk to each other.
 
 Then the process drops every capability (bounding set too), keeps ``no_new_privs`` and
-may not create further user namespaces, as bubblewrap's ``--disable-userns`` has it.
+may not create further user namespaces, as bubblewrap's ``--disable-userns`` has it; the
+worker then gives it a session keyring of its own and the keyring filter
+(:mod:`autograder._syscalls`).
 Standard library only (ctypes for the system calls Python 3.11 lacks): this module runs in
 the worker's view.
 """
@@ -29,6 +31,8 @@ import fcntl
 import os
 import socket
 import struct
+
+from autograder import _syscalls
 
 CLONE_NEWNS = 0x00020000
 CLONE_NEWUTS = 0x04000000
@@ -115,6 +119,9 @@ def enter_own_pid_namespace() -> bool:
     do not exist, and the template is not dumpable)."""
     result = _libc.mount(b"proc", b"/proc", b"proc", MS_NOSUID | MS_NODEV | MS_NOEXEC, None)
     if result == 0:
+        for path in _syscalls.KEY_LISTS:   # as bubblewrap's /proc has them: empty
+            if os.path.exists(path):
+                _mount("/dev/null", path, None, MS_BIND, None, f"hide {path}")
         return True
     code = ctypes.get_errno()
     if code not in (errno.EPERM, errno.EACCES):

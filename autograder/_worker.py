@@ -14,11 +14,13 @@ Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}``
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
 the cell wrote to stdout and to stderr;
+``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
+routines graded functions must not call (:class:`autograder.forbidden.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
-"substitutes": {name: [[args, value], ...]}}`` calls a function by name, with a tripwire on
-the routines it must not call (reported as ``"forbidden"`` in the reply; the grader's own
-static scan is the authoritative rule) and the stand-ins of :mod:`autograder.standin`;
-``{"op": "quit"}``.
+"substitutes": {name: [[args, value], ...]}}`` calls a function by name, those routines
+poisoned and a tripwire on them (calls seen are reported as ``"forbidden"`` in the reply;
+the grader's own static scan is the authoritative rule, the report can only add to it),
+with the stand-ins of :mod:`autograder.standin`; ``{"op": "quit"}``.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import time
 import traceback
 import types
 
-from autograder import _isolate, forbidden, standin, wire
+from autograder import _isolate, _syscalls, forbidden, standin, wire
 
 OUTPUT_KEEP = 4096
 
@@ -70,7 +72,77 @@ class _CappedWriter(io.TextIOBase):
         return text
 
 
+# The wall clock is the backstop for code that sleeps or blocks, so it counts the time the
+# cell or call could have run: seconds it spent runnable in the run queue, waiting for a CPU
+# that other graders held, are added back, up to this many times the wall-clock limit (past
+# that the grader judges it starved: see autograder.grading.Worker._judge).
+WALL_STRETCH = 3.0
+
+
+class _Clock:
+    """The running cell's or call's limits and the counters at its start, for the alarm."""
+
+    active = False
+    started = waited = sandbox_cpu = cpu_s = wall_s = 0.0
+
+
+def _waited_s() -> float:
+    """Seconds this process's threads spent runnable but not running (schedstat)."""
+    total = 0
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return 0.0
+    for tid in tasks:
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+                total += int(f.read().split()[1])
+        except (OSError, ValueError, IndexError):   # a thread that just ended
+            pass
+    return total / 1e9
+
+
+def _sandbox_cpu_s() -> float | None:
+    """CPU seconds of every process in this sandbox's PID namespace, reaped children
+    included; None outside one (the host's processes are not the submission's)."""
+    if os.getpid() > 2:   # a sandbox's worker is process 1 (a fork) or 2 (bubblewrap's)
+        return None
+    total = 0
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                with open(f"/proc/{pid}/stat", "rb") as f:
+                    total += sum(int(x) for x in f.read().rsplit(b")", 1)[1].split()[11:15])
+            except (OSError, ValueError, IndexError):
+                pass
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _wall_left(now: float) -> float:
+    """Seconds of wall clock the running cell or call still has: its limit less the time it
+    could run, when it was starved by other processes (not by its own: their CPU counts
+    against its limit) and is within :data:`WALL_STRETCH`; else 0."""
+    cpu = _sandbox_cpu_s()
+    if not _Clock.active or cpu is None or cpu - _Clock.sandbox_cpu >= _Clock.cpu_s:
+        return 0.0
+    elapsed = now - _Clock.started
+    could_run = elapsed - (_waited_s() - _Clock.waited)
+    left = min(_Clock.wall_s - could_run, WALL_STRETCH * _Clock.wall_s - elapsed)
+    return left if left > 0.01 else 0.0
+
+
 def _on_alarm(signum, frame):
+    # Raised inside the tripwire's profile hook, the time-out would make CPython drop the
+    # hook, which the tripwire must read as student code removing it (every forbidden
+    # routine flagged). So it is put off by a millisecond, to the student's next line.
+    if forbidden.Tripwire.is_hook(frame):
+        signal.setitimer(signal.ITIMER_REAL, 0.001)
+        return
+    if signum == signal.SIGALRM:
+        left = _wall_left(time.monotonic())
+        if left:
+            signal.setitimer(signal.ITIMER_REAL, left)
+            return
     raise _Timeout()
 
 
@@ -93,12 +165,16 @@ def _where(exc: BaseException) -> str:
 
 def _run_guarded(fn, cpu_s: float, wall_s: float):
     """``fn()`` stopped by :class:`_Timeout` after ``cpu_s`` seconds of this process's CPU
-    time or ``wall_s`` seconds of wall clock, whichever comes first.
+    time or ``wall_s`` seconds of wall clock (less the time it waited for a CPU, see
+    :data:`WALL_STRETCH`), whichever comes first.
 
     CPU time is the limit that counts: it does not grow when other graders share the
     machine, so the same code meets the same limit on a quiet laptop and on a loaded CI
     runner. The wall clock is the backstop for code that sleeps or blocks.
     """
+    _Clock.started, _Clock.cpu_s, _Clock.wall_s = time.monotonic(), float(cpu_s), float(wall_s)
+    _Clock.waited, _Clock.sandbox_cpu = _waited_s(), _sandbox_cpu_s() or 0.0
+    _Clock.active = True
     signal.setitimer(signal.ITIMER_PROF, max(0.001, float(cpu_s)))
     signal.setitimer(signal.ITIMER_REAL, max(0.001, float(wall_s)))
     try:
@@ -106,6 +182,24 @@ def _run_guarded(fn, cpu_s: float, wall_s: float):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0.0)
         signal.setitimer(signal.ITIMER_PROF, 0.0)
+        _Clock.active = False
+
+
+class _Unsendable(Exception):
+    """A graded function's value that is not made of arrays, numbers, lists and the like."""
+
+
+def _settled(value):
+    """``value`` rebuilt from plain lists, tuples, dicts, numbers and arrays.
+
+    Done inside the graded call, while the forbidden routines are poisoned: a returned
+    object whose conversion runs code (a list subclass's ``__iter__``, an array subclass)
+    runs it there, not while the reply is sent.
+    """
+    try:
+        return wire.decode(wire.encode(value))
+    except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
+        raise _Unsendable(str(exc)) from None
 
 
 def _limits_of(request: dict) -> tuple[float, float]:
@@ -196,16 +290,18 @@ def main(argv: list[str]) -> int:
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
     _stub_viewer()
+    guard = forbidden.Guard()
     # Before any student code: the grader knows the sandbox started (a failure until here
     # is the grader's, retried in a fresh sandbox, never a student's zero).
     wire.send(rep_fd, {"op": "ready"})
-    return _serve(req_fd, rep_fd, namespace, out, err, control_fd)
+    return _serve(req_fd, rep_fd, namespace, out, err, guard, control_fd)
 
 
 def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
-           err: _CappedWriter, control_fd: int | None = None) -> int:
+           err: _CappedWriter, guard: forbidden.Guard, control_fd: int | None = None) -> int:
     """Answer requests until "quit" or the grader closes the pipe; returns the exit code."""
-    send, receive = wire.send, wire.receive  # bound now: student code may patch the module
+    # bound now: student code may patch the modules
+    send, receive, tripwire_of = wire.send, wire.receive, forbidden.Tripwire
     while True:
         try:
             request = receive(req_fd)
@@ -215,7 +311,14 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
         if op == "quit":
             return 0
         if op == "template" and control_fd is not None:
-            return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err)
+            return _serve_forks(control_fd, req_fd, rep_fd, namespace, out, err, guard)
+        if op == "forbid":
+            try:
+                guard.add(str(n) for n in request.get("names", []))
+                send(rep_fd, {"ok": True})
+            except Exception as exc:  # noqa: BLE001 - no student code yet: the grader's error
+                send(rep_fd, {"ok": False, "error": _describe(exc)})
+            continue
         if op == "preload" and control_fd is not None:
             send(rep_fd, _preload(request))
             continue
@@ -242,12 +345,15 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 continue
             args = request.get("args", [])
             names = [str(n) for n in request.get("forbidden", [])]
-            tripwire = forbidden.Tripwire(names)
+            tripwire = tripwire_of(names, guard=guard)
             started, cpu_started = time.monotonic(), time.process_time()
             try:
                 with standin.substituted(namespace, _tables(request)), tripwire:
-                    value = _run_guarded(lambda: func(*args), *_limits_of(request))
+                    value = _run_guarded(lambda: _settled(func(*args)), *_limits_of(request))
                 reply = {"ok": True, "value": value}
+            except _Unsendable as exc:
+                reply = {"ok": False, "error": f"returned a value that is not an array or "
+                                               f"number ({exc})"}
             except BaseException as exc:  # noqa: BLE001
                 reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
             if tripwire.hits:
@@ -304,7 +410,7 @@ def _single_threaded() -> str | None:
 
 
 def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
-                 out: _CappedWriter, err: _CappedWriter) -> int:
+                 out: _CappedWriter, err: _CappedWriter, guard: forbidden.Guard) -> int:
     """The template's loop: one fork per request on the control socket (fds attached:
     the submission's request and reply pipes, its stderr file, its cgroups' procs files)."""
     busy = _single_threaded()
@@ -331,7 +437,7 @@ def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
             pid = os.fork()
             if pid == 0:
                 _become_submission(control, fds, request, (req_fd, rep_fd), namespace, out,
-                                   err)
+                                   err, guard)
             for fd in fds:
                 os.close(fd)
             control.send(json.dumps({"pid": pid}).encode())
@@ -360,7 +466,7 @@ def _reap(exited: dict[int, int]) -> None:
         exited[pid] = os.waitstatus_to_exitcode(status)
 
 
-def _become_submission(control, fds, request, template_fds, namespace, out, err):
+def _become_submission(control, fds, request, template_fds, namespace, out, err, guard):
     """In the fork: leave the template's namespaces, fork process 1 of a PID namespace of
     its own, and serve the submission there. Never returns."""
     req_r, rep_w, err_w, *cgroups = fds
@@ -384,6 +490,12 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err)
     try:
         _isolate.enter_own_pid_namespace()
         _isolate.drop_privileges()
+        # The template's session keyring is every fork's: each leaves it for one of its
+        # own, then may make no keyring call at all (the template has no filter, or no
+        # fork could join one).
+        if _syscalls.supported():
+            _syscalls.new_session_keyring()
+            _syscalls.install()
         os.dup2(err_w, 2)
         _close_all_but({0, 1, 2, req_r, rep_w})   # the template's files and pipes too
         cpu_s = int(request.get("cpu_s", 60))
@@ -391,7 +503,7 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err)
     except BaseException as exc:  # noqa: BLE001
         _refuse(rep_w, exc)
     wire.send(rep_w, {"op": "ready"})
-    os._exit(_serve(req_r, rep_w, namespace, out, err))
+    os._exit(_serve(req_r, rep_w, namespace, out, err, guard))
 
 
 def _close_all_but(keep: set[int]) -> None:

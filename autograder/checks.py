@@ -307,10 +307,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             message = None if raised else (f"expected {trial.raises} on this degenerate input, "
                                            f"got {message or 'a return value'}")
         elif outcome.error is None:
-            try:
-                measured = spec.measure(outcome.value, trial)
-            except OutputError as exc:
-                message = str(exc)
+            measured, message = _measured(spec, outcome.value, trial)
         if message is not None:
             if f"on a {trial.label} problem: {message}" not in errors:
                 errors.append(f"on a {trial.label} problem: {message}")
@@ -319,7 +316,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
                 counts[message] = counts.get(message, 0) + 1
         rows = {}
         for c in spec.checks:
-            err = math.inf if measured is None else float(measured[c.name])
+            err = math.inf if measured is None else measured[c.name]
             rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]), False)
         if trial.all_or_nothing and min(r[2] for r in rows.values()) < 1.0:
             rows = {k: (r[0], r[1], 0.0, r[2] >= 1.0) for k, r in rows.items()}
@@ -359,9 +356,33 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts)
 
 
+def _measured(spec: FunctionSpec, value, trial: Trial) -> tuple[dict | None, str | None]:
+    """({check: error as a float}, None) for the answer ``value`` to ``trial``, or (None,
+    why it cannot be measured). Never raises: the value is the student's, and whatever it
+    is (an integer of 400 digits, an object array, a string where a pose belongs) it costs
+    that problem, not the grade of the whole submission."""
+    try:
+        measured = spec.measure(value, trial)
+        return {c.name: float(measured[c.name]) for c in spec.checks}, None
+    except OutputError as exc:
+        return None, str(exc)
+    except Exception as exc:  # noqa: BLE001 - any value the measure cannot use fails here
+        detail = str(exc)[:200]
+        return None, (f"returned a value that cannot be measured ({type(exc).__name__}"
+                      + (f": {detail})" if detail else ")"))
+
+
 def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
     """The spec's own mistakes of this problem (precomputed with practice data), then
-    :func:`autograder.mistakes.diagnose` on the answer (or on the first parts of a pair)."""
+    :func:`autograder.mistakes.diagnose` on the answer (or on the first parts of a pair).
+    None when nothing matches, or when comparing cannot be done on a value this odd."""
+    try:
+        return _matching_mistake(spec, value, trial)
+    except Exception:  # noqa: BLE001 - a hint is a courtesy: no hint, never a failed grade
+        return None
+
+
+def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> str | None:
     predicted_mistakes = trial.mistakes if trial.mistakes is not None else \
         mistake_answers(spec, trial)
     for words, predicted in predicted_mistakes:
@@ -379,6 +400,16 @@ class StudentCallError(Exception):
     """A call of the student's function inside a closed-loop ``drive`` failed."""
 
 
+class _CallerFailed(BaseException):
+    """Carries an exception of ``call_once`` itself (not of the student's function) out
+    of a closed loop, past any ``except Exception`` in the loop and past the net that
+    charges the loop's other failures to the student's values."""
+
+    def __init__(self, cause: Exception):
+        super().__init__(cause)
+        self.cause = cause
+
+
 def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
               wall_factor: float = WALL_BACKSTOP_FACTOR) -> TrialOutcome:
     """One trial: a single ``call_once(args, cpu_limit_s) -> TrialOutcome``, or the spec's
@@ -394,7 +425,10 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
         left = time_limit_s - cpu_used
         if left <= 0 or time.perf_counter() - started > wall_factor * time_limit_s:
             raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s")
-        outcome = call_once(args, left)
+        try:
+            outcome = call_once(args, left)
+        except Exception as exc:  # noqa: BLE001 - the caller's failure (a worker that died)
+            raise _CallerFailed(exc) from None
         cpu_used += outcome.cpu_seconds
         if outcome.error is not None:
             raise StudentCallError(outcome.error)
@@ -405,10 +439,15 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
 
     try:
         value = spec.drive(call, trial)
+    except _CallerFailed as failed:
+        raise failed.cause from None
     except StudentCallError as exc:
         return done(error=str(exc))
     except OutputError as exc:
         return done(error=f"returned an unusable value in the loop: {exc}")
+    except Exception as exc:  # noqa: BLE001 - the loop ran on the student's values
+        return done(error=f"returned a value the closed loop cannot use "
+                          f"({type(exc).__name__}: {str(exc)[:200]})")
     return done(value=value)
 
 
@@ -464,7 +503,9 @@ def _static_forbidden(func, spec: FunctionSpec, always=forbidden.ALWAYS_FORBIDDE
             header.append(f"import {target} as {alias}" if inspect.ismodule(value)
                           else f"from {target.rsplit('.', 1)[0]} import "
                                f"{target.rsplit('.', 1)[1]} as {alias}")
-    return forbidden.static_hits(header + [source], func.__name__, spec.forbidden, always)
+    # a lambda's source is the line that binds it: scanned under the graded name it is bound to
+    name = func.__name__ if func.__name__.isidentifier() else spec.name
+    return forbidden.static_hits(header + [source], name, spec.forbidden, always)
 
 
 def evaluate(func, name: str | None = None, seeds=PUBLIC_SEEDS,

@@ -124,7 +124,10 @@ def _count(value, what: str, top: int = 10**6) -> int:
 def _number(value, what: str, finite: bool = True, low=-math.inf, high=math.inf) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise WireRefused(f"{what} is not a number")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:   # an integer of hundreds of digits: no score or time is that
+        raise WireRefused(f"{what} is an integer too large for a float") from None
     if math.isnan(value) or math.isinf(value):
         if finite:
             raise WireRefused(f"{what} is not finite")

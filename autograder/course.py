@@ -12,6 +12,7 @@ autograde, :mod:`autograder.scratch`), and record from the trusted process
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -35,6 +36,7 @@ from autograder.feedback_release import (
 )
 from autograder.freeze import printable
 from autograder.practice import build_practice, save_practice
+from autograder.safe_files import Refused, Why, move_aside, read_file
 from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
 
 __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde", "grade_course"]
@@ -673,6 +675,7 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     if not damaged:
         _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
                          run_notes)
+        _withdraw_ungraded(root, assignment, grades, frozen, run_notes)
         damaged = _check_gradebook(root, private, run_notes)
     # names, timestamps and late penalties as the gradebook has them now, our scores in it
     nb_results = {} if damaged else _nbgrader_results(
@@ -697,6 +700,27 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     return rows
+
+
+def _withdraw_ungraded(root: Path, assignment: str, grades, frozen, run_notes) -> None:
+    """No score in gradebook.db for a submission the grader failed on: grades.csv leaves
+    its score empty, and nbgrader's export and formgrader must not show one that cobotlab
+    did not give (an earlier trusting ``nbgrader autograde``'s, say)."""
+    for grade, sub in zip(grades, frozen):
+        if grade.graded or not sub.accepted:
+            continue
+        try:
+            emptied = record.withdraw_scores(
+                root, assignment, grade.student_id,
+                "cobotlab: not graded (the grader failed on every attempt); no score is "
+                "recorded, and the next `cobotlab grade` grades it again.")
+        except Exception as exc:  # noqa: BLE001 - said in the run notes, the row stays empty
+            run_notes.append(f"could not empty the gradebook's scores of "
+                             f"{printable(grade.student_id)}: {printable(exc, 200)}")
+            continue
+        if emptied:
+            grade.notes.append(f"{emptied} automatic score(s) in gradebook.db emptied: "
+                               "cobotlab did not give them")
 
 
 def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | None,
@@ -761,13 +785,28 @@ GRADES_CSV = "grades.csv"
 _LEDGER = "nbgrader_cells.json"
 
 
-def _load_ledger(private: Path) -> dict:
-    path = private / _LEDGER
+_PRIVATE_CAP = 1 << 30   # a private file read back whole (runs.jsonl grows by a line a run)
+
+
+def _read_private(private: Path, name: str) -> bytes | None:
+    """The bytes of ``private/name`` (``private`` itself no link either), or None: missing,
+    or not a regular file (a link is not followed; the next write replaces it). One too
+    big or unreadable is moved aside to ``<name>.unreadable-<time>``, not lost."""
     try:
-        data = json.loads(path.read_text()) if path.is_file() and not path.is_symlink() else {}
-    except (OSError, ValueError):
-        data = {}
-    return data if isinstance(data, dict) else {}
+        return read_file(private, name, _PRIVATE_CAP)
+    except Refused as exc:
+        if exc.why in (Why.TOO_BIG, Why.UNREADABLE) and exc.where == name:
+            move_aside(private, name, f".unreadable-{int(time.time())}")
+        return None
+
+
+def _load_ledger(private: Path) -> dict:
+    data = _read_private(private, _LEDGER)
+    try:
+        ledger = json.loads(data) if data is not None else {}
+    except (ValueError, UnicodeDecodeError):
+        ledger = {}
+    return ledger if isinstance(ledger, dict) else {}
 
 
 def _nbgrader_own(nb_results: dict, ledger: dict, timestamps: dict, just_run: set) -> dict:
@@ -854,10 +893,11 @@ def _begin_run(root: Path, private: Path) -> list[str]:
     """Recover from an interrupted run, refuse a concurrent one, back up the gradebook."""
     notes = []
     marker = private / record.RUN_MARKER
-    if marker.is_file():
+    stamp = _read_private(private, record.RUN_MARKER)
+    if stamp is not None:
         try:
-            pid = int(json.loads(marker.read_text()).get("pid", 0))
-        except (ValueError, AttributeError):
+            pid = int(json.loads(stamp).get("pid", 0))
+        except (ValueError, AttributeError, TypeError):
             pid = 0
         if pid and pid != os.getpid() and sandbox.process_alive(pid):
             raise ValueError(f"another `cobotlab grade` (pid {pid}) is grading this course; "
@@ -887,8 +927,7 @@ def _begin_run(root: Path, private: Path) -> list[str]:
 def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
              run_notes) -> None:
     # A fresh run's nonce reaches the disk only now that every worker is gone (replays use it).
-    runs = private / "runs.jsonl"
-    previous = runs.read_bytes() if runs.is_file() and not runs.is_symlink() else b""
+    previous = _read_private(private, "runs.jsonl") or b""
     entry = {"assignment": assignment, "problems": problems, "nonce": nonce, "when":
              datetime.now(timezone.utc).isoformat(), "students": len(rows),
              "spec_hash": registry.spec_hash(assignment),
@@ -897,7 +936,8 @@ def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
     log = ["sandbox: " + sandbox.mode(), *("  " + e for e in sandbox.capabilities().evidence),
            *run_notes, ""]
     for g in grades:
-        log.append(f"{printable(g.student_id)}: " + " | ".join(printable(n) for n in g.notes))
+        log.append(f"{printable(g.student_id, 2000)}: "
+                   + " | ".join(printable(n) for n in g.notes))
         if g.student_id in nb_runs:
             log.append("  nbgrader: " + nb_runs[g.student_id].log[-1500:])
     record.write_file(private, "last_run.log", "\n".join(log).encode("utf-8"))
@@ -926,7 +966,12 @@ def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_no
           f"{ours:.1f} s, summed over submissions); sandbox: {mode}{warn}")
     for note in run_notes:
         print(f"  note: {printable(note)}")
-    names = [printable(g.student_id, 60) for g in grades]
+    # a long id is cut to fit the column, with a short hash of the whole so that two ids
+    # alike in their first characters (refused ones may run to 1000) still differ here
+    names = [printable(g.student_id) if len(g.student_id) <= 60 else
+             printable(g.student_id, 48) + "#"
+             + hashlib.sha256(g.student_id.encode("utf-8", "backslashreplace")).hexdigest()[:8]
+             for g in grades]
     width = max([10] + [len(n) for n in names])
     print(f"{'student':<{width}}  {'score':>11}  failed checks / flags")
     for name, g in zip(names, grades):

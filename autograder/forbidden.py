@@ -2,16 +2,57 @@
 
 A function spec names them (``FunctionSpec.forbidden``: ``"cv2.calibrateHandEye"``,
 ``"robots.geometry.invert"``, ...); ``solutions`` (the reference solvers) is forbidden to
-every function. Two independent nets find a use:
+every function. A notebook cell that calls ``cv2.calibrateHandEye`` to compare against
+OpenCV is fine; the graded function, or anything it reaches, doing so is not.
 
-* :func:`static_hits`, run by the trusted grader on the frozen notebook code: every name,
-  attribute chain, ``from ... import`` alias and string handed to ``importlib`` /
-  ``__import__`` / ``getattr`` / ``eval`` reachable from the graded function (through the
-  notebook's own helper functions and module-level aliases) is resolved to a dotted name and
-  compared with the forbidden ones. A notebook cell that calls ``cv2.calibrateHandEye`` to
-  compare against OpenCV is fine; the graded function (or a helper it calls) doing so is not.
-* :class:`Tripwire`, inside the sandbox and in ``check()``: a profile hook that records every
-  call of a forbidden routine while the graded function runs, however it was reached.
+The rule, and who decides
+-------------------------
+The verdict is the trusted grader's. The worker runs student code, so what it reports can be
+forged or left out; it can only *add* a violation, never clear one, and a forbidden routine
+called while a graded function runs answers nothing the grader would credit, whatever the
+worker reports. Three nets:
+
+* :func:`static_hits`, in the grader, on the frozen notebook code: authoritative. It starts
+  from everything the notebook binds to the graded name at module level (every ``def``,
+  every assignment, wherever it sits: a lambda, an alias of the library routine, a
+  ``functools.partial``, an instance of a class with ``__call__``, a decorated function, a
+  name declared ``global`` in a function) and follows every name those reach to the
+  notebook's own definitions, assignments and import aliases. What a module-level object
+  is given counts as part of it (``box.f = ...``, ``box[k] = ...``, ``queue.put(...)`` in a
+  function that does not own ``queue``): a thread started at load time that hands its
+  results over a queue is reached through the queue. A dotted name, alias, ``from ...
+  import``, or a constant string handed to ``getattr`` / ``importlib`` / ``__import__`` /
+  ``eval`` / ``sys.modules[...]`` / ``vars(m)[...]`` is resolved and compared with the
+  forbidden names. Dynamic lookups count as uses: a module that holds a forbidden routine
+  (``robots.geometry`` holds ``robots.geometry.invert``; ``robots`` and ``cv2`` count too)
+  used as a value rather than through a plain attribute (``vars(geo)``, ``geo.__dict__``,
+  ``getattr(geo, name)``, ``helper(geo)``) uses every forbidden routine it holds; a module,
+  namespace or code named at run time (``importlib.import_module(name)``,
+  ``sys.modules`` or ``globals()`` looked up by a computed key, ``eval(text)``) uses
+  every forbidden routine of the spec.
+* The worker's :class:`Guard` (with :class:`Tripwire`), inside the sandbox: while a graded
+  function runs, each forbidden routine is *poisoned*: the routine object itself (so every
+  alias, saved reference, ``partial`` and dynamic lookup of it, in every thread, with or
+  without a profile hook) runs code that records the call and raises
+  :class:`ForbiddenCall` instead of answering. A Python function gets its ``__code__``
+  swapped for the call's duration; a C routine (``cv2.*``) is replaced in every loaded
+  module by a pass-through Python function before any student code runs, and that is
+  poisoned in turn. So a call the static scan could not see earns nothing: the answer is
+  missing, no report needed. The worker turns what a returned object does on conversion
+  (a list subclass's ``__iter__``) into plain values while still poisoned.
+* :class:`Tripwire`'s profile hook (``sys.setprofile``, and ``threading.setprofile`` for
+  threads started during the call), in the worker and in ``check()`` in the student's
+  kernel, where nothing is poisoned: it records calls of the routines' own code objects
+  and C functions, so a copy made with ``types.FunctionType(f.__code__, ...)`` is seen too.
+  A hook removed during the call (``sys.setprofile(None)``) or a poisoned routine whose
+  code was put back counts as a call of every forbidden routine of the spec.
+
+What no in-process net can settle, and the static scan is there for: student code may
+rewrite the worker itself (its modules are reachable through ``sys.modules`` and the
+garbage collector), undo a poisoning it can see, or rebuild a routine from its source file;
+rebuilding is indistinguishable from copying the routine's code into the notebook, which
+no grader tells apart from writing it. Such code, where the graded function reaches it,
+names the routine or its module and is caught by :func:`static_hits`.
 
 Standard library only: the worker imports this module next to student code.
 """
@@ -24,15 +65,22 @@ import sys
 import threading
 import types
 
-__all__ = ["ALWAYS_FORBIDDEN", "Tripwire", "is_reference_solver", "matches", "static_hits"]
+__all__ = ["ALWAYS_FORBIDDEN", "ForbiddenCall", "Guard", "Tripwire", "is_reference_solver",
+           "matches", "static_hits"]
 
 ALWAYS_FORBIDDEN = ("solutions",)
 # CPython 3.11 builds AST objects with interpreter-wide recursion bookkeeping: two threads
 # parsing at once (grade_course grades submissions in threads) can raise "SystemError: AST
 # constructor recursion depth mismatch" (python/cpython#106905). One parse at a time.
 _AST_LOCK = threading.Lock()
+# Calls handed a name or code as text: a constant is searched for the forbidden names; a
+# computed one (all but getattr, whose object is known) could name any of them.
 _DYNAMIC = {"getattr", "__import__", "import_module", "eval", "exec", "compile",
             "find_spec", "spec_from_file_location"}
+_NAMED_AT_RUN_TIME = _DYNAMIC - {"getattr"}
+# Called without an argument, each gives a namespace that holds the notebook's modules.
+_NAMESPACES = ("globals", "vars", "locals")
+_SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)
 
 
 def matches(dotted: str, forbidden: str) -> bool:
@@ -76,32 +124,168 @@ def _fold(node: ast.AST) -> str | None:
     return None
 
 
+def _scope_body(root: ast.AST) -> list[ast.AST]:
+    if isinstance(root, ast.Lambda):
+        return [root.body]
+    return list(getattr(root, "body", ()))
+
+
+def _own_scope(root: ast.AST):
+    """Every node of ``root``'s own scope (a module's or a function's): nested functions and
+    classes are yielded but not entered."""
+    todo = _scope_body(root)
+    while todo:
+        node = todo.pop()
+        yield node
+        if not isinstance(node, _SCOPES):
+            todo.extend(ast.iter_child_nodes(node))
+
+
+def _locals(func: ast.AST) -> set[str]:
+    """The names a function (or lambda) binds in its own scope, ``global`` ones and a
+    comprehension's own variables left out."""
+    args = func.args
+    owned = {a.arg for a in args.posonlyargs + args.args + args.kwonlyargs}
+    owned.update(a.arg for a in (args.vararg, args.kwarg) if a is not None)
+    declared: set[str] = set()
+    comprehended = {id(n) for node in _own_scope(func) if isinstance(node, ast.comprehension)
+                    for n in ast.walk(node.target)}
+    for node in _own_scope(func):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, (ast.Store, ast.Del)):
+            if id(node) not in comprehended:
+                owned.add(node.id)
+        elif isinstance(node, (ast.Global, ast.Nonlocal)):
+            declared.update(node.names)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            owned.add(node.name)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            owned.update((a.asname or a.name).split(".")[0] for a in node.names)
+    return owned - declared
+
+
+def _call_name(node: ast.Call, nb: _Notebook) -> str:
+    """The last part of what a call calls, aliases resolved (``import_module`` for
+    ``importlib.import_module`` and for ``im`` after ``from importlib import import_module
+    as im``)."""
+    return (_chain(node.func, nb) or "").rsplit(".", 1)[-1]
+
+
+def _namespace_call(node: ast.AST, nb: _Notebook) -> bool:
+    """``globals()``, ``vars()`` or ``locals()``: the namespace itself."""
+    return isinstance(node, ast.Call) and not node.args and not node.keywords and \
+        _call_name(node, nb) in _NAMESPACES
+
+
+def _base_name(node: ast.AST, nb: _Notebook) -> str | None:
+    """The module-level name an object expression starts from (``box`` for ``box.a[0]``)."""
+    while True:
+        if isinstance(node, ast.Name):
+            return node.id
+        if isinstance(node, (ast.Attribute, ast.Subscript, ast.Starred)):
+            node = node.value
+        elif isinstance(node, ast.Call) and _call_name(node, nb) == "vars" and node.args:
+            node = node.args[0]
+        else:
+            return None
+
+
+def _target_names(target: ast.AST, nb: _Notebook) -> list[str]:
+    """The names an assignment target binds or gives something to (``globals()["f"] = ...``
+    binds ``f``; ``box.f = ...`` gives it to ``box``)."""
+    if isinstance(target, (ast.Tuple, ast.List)):
+        return [n for t in target.elts for n in _target_names(t, nb)]
+    if isinstance(target, ast.Subscript) and _namespace_call(target.value, nb):
+        key = _fold(target.slice)
+        return [key] if key else []
+    name = _base_name(target, nb)
+    return [name] if name else []
+
+
 class _Notebook:
-    """Module-level definitions, assignments and import aliases of the notebook's code."""
+    """What the notebook's code binds at module level, and its import aliases.
+
+    ``defs``: every ``def`` and ``class`` of a module-level name (inside an ``if`` or a
+    ``try`` too, or in a function that declares it ``global``); ``assigned``: every other
+    expression bound to a module-level name, or handed to the object it names (``box.f = x``,
+    ``box[k] = x``, ``box.put(x)``, ``setattr(box, k, x)``), by module-level code or by a
+    function for which the name is not local; ``aliases``: names bound by imports, or by
+    module-level assignments of a dotted name (``G = robots.geometry``).
+    """
 
     def __init__(self, cells: list[str]):
-        self.defs: dict[str, ast.AST] = {}
+        self.defs: dict[str, list[ast.AST]] = {}
         self.assigned: dict[str, list[ast.AST]] = {}
         self.aliases: dict[str, str] = {}
+        self.imports: set[str] = set()   # names bound by an import statement
         self.star: list[str] = []
         self.imported: set[str] = set()
+        trees = []
         for source in cells:
             try:
                 with _AST_LOCK:
-                    tree = ast.parse(source)
+                    trees.append(ast.parse(source))
             except (SyntaxError, ValueError, RecursionError, MemoryError):
                 continue
+        for tree in trees:
             for node in ast.walk(tree):  # imports anywhere count (inside functions too)
                 self._imports(node)
-            for node in tree.body:
-                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-                    self.defs[node.name] = node
-                elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
-                    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-                    for t in targets:
-                        for name in ast.walk(t):
-                            if isinstance(name, ast.Name) and node.value is not None:
-                                self.assigned.setdefault(name.id, []).append(node.value)
+        for tree in trees:
+            for node in _own_scope(tree):
+                self._binding(node, None)
+            for func in ast.walk(tree):
+                if isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                    owned = _locals(func)
+                    for node in _own_scope(func):
+                        self._binding(node, owned)
+
+    def _bind(self, name: str, value: ast.AST) -> None:
+        self.assigned.setdefault(name, []).append(value)
+
+    def _binding(self, node: ast.AST, owned: set[str] | None) -> None:
+        """Record what ``node`` binds at module level; ``owned``: the local names of the
+        function it sits in (None: module-level code)."""
+        def outer(name: str) -> bool:
+            return owned is None or name not in owned
+
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            if outer(node.name):
+                self.defs.setdefault(node.name, []).append(node)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            if node.value is None:
+                return
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for target in targets:
+                for name in _target_names(target, self):
+                    if outer(name):
+                        self._bind(name, node.value)
+                if owned is None and isinstance(target, ast.Name) and \
+                        isinstance(node.value, (ast.Name, ast.Attribute)):
+                    dotted = _chain(node.value, self)
+                    if dotted and dotted != target.id:
+                        self.aliases.setdefault(target.id, dotted)
+        elif isinstance(node, ast.NamedExpr):
+            if outer(node.target.id):
+                self._bind(node.target.id, node.value)
+        elif isinstance(node, (ast.For, ast.AsyncFor)):
+            for name in _target_names(node.target, self):
+                if outer(name):
+                    self._bind(name, node.iter)
+        elif isinstance(node, (ast.With, ast.AsyncWith)):
+            for item in node.items:
+                for name in _target_names(item.optional_vars, self) if item.optional_vars else ():
+                    if outer(name):
+                        self._bind(name, item.context_expr)
+        elif isinstance(node, ast.Call):
+            if _call_name(node, self) == "setattr" and node.args:
+                name = _base_name(node.args[0], self)
+            elif isinstance(node.func, ast.Attribute):
+                name = _base_name(node.func.value, self)
+                if name in self.imports:   # a module's function called, not a box filled
+                    name = None
+            else:
+                name = None
+            if name and outer(name):
+                self._bind(name, node)
 
     def _imports(self, node: ast.AST) -> None:
         if isinstance(node, ast.Import):
@@ -109,9 +293,11 @@ class _Notebook:
                 self.imported.add(a.name)
                 if a.asname:
                     self.aliases[a.asname] = a.name
+                    self.imports.add(a.asname)
                 else:
                     top = a.name.split(".")[0]
                     self.aliases.setdefault(top, top)
+                    self.imports.add(top)
         elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
             self.imported.add(node.module)
             for a in node.names:
@@ -119,24 +305,92 @@ class _Notebook:
                     self.star.append(node.module)
                 else:
                     self.aliases[a.asname or a.name] = f"{node.module}.{a.name}"
+                    self.imports.add(a.asname or a.name)
+
+
+def _table(node: ast.AST, nb: _Notebook) -> str | None:
+    """What a key looked up in ``node`` is relative to: "" for ``sys.modules`` (a module's
+    full name), "<globals>" for the notebook's namespace (``globals()``), the module's dotted
+    name for ``vars(m)`` and ``m.__dict__``; None when ``node`` is none of these."""
+    if _namespace_call(node, nb):
+        return "<globals>"
+    if isinstance(node, ast.Call) and _call_name(node, nb) == "vars" and len(node.args) == 1:
+        return _chain(node.args[0], nb)
+    if isinstance(node, ast.Attribute) and node.attr == "__dict__":
+        return _chain(node.value, nb)
+    if isinstance(node, (ast.Name, ast.Attribute)) and _chain(node, nb) == "sys.modules":
+        return ""
+    return None
+
+
+def _lookup(node: ast.AST) -> tuple[ast.AST, ast.AST] | None:
+    """(table, key) of ``table[key]`` or ``table.get(key, ...)``."""
+    if isinstance(node, ast.Subscript) and not isinstance(node.slice, ast.Slice):
+        return node.value, node.slice
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and \
+            node.func.attr == "get" and node.args:
+        return node.func.value, node.args[0]
+    return None
 
 
 def _chain(node: ast.AST, nb: _Notebook) -> str | None:
-    """The dotted name an expression such as ``geo.invert`` or ``__import__('cv2').X`` means."""
+    """The dotted name an expression such as ``geo.invert``, ``__import__('cv2').X``,
+    ``sys.modules['cv2']`` or ``vars(geo)['invert']`` means."""
     if isinstance(node, ast.Name):
         return nb.aliases.get(node.id, node.id)
     if isinstance(node, ast.Attribute):
         base = _chain(node.value, nb)
         return f"{base}.{node.attr}" if base else None
+    lookup = _lookup(node)
+    if lookup is not None:
+        where, key = _table(lookup[0], nb), _fold(lookup[1])
+        if where is None or not key:
+            return None
+        if where == "<globals>":
+            return nb.aliases.get(key, key)
+        return f"{where}.{key}" if where else key
     if isinstance(node, ast.Call):
-        func = _chain(node.func, nb) or ""
-        last = func.rsplit(".", 1)[-1]
+        last = _call_name(node, nb)
         if last in ("__import__", "import_module") and node.args:
             return _fold(node.args[0])
         if last == "getattr" and len(node.args) >= 2:
             base, attr = _chain(node.args[0], nb), _fold(node.args[1])
             return f"{base}.{attr}" if base and attr else None
     return None
+
+
+def _dunder(name: str) -> bool:
+    return name.startswith("__") and name.endswith("__")
+
+
+def _read_plainly(root: ast.AST, nb: _Notebook) -> tuple[set[int], set[int]]:
+    """(ids of the expressions in ``root`` that are only read through a plain attribute, ids
+    of the namespaces looked up by a constant key). ``geo`` in ``geo.invert`` or
+    ``getattr(geo, "invert")`` is read plainly; in ``vars(geo)``, ``geo.__dict__`` or
+    ``helper(geo)`` it is handed over whole. A root that is a dotted name is bound to a
+    name whose own uses are looked at instead."""
+    plain = {id(root)} if isinstance(root, (ast.Name, ast.Attribute)) else set()
+    keyed: set[int] = set()
+    for sub in ast.walk(root):
+        if isinstance(sub, ast.Attribute) and not _dunder(sub.attr):
+            plain.add(id(sub.value))
+        elif isinstance(sub, ast.Call) and _call_name(sub, nb) in ("getattr", "hasattr") and \
+                len(sub.args) >= 2 and _fold(sub.args[1]) is not None:
+            plain.add(id(sub.args[0]))
+        lookup = _lookup(sub)
+        if lookup is not None and _fold(lookup[1]) is not None:
+            keyed.add(id(lookup[0]))
+    return plain, keyed
+
+
+def _named_at_run_time(node: ast.AST, nb: _Notebook, keyed: set[int]) -> bool:
+    """True for a module, namespace or code named by a computed value: an import or
+    ``eval`` of a computed string, ``sys.modules`` or ``globals()`` used other than by a
+    constant key."""
+    if isinstance(node, ast.Call) and _call_name(node, nb) in _NAMED_AT_RUN_TIME and \
+            node.args and _fold(node.args[0]) is None:
+        return True
+    return id(node) not in keyed and _table(node, nb) in ("", "<globals>")
 
 
 def is_reference_solver(func) -> bool:
@@ -155,36 +409,49 @@ def is_reference_solver(func) -> bool:
 def static_hits(cells: list[str], function: str, forbidden,
                 always=ALWAYS_FORBIDDEN) -> list[str]:
     """The forbidden names (of ``forbidden`` and ``always``, by default
-    :data:`ALWAYS_FORBIDDEN`) that ``function``, or anything it reaches in the notebook's
-    code, names; sorted, empty when clean."""
-    names = tuple(forbidden) + tuple(always)
+    :data:`ALWAYS_FORBIDDEN`) that whatever the notebook binds to ``function``, or anything
+    it reaches in the notebook's code, names or looks up dynamically (the rule of this
+    module's docstring); sorted, empty when clean."""
+    own = tuple(forbidden)
+    names = own + tuple(always)
     nb = _Notebook(cells)
     hits: set[str] = set()
     seen: set[int] = set()
-    todo: list[ast.AST] = [nb.defs[function]] if function in nb.defs else []
+    todo: list[ast.AST] = [*nb.defs.get(function, ()), *nb.assigned.get(function, ())]
 
     def check(dotted: str | None) -> None:
         if dotted:
             hits.update(f for f in names if matches(dotted, f))
 
+    check(nb.aliases.get(function))   # from robots.geometry import invert as invert_pose
     while todo:
         node = todo.pop()
         if id(node) in seen:
             continue
         seen.add(id(node))
+        plain, keyed = _read_plainly(node, nb)
+        # a function's own variable is not the module-level name it shadows
+        owned = _locals(node) if isinstance(
+            node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)) else set()
         for sub in ast.walk(node):
-            if isinstance(sub, ast.Name) and isinstance(sub.ctx, ast.Load):
-                if sub.id in nb.defs and sub.id != function:
-                    todo.append(nb.defs[sub.id])
+            if isinstance(sub, ast.Name) and isinstance(sub.ctx, ast.Load) and \
+                    sub.id not in owned:
+                todo.extend(nb.defs.get(sub.id, ()))
                 todo.extend(nb.assigned.get(sub.id, ()))
                 check(nb.aliases.get(sub.id))
                 for module in nb.star:
                     check(f"{module}.{sub.id}")
-            elif isinstance(sub, (ast.Attribute, ast.Call)):
+            elif isinstance(sub, (ast.Attribute, ast.Call, ast.Subscript)):
                 check(_chain(sub, nb))
+            if id(sub) not in plain and isinstance(getattr(sub, "ctx", ast.Load()), ast.Load):
+                module = _chain(sub, nb) if isinstance(
+                    sub, (ast.Name, ast.Attribute, ast.Call, ast.Subscript)) else None
+                if module:   # a module handed over whole: all it holds is within reach
+                    hits.update(f for f in names if f.startswith(module + "."))
+            if _named_at_run_time(sub, nb, keyed):
+                hits.update(own)
             if isinstance(sub, ast.Call):
-                func = (_chain(sub.func, nb) or "").rsplit(".", 1)[-1]
-                if func in _DYNAMIC:
+                if _call_name(sub, nb) in _DYNAMIC:
                     for arg in sub.args:
                         text = _fold(arg)
                         if text:  # a string handed to a dynamic lookup: any mention counts
@@ -198,6 +465,11 @@ def static_hits(cells: list[str], function: str, forbidden,
 
 
 # --------------------------------------------------------------------------- at run time
+
+
+class ForbiddenCall(BaseException):
+    """What a poisoned forbidden routine raises while a graded function runs in the worker:
+    a BaseException, so a student's ``except Exception`` fallback does not swallow it."""
 
 
 def _resolve(dotted: str):
@@ -217,32 +489,156 @@ def _resolve(dotted: str):
     return None
 
 
+_STUBS: dict[int, types.CodeType] = {}
+
+
+def _stub_code(cells: int) -> types.CodeType:
+    """The code a poisoned routine runs: it calls its ``_forbidden_call`` default (which
+    records the call and raises), whatever it is given. ``cells`` unused free variables: a
+    function's code can only be swapped for code with as many as its closure holds."""
+    if cells not in _STUBS:
+        names = [f"_cell{i}" for i in range(cells)]
+        source = "def _outer():\n" + "".join(f"    {n} = None\n" for n in names) + \
+            "    def _poisoned(*args, _forbidden_call=None, **kwargs):\n" + \
+            (f"        ({', '.join(names)},)\n" if names else "") + \
+            "        return _forbidden_call()\n    return _poisoned\n"
+        scope: dict = {}
+        exec(compile(source, "<forbidden routine>", "exec"), scope)
+        _STUBS[cells] = scope["_outer"]().__code__
+    return _STUBS[cells]
+
+
+def _pass_through(real):
+    """A Python function that calls the C routine ``real``: unlike ``real``, its code can be
+    swapped while a graded function runs."""
+    def routine(*args, **kwargs):
+        return real(*args, **kwargs)
+
+    routine.__name__ = routine.__qualname__ = getattr(real, "__name__", "routine")
+    routine.__doc__ = getattr(real, "__doc__", None)
+    routine.__module__ = getattr(real, "__module__", None)
+    return routine
+
+
+class _Routine:
+    """A forbidden routine as the library defines it: ``function`` is what gets poisoned
+    (the routine itself, or the pass-through put in place of a C routine ``c_function``),
+    ``code`` its own code."""
+
+    __slots__ = ("function", "code", "c_function")
+
+    def __init__(self, function, c_function=None):
+        self.function, self.code, self.c_function = function, function.__code__, c_function
+
+
+class Guard:
+    """The worker's hold on the forbidden routines, taken before any student code runs.
+
+    :meth:`add` resolves each name once, to the object the library defines (student code
+    that later rebinds the module attribute changes nothing here), and puts a pass-through
+    in place of a C routine in every loaded module, so that every reference student code can
+    take is to a Python function. :class:`Tripwire` then poisons them for each graded call.
+    """
+
+    def __init__(self):
+        self._routines: dict[str, _Routine | None] = {}
+
+    def add(self, names) -> None:
+        """Take hold of the routines ``names`` (dotted; module names are left to the
+        profile hook)."""
+        for name in names:
+            if "." in name and name not in self._routines:
+                self._routines[name] = self._hold(_resolve(name))
+
+    @staticmethod
+    def _hold(obj) -> _Routine | None:
+        function = getattr(obj, "__func__", obj)   # a method: the function behind it
+        if isinstance(function, types.FunctionType):
+            return _Routine(function)
+        if obj is None or isinstance(obj, type) or not callable(obj):
+            return None
+        routine = _pass_through(obj)
+        for module in list(sys.modules.values()):
+            try:
+                namespace = vars(module)
+            except TypeError:
+                continue
+            for key, value in list(namespace.items()):
+                if value is obj:
+                    namespace[key] = routine
+        return _Routine(routine, obj)
+
+    def routines(self, names) -> dict[str, _Routine]:
+        """The routines of ``names`` held, by name."""
+        return {n: r for n in names if (r := self._routines.get(n)) is not None}
+
+    def poison(self, names, record) -> list[tuple]:
+        """Make each routine of ``names`` call ``record(name)`` instead of answering, in
+        every thread and through every reference; returns what :meth:`restore` needs."""
+        self.add(names)
+        swapped = []
+        for name, routine in self.routines(names).items():
+            function = routine.function
+            kwdefaults = function.__kwdefaults__
+            stub = _stub_code(len(function.__code__.co_freevars))
+            # the routine's own keyword defaults stay: a thread already inside it keeps them
+            function.__kwdefaults__ = {**(kwdefaults or {}),
+                                       "_forbidden_call": lambda name=name: record(name)}
+            function.__code__ = stub
+            swapped.append((function, routine.code, kwdefaults, stub))
+        return swapped
+
+    @staticmethod
+    def restore(swapped: list[tuple]) -> bool:
+        """Undo :meth:`poison`; True when student code had put other code in a routine."""
+        changed = False
+        for function, code, kwdefaults, stub in swapped:
+            changed |= function.__code__ is not stub
+            function.__code__ = code
+            function.__kwdefaults__ = kwdefaults
+        return changed
+
+
 class Tripwire:
     """Record calls of the forbidden routines made while the ``with`` block runs.
 
-    A profile hook compares each called C function (``cv2.calibrateHandEye``) by identity
-    and each Python function (``robots.geometry.invert``) by its code object, so an alias,
-    a ``getattr`` or a reference saved before the call is caught as well. Importing
-    ``solutions`` is caught by name. ``hits`` holds what was called.
+    A profile hook (this thread's, and that of every thread started inside the block)
+    compares each called C function (``cv2.calibrateHandEye``) by identity and each Python
+    function (``robots.geometry.invert``) by its code object, so an alias, a ``getattr``, a
+    reference saved before the call or a copy of the function is caught as well. Importing
+    ``solutions`` is caught by name. With a :class:`Guard` (the worker), the routines are
+    also poisoned for the block: a call raises :class:`ForbiddenCall`, from any thread.
+    A profile hook removed, or a poisoned routine's code replaced, counts as a call of every
+    routine of ``forbidden``. ``hits`` holds what was called.
     """
 
-    def __init__(self, forbidden, always=ALWAYS_FORBIDDEN):
+    def __init__(self, forbidden, always=ALWAYS_FORBIDDEN, guard: Guard | None = None):
         self.hits: set[str] = set()
+        self._names = tuple(f for f in forbidden if "." in f)
+        self._guard = guard
         self._c: dict[int, str] = {}
         self._code: dict[types.CodeType, str] = {}
         self._modules = [f for f in tuple(forbidden) + tuple(always) if "." not in f]
-        for name in forbidden:
-            if "." not in name:
-                continue
-            obj = _resolve(name)
-            code = getattr(obj, "__code__", None)
-            if isinstance(code, types.CodeType):
-                self._code[code] = name
-            elif obj is not None:
-                self._c[id(obj)] = name
-        self._previous = None
+        if guard is not None:
+            guard.add(self._names)
+            for name, routine in guard.routines(self._names).items():
+                if routine.c_function is not None:
+                    self._c[id(routine.c_function)] = name
+                else:
+                    self._code[routine.code] = name
+        else:
+            for name in self._names:
+                obj = _resolve(name)
+                code = getattr(obj, "__code__", None)
+                if isinstance(code, types.CodeType):
+                    self._code[code] = name
+                elif obj is not None:
+                    self._c[id(obj)] = name
+        self._hook = self._profile   # bound once: sys.getprofile() is compared with it
+        self._previous = self._previous_threads = None
+        self._swapped: list[tuple] = []
 
-    def _hook(self, frame, event, arg):
+    def _profile(self, frame, event, arg):
         if event == "c_call":
             name = self._c.get(id(arg))
             if name:
@@ -256,11 +652,30 @@ class Tripwire:
                 if module == m or str(module).startswith(m + "."):
                     self.hits.add(m)
 
+    @staticmethod
+    def is_hook(frame) -> bool:
+        """True when ``frame`` is a tripwire's profile hook running: an exception raised
+        there (a time-out's) would make CPython remove the hook."""
+        return frame is not None and frame.f_code is Tripwire._profile.__code__
+
+    def _record(self, name: str):
+        self.hits.add(name)
+        raise ForbiddenCall(f"{name} was called: it is one of the routines this function "
+                            "must not use")
+
     def __enter__(self):
-        self._previous = sys.getprofile()
+        if self._guard is not None:
+            self._swapped = self._guard.poison(self._names, self._record)
+        self._previous, self._previous_threads = sys.getprofile(), threading.getprofile()
+        threading.setprofile(self._hook)
         sys.setprofile(self._hook)
         return self
 
     def __exit__(self, *exc):
+        removed = sys.getprofile() is not self._hook
         sys.setprofile(self._previous)
+        threading.setprofile(self._previous_threads)
+        if Guard.restore(self._swapped) or removed:
+            self.hits.update(self._names)
+        self._swapped = []
         return False

@@ -1,16 +1,18 @@
 """Freeze submissions: copy what students handed in into grader-private storage, as data.
 
-Nothing in ``submitted/`` is followed or trusted: each entry is looked at with ``lstat``,
-only regular files are copied (a symlink to ``source/`` or to a classmate's folder, a FIFO
-named like the notebook, a socket or a device is skipped with a note), every file is opened
-``O_NOFOLLOW | O_NONBLOCK`` and checked again on the open descriptor, sizes and counts are
+Nothing in ``submitted/`` is followed or trusted: it is read through
+:mod:`autograder.safe_files`, component by component, so only folders and regular files
+are copied (a symlink to ``source/`` or to a classmate's folder, at any depth, a FIFO named
+like the notebook, a socket or a device is skipped with a note), sizes and counts are
 capped, and a notebook that is not JSON (or has too many cells) is dropped and scored zero
 with a note. Everything after this stage reads only the frozen copy, before any student
-code has run. Student ids with control characters or path separators are refused.
+code has run. Student ids with control characters or path separators are refused; their
+rows are keyed by :func:`student_key`, an escape no other folder name shares.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -19,8 +21,11 @@ import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from autograder import safe_files
+from autograder.safe_files import Why
+
 __all__ = ["Caps", "Frozen", "EXCHANGE_FILES", "freeze_submissions", "student_id_problem",
-           "exchange_file_problem", "printable"]
+           "student_key", "exchange_file_problem", "printable"]
 
 
 @dataclass(frozen=True)
@@ -36,8 +41,9 @@ class Caps:
 
 @dataclass
 class Frozen:
-    """One submission, frozen. ``student_id`` is printable; ``accepted`` is False for a
-    refused id (the row then says why and nothing is graded or recorded)."""
+    """One submission, frozen. ``student_id`` is the folder name's :func:`student_key`
+    (the name itself when accepted); ``accepted`` is False for a refused id (the row then
+    says why and nothing is graded or recorded)."""
 
     student_id: str
     folder: Path | None = None
@@ -60,17 +66,43 @@ EXCHANGE_FILES = ("timestamp.txt", "submission_secret.txt")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 
+def _hidden(ch: str) -> bool:
+    """A character a terminal, log or spreadsheet would act on or not show: controls,
+    invisible format characters, line and paragraph separators, and the lone surrogates
+    Python reads a file name's non-UTF-8 bytes as (they cannot even be written as UTF-8)."""
+    return bool(_CONTROL.match(ch)) or unicodedata.category(ch) in ("Cf", "Zl", "Zp", "Cs")
+
+
 def printable(text, limit: int = 400) -> str:
     """``text`` with control and invisible format characters escaped (``\\n``, ``\\x1b``,
     ``\\u202e``), cut to ``limit`` characters: safe in a log, a summary or a CSV cell."""
-    out = []
-    for ch in str(text):
-        if ch in "\t\n\r" or _CONTROL.match(ch) or unicodedata.category(ch) in ("Cf", "Zl", "Zp"):
-            out.append(ch.encode("unicode_escape").decode("ascii"))
-        else:
-            out.append(ch)
-    text = "".join(out)
+    text = "".join(ch.encode("unicode_escape").decode("ascii") if _hidden(ch) else ch
+                   for ch in str(text))
     return text if len(text) <= limit else text[:limit] + "..."
+
+
+def student_key(name: str) -> str:
+    """The student id of the folder ``submitted/<name>`` in grades.csv rows, the summary and
+    the run log: ``name`` itself when it is accepted (:func:`student_id_problem`), so
+    existing gradebooks keep their rows; else ``name`` escaped as Python's
+    ``unicode_escape`` codec would escape it, for a backslash, a hidden character
+    (``\\n``, ``\\x1b``, ``\\u202e``, ``\\udcff`` for a byte that is not UTF-8) and a
+    leading ``- = + @`` (``\\x3d``), all of it, never cut.
+
+    So no two folders share a key: every backslash in a refused name's key starts an escape
+    (``key.encode("ascii", "backslashreplace").decode("unicode_escape")`` gives the name
+    back), and no accepted id equals a refused one's key, because an accepted id has no
+    backslash, no surrounding blank, at most 128 characters and no leading ``- = + @``,
+    while each refused key has one of these. A spreadsheet shows the key as written: no
+    cell of it starts a formula, so :func:`autograder.record.csv_cell` leaves it alone.
+    (Percent-encoding is reversible too, but an accepted id may hold ``%``, so a refused
+    name's encoding could be an accepted id; no accepted id holds a backslash.)
+    """
+    if student_id_problem(name) is None:
+        return name
+    key = "".join(ch.encode("unicode_escape").decode("ascii") if ch == "\\" or _hidden(ch)
+                  else ch for ch in name)
+    return f"\\x{ord(key[0]):02x}{key[1:]}" if key[:1] in ("-", "=", "+", "@") else key
 
 
 def student_id_problem(student_id: str) -> str | None:
@@ -88,79 +120,26 @@ def student_id_problem(student_id: str) -> str | None:
     return None
 
 
-def _read_regular(path: Path, cap_bytes: int) -> tuple[bytes | None, str]:
-    """(content, "") of a regular file, or (None, why not); never follows a link or blocks."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError as exc:
-        return None, f"cannot be opened ({exc.strerror})"
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            return None, "not a regular file"
-        if info.st_size > cap_bytes:
-            return None, f"{info.st_size / 2**20:.1f} MB, over the {cap_bytes / 2**20:g} MB cap"
-        chunks, size = [], 0
-        while chunk := os.read(fd, 1 << 20):
-            chunks.append(chunk)
-            size += len(chunk)
-            if size > cap_bytes:  # grew while we read
-                return None, f"over the {cap_bytes / 2**20:g} MB cap"
-        return b"".join(chunks), ""
-    finally:
-        os.close(fd)
-
-
-def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISLNK, "symlink"), (stat.S_ISFIFO, "named pipe"),
-                       (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "device"),
-                       (stat.S_ISBLK, "device")):
-        if test(mode):
-            return name
-    return "special file"
-
-
-def _copy_tree(src: Path, dst: Path, caps: Caps, frozen: Frozen, depth: int = 0,
-               budget: list | None = None) -> None:
-    budget = budget if budget is not None else [int(caps.total_mb * 2**20), caps.files]
-    try:
-        entries = sorted(os.scandir(src), key=lambda e: e.name)
-    except OSError as exc:
-        frozen.notes.append(f"{printable(src.name)}: cannot be listed ({exc.strerror})")
-        return
-    for entry in entries:
-        name = printable(entry.name)
-        rel = f"{name}"
-        if entry.name in (".ipynb_checkpoints", "__pycache__") or student_id_problem(entry.name):
-            if student_id_problem(entry.name) and entry.name not in (".ipynb_checkpoints",):
-                frozen.notes.append(f"{rel}: skipped (unusable file name)")
-            continue
-        info = entry.stat(follow_symlinks=False)
-        if stat.S_ISDIR(info.st_mode):
-            if depth + 1 >= caps.depth:
-                frozen.notes.append(f"{rel}/: skipped (folders nested over {caps.depth} deep)")
-                continue
-            (dst / entry.name).mkdir(mode=0o755)
-            _copy_tree(Path(entry.path), dst / entry.name, caps, frozen, depth + 1, budget)
-            continue
-        if not stat.S_ISREG(info.st_mode):
-            frozen.notes.append(f"{rel}: skipped ({_kind(info.st_mode)}, not a regular file)")
+def _copy_submission(src: safe_files.Folder, dst: Path, caps: Caps, frozen: Frozen) -> None:
+    """Copy one assignment folder into the store as data, each skip noted (and flagged where
+    it may be an attack or a lost file)."""
+    skipped = safe_files.copy_tree(
+        src, dst, safe_files.TreeCaps(int(caps.file_mb * 2**20), int(caps.total_mb * 2**20),
+                                      caps.files, caps.depth),
+        ignore={".ipynb_checkpoints", "__pycache__"},
+        bad_name=lambda name: student_id_problem(name) is not None)
+    for skip in skipped:
+        name = printable(skip.name)
+        if skip.why is Why.TOO_DEEP:
+            frozen.notes.append(f"{name}/: skipped ({skip.detail})")
+        elif skip.why in (Why.BAD_NAME, Why.TOO_MANY):
+            frozen.notes.append(f"{name}: skipped ({skip.detail})")
+        elif skip.why in (Why.LINK, Why.NOT_REGULAR, Why.NOT_A_FOLDER):
+            frozen.notes.append(f"{name}: skipped ({skip.kind}, not a regular file)")
             frozen.flags.append(f"not_a_regular_file:{name}")
-            continue
-        if budget[1] <= 0:
-            frozen.notes.append(f"{rel}: skipped (more than {caps.files} files)")
-            continue
-        data, why = _read_regular(Path(entry.path), min(int(caps.file_mb * 2**20), budget[0]))
-        if data is None:
-            frozen.notes.append(f"{rel}: skipped ({why})")
+        else:   # too big, unreadable, gone while copied
+            frozen.notes.append(f"{name}: skipped ({skip.detail})")
             frozen.flags.append(f"file_refused:{name}")
-            continue
-        budget[0] -= len(data)
-        budget[1] -= 1
-        fd = os.open(dst / entry.name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW,
-                     0o644)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
 
 
 def _check_notebook(path: Path, caps: Caps, frozen: Frozen) -> bool:
@@ -202,10 +181,13 @@ def _exchange_files(frozen: Frozen) -> dict[str, bytes]:
     is not: that submission's feedback cannot be released through the exchange)."""
     out = {}
     for name in EXCHANGE_FILES:
-        path = frozen.folder / name if frozen.folder is not None else None
-        if path is None or not path.is_file() or path.is_symlink():
+        try:
+            data = safe_files.read_file(frozen.folder, name, 4096)
+        except safe_files.Refused as refused:
+            if refused.why is not Why.MISSING:
+                frozen.notes.append(f"{name}: {refused.why.value}; this submission's feedback "
+                                    "cannot be released through nbgrader's exchange")
             continue
-        data = path.read_bytes()
         problem = exchange_file_problem(name, data)
         if problem is None:
             out[name] = data
@@ -221,45 +203,93 @@ def freeze_submissions(submitted: Path, assignment: str, expected: set[str], sto
 
     ``expected`` names the assignment's notebooks (``lab0_frames.ipynb``): found ones are
     listed last in ``Frozen.notebooks`` so their definitions win over a renamed copy's.
-    ``store`` must be a new, grader-private directory.
+    ``store`` must be a new, grader-private directory. A student entry that is a link gets
+    an entry (flagged, nothing graded) whatever it points at: it is not followed even to
+    see whether it holds this assignment.
     """
-    info = os.lstat(submitted)
-    if not stat.S_ISDIR(info.st_mode):
-        raise ValueError(f"{submitted} is a {_kind(info.st_mode)}, not a folder of submissions")
+    try:
+        top = safe_files.open_folder(submitted)
+    except safe_files.Refused as exc:
+        raise ValueError(f"{submitted} is {exc.detail}: it must be the folder of submissions")
     out = []
-    for entry in sorted(os.scandir(submitted), key=lambda e: e.name):
+    with top:
+        for entry in top.entries():
+            frozen = _freeze_one(top, entry, assignment, expected, store, caps)
+            if frozen is not None:
+                out.append(frozen)
+    return out
+
+
+def _freeze_one(top: safe_files.Folder, entry: safe_files.Entry, assignment: str,
+                expected: set[str], store: Path, caps: Caps) -> Frozen | None:
+    """The frozen submission of the student entry ``entry`` of submitted/, or None when it
+    holds no ``assignment`` (or is a stray file, not a student's folder)."""
+    with contextlib.ExitStack() as stack:
+        student, problem = None, None
         try:
-            os.lstat(os.path.join(entry.path, assignment))
-        except OSError:
-            continue  # this student did not hand in this assignment
+            if entry.kind == "folder":
+                student = stack.enter_context(top.folder(entry.name))
+                info = student.lstat(assignment)
+                if info is None:
+                    return None   # this student did not hand in this assignment
+                if not stat.S_ISDIR(info.st_mode):
+                    problem = _not_a_folder("assignment folder", safe_files.kind_of(info.st_mode))
+            elif entry.kind == "symlink":
+                problem = _not_a_folder("student folder", "symlink")
+            else:
+                return None   # a stray file beside the students' folders
+        except safe_files.Refused as exc:   # swapped since the listing, or unreadable
+            problem = _unusable("student folder", exc)
         sid = entry.name
-        frozen = Frozen(printable(sid, 200))
-        out.append(frozen)
+        frozen = Frozen(student_key(sid))
         if why := student_id_problem(sid):
             frozen.accepted = False
             frozen.flags.append("rejected_student_id")
             frozen.notes.append(f"student id refused: {why}; rename the folder in submitted/")
-            continue
-        for path, what in ((entry.path, "student folder"),
-                           (os.path.join(entry.path, assignment), "assignment folder")):
-            mode = os.lstat(path).st_mode
-            if not stat.S_ISDIR(mode):
-                frozen.notes.append(f"the {what} is a {_kind(mode)}, not a folder: nothing graded")
-                frozen.flags.append(f"not_a_folder:{_kind(mode).replace(' ', '_')}")
-                break
+            return frozen
+        if problem is None:
+            try:
+                work = stack.enter_context(student.folder(assignment))
+            except safe_files.Refused as exc:
+                problem = _unusable("assignment folder", exc)
+        if problem is not None:
+            frozen.notes.append(problem[0])
+            frozen.flags.append(problem[1])
         else:
             frozen.folder = store / sid
             frozen.folder.mkdir(mode=0o755)
-            _copy_tree(Path(entry.path) / assignment, frozen.folder, caps, frozen)
+            _copy_submission(work, frozen.folder, caps, frozen)
             found = sorted(p for p in frozen.folder.rglob("*.ipynb") if p.is_file()
                            and _check_notebook(p, caps, frozen))
             frozen.notebooks = ([p for p in found if p.name not in expected]
                                 + [p for p in found if p.name in expected])
-            stamp = frozen.folder / "timestamp.txt"
-            if stamp.is_file():
-                text = stamp.read_text(errors="replace").strip()
-                frozen.timestamp = text if len(text) <= 64 and printable(text) == text else ""
+            frozen.timestamp = _timestamp(frozen.folder)
             frozen.exchange = _exchange_files(frozen)
-        if not frozen.notebooks:
-            frozen.notes.append("no notebook to grade")
-    return out
+    if not frozen.notebooks:
+        frozen.notes.append("no notebook to grade")
+    return frozen
+
+
+def _not_a_folder(what: str, kind: str) -> tuple[str, str]:
+    """(note, flag) for a student or assignment folder that is a ``kind`` instead."""
+    return (f"the {what} is a {kind}, not a folder: nothing graded",
+            f"not_a_folder:{kind.replace(' ', '_')}")
+
+
+def _unusable(what: str, refused: safe_files.Refused) -> tuple[str, str]:
+    """(note, flag) for a student or assignment folder that could not be opened."""
+    if refused.kind:
+        return _not_a_folder(what, refused.kind)
+    return (f"the {what} cannot be read ({refused.detail}): nothing graded; make it readable "
+            "by the grader", "unreadable_folder")
+
+
+def _timestamp(folder: Path) -> str:
+    """The submission's timestamp.txt (as nbgrader's collect writes it), or "" if unusable."""
+    try:
+        text = safe_files.read_file(folder, "timestamp.txt", 4096).decode(
+            "utf-8", "replace").strip()
+    except safe_files.Refused:
+        return ""
+    return text if len(text) <= 64 and printable(text) == text else ""
+

@@ -14,7 +14,12 @@ process:
    one cgroup (memory and process count), with per-process limits (address space, CPU
    seconds, file size). Time limits count the CPU seconds of the student's process, so a
    grade does not depend on how busy the grading machine is; a wall clock several times
-   longer backs each of them up with a hard kill. Where bubblewrap cannot run,
+   longer backs each of them up with a hard kill. The cgroup has the CPU weight of one
+   busy process, so another submission cannot crowd this one out; and a cell or call the
+   wall clock stopped under its CPU limit while it waited for a CPU most of that time was
+   starved by the machine: the grader's failure (:class:`GraderError`, graded again in a
+   fresh sandbox), where one that slept is the student's time-out (:meth:`Worker._judge`,
+   from the kernel's counts, never the worker's report). Where bubblewrap cannot run,
    rlimits alone remain and every row says so (``sandbox:rlimits_only``).
 3. Problems are drawn from the secret seed, the assignment, the student id and the function
    name only, so a regrade gives the same submission the same problems and the same score.
@@ -49,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from autograder import checks, sandbox, wire
+from autograder._worker import WALL_STRETCH
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
 
 __all__ = [
@@ -344,9 +350,10 @@ class WorkerFailure(Exception):
 
 
 class GraderError(RuntimeError):
-    """The grader could not grade: its sandbox did not start, before any student code ran.
-    Never the submission's fault: :func:`autograder.course.grade_course` retries it in a
-    fresh sandbox and, if it persists, records no score."""
+    """The grader could not grade: its sandbox did not start, before any student code ran,
+    or the machine starved a cell or call (:meth:`Worker._judge`). Never the submission's
+    fault: :func:`autograder.course.grade_course` retries it in a fresh sandbox and, if it
+    persists, records no score."""
 
 
 class TemplateUnavailable(RuntimeError):
@@ -388,6 +395,61 @@ class LoadBudget:
         self.wall_s -= wall_s
 
 
+# A cell or call stopped by the wall clock under its CPU limit was starved, not asleep, when
+# it waited in the run queue for at least this share of the wall clock and could run for
+# less than its wall-clock limit. The worker adds run-queue waits back to the wall clock (up
+# to WALL_STRETCH times it), so this is a machine too busy even for that, or a worker with
+# no view of its run queue.
+STARVED_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class _Usage:
+    """A worker's time as the kernel counts it, read by the grader (nothing the student's
+    code reports): ``cpu_s`` of its submission's cgroup (without one: of the worker
+    process, its reaped children included) and ``waited_s`` its threads spent runnable
+    but not running, at ``at`` (monotonic)."""
+
+    at: float
+    cpu_s: float
+    waited_s: float
+
+
+def _process_times(pid: int) -> tuple[int, float, float] | None:
+    """(start time in ticks, CPU seconds with reaped children, run-queue wait seconds of
+    its threads) of process ``pid``, from /proc; None when it is gone or unreadable."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+        cpu = sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+        start = int(fields[19])
+        waited = 0
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            try:
+                with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as f:
+                    waited += int(f.read().split()[1])
+            except (OSError, ValueError, IndexError):   # a thread that just ended
+                pass
+    except (OSError, ValueError, IndexError):
+        return None
+    return start, cpu, waited / 1e9
+
+
+def _student_process(proc) -> tuple[int, int] | None:
+    """(host pid, start time) of the process that runs a worker's student code: a
+    template's fork's process 1, process 2 of a bubblewrap sandbox (1 is bubblewrap's
+    reaper), or the worker itself without a sandbox. Found by the grader, not told."""
+    fork_pid = getattr(proc, "submission_pid", None)
+    if fork_pid is not None:
+        pid = fork_pid()
+    elif sandbox_available():
+        pid = sandbox.host_pid(2, proc.pid)
+    else:
+        pid = proc.pid
+    times = _process_times(pid) if pid is not None else None
+    return (pid, times[0]) if times is not None else None
+
+
 def _reported_cpu(reply: dict, wall_s: float) -> float:
     """The CPU seconds a reply claims, clipped to [0, wall clock x cores]: the worker is
     untrusted, and a forged figure must not stretch a budget past its wall backstop."""
@@ -411,6 +473,8 @@ class Worker:
     run here) and loading starts after them; it raises
     :class:`TemplateUnavailable` when the template cannot fork.
     ``control_fd`` starts a template instead (its end of the control socket).
+    ``forbidden``: the routines the graded functions must not call, which the worker takes
+    hold of before any of the submission's cells runs (:class:`autograder.forbidden.Guard`).
     ``start_s`` and ``cells_s`` are the wall-clock seconds until the worker was ready and
     of the cells it ran itself.
     """
@@ -418,8 +482,9 @@ class Worker:
     def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
                  cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
                  budget: LoadBudget | None = None, first: bool = True,
-                 template=None, control_fd: int | None = None):
+                 template=None, control_fd: int | None = None, forbidden=()):
         self.limits = limits
+        self._cgroup, self._student = cgroup, None
         budget = budget or LoadBudget.of(limits)
         started = time.monotonic()
         self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
@@ -438,7 +503,22 @@ class Worker:
             self.shared = len(template.cells)
         else:
             self._spawn(limits, cgroup, cpu_s, control_fd)
+        try:
+            self._load(cells, skip, budget, template, first, started, forbidden)
+        except BaseException:
+            # Whatever stopped the load (a cell that hung, a reply the grader refused, an
+            # interrupt), no process or scratch folder of this worker outlives it.
+            self.close()
+            raise
+
+    def _load(self, cells, skip, budget: LoadBudget, template, first: bool,
+              started: float, forbidden=()) -> None:
+        """Wait for the worker's hello, then run the notebook's cells (see the class)."""
+        limits = self.limits
         self._wait_ready(first)
+        self._student = _student_process(self.proc)
+        if forbidden:   # a fork too: the template's cells are the instructor's, not student code
+            self._request({"op": "forbid", "names": sorted(forbidden)}, WORKER_START_S)
         self.start_s = time.monotonic() - started
         for reply in template.replies if template is not None else ():
             seconds = float(reply.get("seconds", 0.0))
@@ -452,7 +532,6 @@ class Worker:
                 self.load_report.append({"index": index, "ok": False, "error": "skipped"})
                 continue
             if budget.exhausted:
-                self.close()
                 raise WorkerFailure(f"the notebook did not load within "
                                     f"{limits.load_timeout_s:g} s of CPU time")
             cpu = min(limits.cell_timeout_s, budget.cpu_s)
@@ -460,7 +539,9 @@ class Worker:
             cell_started = time.monotonic()
             try:
                 reply = self._request({"op": "cell", "index": index, "source": source,
-                                       "timeout": cpu, "wall": wall}, wall + 2.0)
+                                       "timeout": cpu, "wall": wall},
+                                      WALL_STRETCH * wall + 2.0,
+                                      limits=(cpu, wall, f"cell {index}"))
             except WorkerFailure as exc:
                 budget.spend(0.0, time.monotonic() - cell_started)
                 raise CellHang(index, f"cell {index}: {exc}") from None
@@ -479,8 +560,9 @@ class Worker:
         if control_fd is not None:
             python.append(str(control_fd))
             passed += (control_fd,)
-        if sandbox_available():
-            command, env = sandbox.command(python, worker_jail(limits), cgroup), {}
+        if sandbox_available():   # a template's forks install the keyring filter themselves
+            command, env = sandbox.command(python, worker_jail(limits), cgroup,
+                                           syscall_filter=control_fd is None), {}
         else:  # rlimits only: the worker still starts in an empty directory with a clean env
             command, env = python, _worker_env(self.workdir)
         self.proc = subprocess.Popen(
@@ -548,23 +630,74 @@ class Worker:
         :class:`WorkerFailure`."""
         return self._request(message, timeout_s, max_bytes)
 
-    def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024) -> dict:
+    def _request(self, message: dict, timeout_s: float, max_bytes: int = 64 * 1024,
+                 limits: tuple[float, float, str] | None = None) -> dict:
+        """:meth:`request`; with ``limits`` (CPU seconds, wall-clock seconds, what runs) a
+        cell or call, which raises :class:`GraderError` when it failed at the wall clock
+        because the machine starved it (see :meth:`_judge`)."""
+        before = self._usage() if limits is not None else None
         try:
             wire.send(self._req_w, message)
-            return wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
+            reply = wire.receive(self._rep_r, time.monotonic() + timeout_s, max_bytes)
         except (wire.WireError, OSError) as exc:
-            timed_out = "timed out" in str(exc)
+            if limits is not None:   # before the worker is killed: its counters go with it
+                self._judge(before, *limits)
             self.close()
             code = self.proc.returncode
-            if timed_out:
+            if isinstance(exc, wire.WireTimeout):
                 raise WorkerFailure(f"timed out after {timeout_s:g} s") from None
-            reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
-                      -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
-            if "exceeds" in str(exc):
+            if isinstance(exc, wire.WireTooLarge):
                 raise WorkerFailure(f"the reply was too large ({exc}; the cap is "
                                     f"{max_bytes // 1024} KB)") from None
+            if isinstance(exc, wire.WireError) and not isinstance(exc, wire.WireClosed):
+                # Only student code in the worker can have written it: the worker's own
+                # encoder refuses what the grader would.
+                raise WorkerFailure(f"the worker sent a malformed reply ({exc})") from None
+            reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
+                      -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
             raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
                                 "are enforced)") from None
+        if limits is not None and reply.get("ok") is not True:
+            self._judge(before, *limits)
+        return reply
+
+    def _usage(self, children: bool = False) -> _Usage | None:
+        """The trusted sample :meth:`_judge` compares (None where the kernel does not say).
+        Without the cgroup's count, ``children`` counts every live process of the sandbox,
+        all of its CPU so far: judged at the end of a cell, a submission that crowds out
+        its own worker with busy processes of its own has then used its limit."""
+        if self._student is None:
+            return None
+        pid, start = self._student
+        times = _process_times(pid)
+        if times is None or times[0] != start:   # gone, or its pid reused
+            return None
+        cpu = self._cgroup.cpu_seconds() if self._cgroup is not None else None
+        if cpu is None and children:   # everything in the sandbox, orphans included
+            tree = {self.proc.pid, *sandbox._descendants(self.proc.pid)}
+            cpu = sum(t[1] for t in map(_process_times, tree) if t)
+        return _Usage(time.monotonic(), times[1] if cpu is None else cpu, times[2])
+
+    def _judge(self, before: _Usage | None, cpu_s: float, wall_s: float, what: str) -> None:
+        """Raise :class:`GraderError` (the worker killed) when the cell or call that began
+        at ``before`` and has just failed was starved: it ran ``wall_s`` of wall clock, its
+        submission used under ``cpu_s`` of CPU, and the worker waited in the run queue for
+        at least :data:`STARVED_SHARE` of that time (runnable, not running) and could run
+        for less than ``wall_s``. A cell that sleeps or blocks is not runnable, so its
+        time-out stays the submission's."""
+        after = self._usage(children=True)
+        if before is None or after is None:
+            return
+        elapsed = after.at - before.at
+        cpu = after.cpu_s - before.cpu_s
+        waited = after.waited_s - before.waited_s
+        if elapsed >= wall_s and cpu < cpu_s and waited >= STARVED_SHARE * elapsed \
+                and elapsed - waited < wall_s:
+            self.close()
+            raise GraderError(
+                f"{what} was stopped by the {wall_s:g} s wall clock having had {cpu:.1f} s of "
+                f"its {cpu_s:g} s of CPU: it waited {waited:.0f} s for a CPU (the machine "
+                "was too busy: the grader's failure, not the submission's)") from None
 
     def call(self, name: str, args: tuple, timeout_s: float,
              forbidden_names=(), substitutes: dict | None = None) -> checks.TrialOutcome:
@@ -579,7 +712,8 @@ class Worker:
                                "timeout": timeout_s, "wall": wall,
                                "forbidden": list(forbidden_names),
                                "substitutes": substitutes or {}},
-                              wall + 2.0, self.limits.reply_kb * 1024)
+                              WALL_STRETCH * wall + 2.0, self.limits.reply_kb * 1024,
+                              limits=(timeout_s, wall, f"a call of {name}"))
         elapsed = time.monotonic() - started
         tripped = reply.get("forbidden")
         if isinstance(tripped, list):
@@ -657,6 +791,7 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
     if not cells:
         grade.notes.append("no code cells found")
     banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
+    routines = sorted({name for spec in specs for name in spec.forbidden})
 
     caps = sandbox.capabilities()
     cgroup = None
@@ -689,12 +824,13 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
             starts += 1
             try:
                 worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1, template=template)
+                                       worker_cpu_s, first=starts == 1, template=template,
+                                       forbidden=routines)
             except TemplateUnavailable as exc:
                 grade.notes.append(f"started without the template ({exc})")
                 template = None
                 worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1)
+                                       worker_cpu_s, first=starts == 1, forbidden=routines)
             profile["start_s"] += worker.start_s
             profile["cells_s"] += worker.cells_s
             if worker.shared:
@@ -780,6 +916,8 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                     sorted({n for names in banned.values() for n in names})]
     if not caps.bwrap:
         grade.flags.append("sandbox:rlimits_only")
+    elif not caps.syscall_filter:   # a machine the keyring filter does not know
+        grade.flags.append("sandbox:no_keyring_filter")
     grade.seconds = time.monotonic() - started
     return grade
 
@@ -831,7 +969,7 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
 
 def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
                   budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
-                  first: bool, template=None) -> Worker:
+                  first: bool, template=None, forbidden=()) -> Worker:
     """A loaded worker (a fork of ``template`` when given); cells that hang or time out are
     skipped on every later restart. ``first``: no worker of this submission has started
     yet (see :class:`GraderError`)."""
@@ -841,7 +979,7 @@ def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
                                 "of CPU time")
         try:
             worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first,
-                            template=template)
+                            template=template, forbidden=forbidden)
         except CellHang as exc:
             first = False
             skip.add(exc.index)

@@ -12,13 +12,14 @@ of the same pages, so that ``release_feedback`` and the students' ``fetch_feedba
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from nbconvert.preprocessors import Preprocessor
 from nbformat.v4 import new_code_cell, new_output
 from traitlets import Bool, List, Unicode
 
-from autograder import feedback_release, freeze
+from autograder import feedback_release, safe_files
 
 __all__ = ["HideHiddenTests", "AddCobotlabFeedback"]
 
@@ -103,12 +104,15 @@ class AddCobotlabFeedback(Preprocessor):
         if not student or not assignment:
             return nb, resources
         coursedir = CourseDirectory(config=self.config)
-        path = Path(coursedir.root) / feedback_release.section_path(student, assignment)
-        data, why = freeze._read_regular(path, self.max_bytes)
-        if data is None:
+        root = Path(coursedir.root)
+        relative = feedback_release.section_path(student, assignment)
+        path = root / relative
+        try:   # no link followed: nbgrader's kernel ran student code in this course's folders
+            data = safe_files.read_file(root, relative, self.max_bytes)
+        except safe_files.Refused as refused:
             self.log.warning("no cobotlab feedback for %s's %s (%s: %s): run `cobotlab grade` "
                              "first; their page has nbgrader's part only", student, assignment,
-                             path, why)
+                             path, refused.why.value)
             return nb, resources
         try:
             section = json.loads(data.decode("utf-8"))
@@ -117,9 +121,13 @@ class AddCobotlabFeedback(Preprocessor):
             self.log.warning("%s is not cobotlab's feedback section: run `cobotlab grade` again",
                              path)
             return nb, resources
-        stamp = Path(coursedir.format_path(coursedir.autograded_directory, student,
-                                           assignment)) / "timestamp.txt"
-        autograded = stamp.read_text(errors="replace").strip() if stamp.is_file() else ""
+        stamp = os.path.relpath(Path(coursedir.format_path(
+            coursedir.autograded_directory, student, assignment)) / "timestamp.txt", root)
+        try:
+            autograded = safe_files.read_file(root, stamp, 4096).decode(
+                "utf-8", "replace").strip()
+        except safe_files.Refused:
+            autograded = ""
         if autograded != graded:
             self.log.warning("cobotlab graded %s's submission of %s, the autograded notebook is "
                              "of %s: run `cobotlab grade` again; their page has nbgrader's part "

@@ -9,9 +9,14 @@
 * :func:`record_cobotlab` puts cobotlab's per-function scores in the same cells (scaled to
   each cell's points), and its findings in the auto comments formgrader shows; an
   instructor's manual score or comment is never touched, so it wins on every regrade.
+* :func:`withdraw_scores` empties the automatic scores of a submission cobotlab could not
+  grade, so nbgrader's gradebook and export hold no score that cobotlab did not give (an
+  earlier, trusting ``nbgrader autograde`` may have scored a notebook built to fool it).
 * :func:`write_file` writes atomically (temp file + rename in the same folder) and never
-  follows a symlink on the way; :func:`write_csv` escapes cells a spreadsheet would run,
-  :func:`update_csv` replaces only the rows of this run and keeps the others.
+  follows a symlink on the way (its folders are opened by :mod:`autograder.safe_files`,
+  which every read of the trusted side goes through too); :func:`write_csv` escapes cells
+  a spreadsheet would run, :func:`update_csv` replaces only the rows of this run and keeps
+  the others (read through :mod:`autograder.safe_files` too).
 """
 
 from __future__ import annotations
@@ -26,40 +31,18 @@ import time
 import warnings
 from pathlib import Path
 
+from autograder import safe_files
 from autograder.freeze import printable
 
 __all__ = ["backup_gradebook", "gradebook_problem", "restore_gradebook", "record_nbgrader",
-           "record_cobotlab", "write_file", "remove_file", "write_csv", "update_csv", "csv_cell",
-           "RUN_MARKER"]
+           "record_cobotlab", "withdraw_scores", "write_file", "remove_file", "write_csv",
+           "update_csv", "csv_cell", "RUN_MARKER"]
 
 RUN_MARKER = "grading-in-progress"
+_CSV_CAP = 256 * 2**20   # grades.csv: about a million rows
 
 
 # --------------------------------------------------------------------------- safe writing
-
-
-def _safe_dir(root: Path, parts) -> int:
-    """An fd of ``root/parts...`` made (0o755) where missing; refuses a symlinked component."""
-    fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
-    try:
-        for part in parts:
-            if part in ("", ".", "..") or "/" in part:
-                raise ValueError(f"refusing path component {printable(part)!r}")
-            try:
-                os.mkdir(part, 0o755, dir_fd=fd)
-            except FileExistsError:
-                pass
-            try:
-                child = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
-            except OSError as exc:
-                raise ValueError(f"{printable(part)} in {root} is not a plain folder (a symlink?): "
-                                 "refusing to write through it") from exc
-            os.close(fd)
-            fd = child
-        return fd
-    except BaseException:
-        os.close(fd)
-        raise
 
 
 def write_file(root: Path, relative: str, data: bytes) -> Path:
@@ -69,8 +52,11 @@ def write_file(root: Path, relative: str, data: bytes) -> Path:
     there is moved aside to ``<name>.moved-<time>`` so the run still ends with the file.
     """
     parts = relative.split("/")
-    fd = _safe_dir(Path(root), parts[:-1])
     name = parts[-1]
+    if name in ("", ".", "..") or "\0" in name:
+        raise ValueError(f"refusing to write {printable(relative)!r}: not a file name")
+    folder = safe_files.open_folder(Path(root), parts[:-1], create=True)
+    fd = folder.fd
     try:
         try:
             info = os.stat(name, dir_fd=fd, follow_symlinks=False)
@@ -87,7 +73,7 @@ def write_file(root: Path, relative: str, data: bytes) -> Path:
             os.fsync(f.fileno())
         os.rename(temp, name, src_dir_fd=fd, dst_dir_fd=fd)
     finally:
-        os.close(fd)
+        folder.close()
     return Path(root) / relative
 
 
@@ -97,16 +83,16 @@ def remove_file(root: Path, relative: str) -> bool:
     a folder there is left alone."""
     parts = relative.split("/")
     try:
-        fd = _safe_dir(Path(root), parts[:-1])
-    except (OSError, ValueError):
+        folder = safe_files.open_folder(Path(root), parts[:-1])
+    except (OSError, ValueError):   # safe_files.Refused is a ValueError
         return False
     try:
-        os.unlink(parts[-1], dir_fd=fd)
+        os.unlink(parts[-1], dir_fd=folder.fd)
         return True
     except (FileNotFoundError, IsADirectoryError, PermissionError):
         return False
     finally:
-        os.close(fd)
+        folder.close()
 
 
 def csv_cell(value):
@@ -139,22 +125,27 @@ def update_csv(root: Path, relative: str, columns: list[str], rows: list[dict],
     replaced as :func:`write_file` does; a regular file that is not readable CSV is moved
     aside to ``<name>.unreadable-<time>`` rather than lost. Returns every row written.
     """
-    path = Path(root) / relative
-
     def ident(row: dict) -> tuple:  # compared as written: old rows were escaped already
         return tuple(str(csv_cell(row.get(k, ""))) for k in key)
 
     kept: dict[tuple, dict] = {}
-    if os.path.lexists(path) and stat.S_ISREG(os.lstat(path).st_mode):
+    data = None
+    try:
+        data = safe_files.read_file(root, relative, _CSV_CAP)
+    except safe_files.Refused as exc:
+        # Missing, or not a regular file (replaced below, never followed): nothing to keep.
+        # Too big or unreadable: kept aside, as a file that is not CSV is.
+        if exc.why in (safe_files.Why.TOO_BIG, safe_files.Why.UNREADABLE):
+            safe_files.move_aside(root, relative, f".unreadable-{int(time.time())}")
+    if data is not None:
         try:
-            with open(path, newline="", encoding="utf-8") as f:
-                reader = csv.DictReader(f)
-                if reader.fieldnames is not None and not set(key) <= set(reader.fieldnames):
-                    raise ValueError(f"no {'/'.join(key)} columns")  # None: an empty file
-                for row in reader:
-                    kept[ident(row)] = {k: row.get(k) or "" for k in columns}
-        except (OSError, ValueError, UnicodeDecodeError, csv.Error):
-            os.rename(path, f"{path}.unreadable-{int(time.time())}")
+            reader = csv.DictReader(io.StringIO(data.decode("utf-8"), newline=""))
+            if reader.fieldnames is not None and not set(key) <= set(reader.fieldnames):
+                raise ValueError(f"no {'/'.join(key)} columns")  # None: an empty file
+            for row in reader:
+                kept[ident(row)] = {k: row.get(k) or "" for k in columns}
+        except (ValueError, UnicodeDecodeError, csv.Error):
+            safe_files.move_aside(root, relative, f".unreadable-{int(time.time())}")
             kept = {}
     for row in rows:
         kept[ident(row)] = row
@@ -324,3 +315,32 @@ def record_cobotlab(root: Path, assignment: str, student: str, timestamp: str,
                 root, student, total, float(submission.total_seconds_late or 0.0)) or None
         gb.db.commit()
     return written
+
+
+def withdraw_scores(root: Path, assignment: str, student: str, comment: str) -> int:
+    """Empty every automatic score of ``student``'s submission of ``assignment`` (the
+    grader could not grade it): ``auto_score`` None, each cell marked for manual grading,
+    ``comment`` as the auto comment of every comment cell. A manual score an instructor
+    gave stays, and wins, as everywhere. Returns how many scores were emptied; nothing is
+    made for a student or submission the gradebook does not hold."""
+    from nbgrader.api import MissingEntry
+    from sqlalchemy.exc import SAWarning
+
+    emptied = 0
+    with warnings.catch_warnings(), _open_gradebook(root) as gb:
+        warnings.simplefilter("ignore", SAWarning)
+        try:
+            submission = gb.find_submission(assignment, student)
+        except MissingEntry:
+            return 0
+        for notebook in submission.notebooks:
+            for grade in notebook.grades:
+                if grade.auto_score is not None:
+                    emptied += 1
+                grade.auto_score = None
+                grade.needs_manual_grade = True
+            for cell in notebook.comments:
+                cell.auto_comment = comment
+            notebook.late_submission_penalty = None
+        gb.db.commit()
+    return emptied

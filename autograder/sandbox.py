@@ -13,7 +13,12 @@ starts through :func:`command`, which builds a bubblewrap (``bwrap``) command li
   killed), and, when the grader runs as root, the code runs as ``nobody`` with every
   capability dropped;
 * the whole process tree is charged to one cgroup with a memory and a process-count limit,
-  so three forked children cannot each take the per-process budget.
+  so three forked children cannot each take the per-process budget, and with a CPU weight
+  of its own, so thirty busy processes get no more of the machine than one
+  (:attr:`Capabilities.cpu_share`);
+* it starts in a new, empty session keyring and cannot make keyring system calls, so it
+  reads neither the grader's keys nor another submission's (:mod:`autograder._syscalls`,
+  whose launcher starts bubblewrap).
 
 Where bubblewrap cannot run, :func:`capabilities` says so and the caller falls back to
 resource limits on each process (``rlimits only``), which it flags in every result.
@@ -22,7 +27,6 @@ resource limits on each process (``rlimits only``), which it flags in every resu
 from __future__ import annotations
 
 import os
-import shlex
 import shutil
 import signal
 import subprocess
@@ -32,6 +36,8 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from autograder import _syscalls
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
            "SANDBOX_UID", "remove_stale_scratch", "Interrupted", "stop_all",
@@ -52,6 +58,12 @@ class Capabilities:
     evidence: tuple[str, ...] = ()
     # Without bubblewrap: why not, and what would bring it back (see fallback_warning()).
     why: str = ""
+    # The sandbox denies the keyring system calls (autograder._syscalls); False on a
+    # machine the filter does not know, which every grade row then says.
+    syscall_filter: bool = False
+    # How each submission gets its own share of the CPU: "v1 cpu.shares", "v2 cpu.weight",
+    # or None (its processes then compete one by one with everything else).
+    cpu_share: str | None = None
 
     @property
     def mode(self) -> str:
@@ -110,11 +122,14 @@ def _parents(paths) -> list[str]:
 
 
 def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
-            caps: Capabilities | None = None) -> list[str]:
+            caps: Capabilities | None = None, syscall_filter: bool = True) -> list[str]:
     """The command line running ``argv`` inside ``jail`` (and ``cgroup``, when given).
 
     ``argv`` and the paths are those inside the sandbox; the environment is ``jail.env``
-    and nothing else. Requires :func:`capabilities` ``.bwrap``.
+    and nothing else. Requires :func:`capabilities` ``.bwrap``. The sandbox starts in a new
+    session keyring and, with ``syscall_filter``, makes no keyring calls
+    (:mod:`autograder._syscalls`); a template passes False: each of its forks joins a
+    keyring of its own, then installs the same filter.
     """
     if _STOPPING.is_set():
         raise Interrupted("grading was interrupted: no new sandbox is started")
@@ -131,6 +146,9 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     args += ["--proc", "/proc", "--dev", "/dev",
              "--size", str(int(jail.scratch_mb) * 1024 * 1024), "--perms", "1777",
              "--tmpfs", "/tmp"]
+    # /dev/null over procfs's key lists (a --ro-bind would be nodev: unreadable)
+    args += [arg for path in _syscalls.KEY_LISTS if os.path.exists(path)
+             for arg in ("--dev-bind", "/dev/null", path)]
     # Mount points above the binds: traversable (0711), not listable, so the sandbox user
     # can reach a bound package without seeing what else its parent held on the host.
     system = ("/usr", "/etc", "/proc", "/dev")
@@ -160,47 +178,85 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     else:
         args += ["--unshare-user", "--disable-userns", "--cap-drop", "ALL"]
     args += ["--", *argv]
-    if cgroup is None:
-        return args
-    # The shell joins the cgroup first, so every process bwrap starts is charged to it.
-    join = " && ".join(f"echo $$ > {shlex.quote(str(p))}" for p in cgroup.procs_files)
-    return ["/bin/sh", "-c", f'{join} && exec "$@"', "cobotlab-sandbox", *args]
+    # The launcher joins the cgroup and a new session keyring before it starts bubblewrap,
+    # so every process of the sandbox is charged to the one and never holds the grader's
+    # keys; it hands bubblewrap the keyring filter.
+    launcher = [sys.executable, "-I", "-m", "autograder._syscalls"]
+    for path in cgroup.procs_files if cgroup is not None else ():
+        launcher += ["--join", str(path)]
+    if syscall_filter and caps.syscall_filter:
+        launcher.append("--filter")
+    return [*launcher, "--", shutil.which("bwrap") or "/usr/bin/bwrap", *args[1:]]
 
 
 # --------------------------------------------------------------------------- cgroups
 
 
 class Cgroup:
-    """One cgroup (v1: a memory and a pids group; v2: one group) for one submission.
+    """One cgroup (v1: a memory, a pids and, where they can be used, a cpu and a cpuacct
+    group; v2: one group) for one submission.
 
     ``memory_mb`` caps resident memory plus tmpfs pages of every process in it together;
-    ``max_processes`` caps how many exist at once (a fork bomb meets EAGAIN).
+    ``max_processes`` caps how many exist at once (a fork bomb meets EAGAIN). With
+    :attr:`Capabilities.cpu_share`, the group has the CPU weight of one busy process,
+    however many it runs: a submission that starts thirty busy processes takes no more of
+    the machine from the one graded beside it than a submission with one.
     """
 
     def __init__(self, memory_mb: int, max_processes: int):
-        self.version = capabilities().cgroup
+        caps = capabilities()
+        self.version = caps.cgroup
         if self.version is None:
             raise RuntimeError("no writable cgroup hierarchy on this machine")
         name = f"cobotlab-{uuid.uuid4().hex[:12]}"
         self.dirs: list[Path] = []
-        if self.version == "v2":
-            d = _v2_parent() / name
-            d.mkdir()
-            self.dirs = [d]
-            _write(d / "memory.max", str(memory_mb * 1024 * 1024))
-            _write(d / "memory.swap.max", "0", missing_ok=True)
-            _write(d / "pids.max", str(max_processes))
-        else:
-            mem, pids = _v1_parent("memory") / name, _v1_parent("pids") / name
-            mem.mkdir()
-            pids.mkdir()
-            self.dirs = [mem, pids]
-            _write(mem / "memory.limit_in_bytes", str(memory_mb * 1024 * 1024))
-            _write(mem / "memory.memsw.limit_in_bytes", str(memory_mb * 1024 * 1024),
-                   missing_ok=True)
-            _write(pids / "pids.max", str(max_processes))
+        self._cpuacct: Path | None = None
+        # Registered first: a failure below still removes what was made.
         with _LIVE_LOCK:
             _LIVE_CGROUPS.add(self)
+        try:
+            if self.version == "v2":
+                d = _v2_parent() / name
+                d.mkdir()
+                self.dirs = [d]
+                _write(d / "memory.max", str(memory_mb * 1024 * 1024))
+                _write(d / "memory.swap.max", "0", missing_ok=True)
+                _write(d / "pids.max", str(max_processes))
+                if caps.cpu_share:
+                    _write(d / "cpu.weight", "100")
+            else:
+                for controller in ("memory", "pids"):
+                    self.dirs.append(_v1_parent(controller) / name)
+                    self.dirs[-1].mkdir()
+                mem, pids = self.dirs
+                _write(mem / "memory.limit_in_bytes", str(memory_mb * 1024 * 1024))
+                _write(mem / "memory.memsw.limit_in_bytes", str(memory_mb * 1024 * 1024),
+                       missing_ok=True)
+                _write(pids / "pids.max", str(max_processes))
+                if caps.cpu_share:
+                    cpu, self._cpuacct = _v1_cpu_dirs(name)
+                    for d in dict.fromkeys((cpu, self._cpuacct)):   # one when co-mounted
+                        d.mkdir()
+                        self.dirs.append(d)
+                    _write(cpu / "cpu.shares", "1024")
+        except BaseException:
+            self.remove()
+            raise
+
+    def cpu_seconds(self) -> float | None:
+        """CPU seconds every process of the group has used, by the kernel's count (which
+        no process in it can change); None where the group has no CPU accounting."""
+        try:
+            if self.version == "v2" and self.dirs:
+                for line in (self.dirs[0] / "cpu.stat").read_text().splitlines():
+                    key, _, value = line.partition(" ")
+                    if key == "usage_usec":
+                        return int(value) / 1e6
+            elif self._cpuacct is not None:
+                return int((self._cpuacct / "cpuacct.usage").read_text()) / 1e9
+        except (OSError, ValueError):
+            pass
+        return None
 
     @property
     def procs_files(self) -> list[Path]:
@@ -254,7 +310,9 @@ class Cgroup:
             _LIVE_CGROUPS.discard(self)
         self.kill_all()
         for d in self.dirs:
-            for _ in range(50):
+            # Up to 5 s: killed processes leave the group only once they have run their exit,
+            # which a core crowded with the submission's own twenty takes its time to give.
+            for _ in range(250):
                 try:
                     d.rmdir()
                     break
@@ -432,6 +490,15 @@ def _v1_parent(controller: str) -> Path:
     return _CGROUP_ROOT / controller / own.lstrip("/")
 
 
+def _v1_cpu_dirs(name: str) -> tuple[Path, Path]:
+    """Where a v1 cpu group and cpuacct group called ``name`` go (one folder when the two
+    controllers share a hierarchy, as ``cpu,cpuacct`` usually does)."""
+    cpu, acct = _v1_parent("cpu"), _v1_parent("cpuacct")
+    if os.path.realpath(cpu) == os.path.realpath(acct):
+        acct = cpu
+    return cpu / name, acct / name
+
+
 def _v2_parent() -> Path:
     own = _own_cgroup("") or "/"
     return _CGROUP_ROOT / own.lstrip("/")
@@ -464,6 +531,56 @@ def _probe_cgroup(evidence: list[str]) -> str | None:
     evidence.append(f"cgroup v1: memory group under {_v1_parent('memory')}, pids group under "
                     f"{_v1_parent('pids')}")
     return "v1"
+
+
+def _probe_cpu(cgroup: str | None, evidence: list[str]) -> str | None:
+    """How a submission's group gets its own CPU share ("v1 cpu.shares", "v2 cpu.weight"),
+    or None when the cpu controller cannot be used here."""
+    if cgroup == "v2":
+        parent = _v2_parent()
+        try:
+            enabled = set((parent / "cgroup.subtree_control").read_text().split())
+        except OSError:
+            enabled = set()
+        if "cpu" in enabled:
+            evidence.append(f"cpu share: cpu.weight of each submission's group under {parent}")
+            return "v2 cpu.weight"
+        evidence.append(f"cpu share: none (cpu controller not delegated at {parent}); CPU "
+                        "accounted by cpu.stat")
+        return None
+    if cgroup != "v1":
+        evidence.append("cpu share: none (no cgroup)")
+        return None
+    name = f"cobotlab-probe-{uuid.uuid4().hex[:12]}"
+    made: list[Path] = []
+    try:
+        for d in dict.fromkeys(_v1_cpu_dirs(name)):
+            d.mkdir()
+            made.append(d)
+    except OSError as exc:
+        evidence.append(f"cpu share: none (cgroup v1 cpu/cpuacct: {exc})")
+        return None
+    finally:
+        for d in made:
+            d.rmdir()
+    cpu, acct = _v1_cpu_dirs("")
+    evidence.append(f"cpu share: cpu.shares of each submission's group under {cpu}, CPU "
+                    f"accounted by cpuacct under {acct}")
+    return "v1 cpu.shares"
+
+
+def _probe_run_queue(evidence: list[str]) -> None:
+    """Say whether the run-queue wait that tells a starved cell from a sleeping one is
+    readable (/proc/<pid>/schedstat)."""
+    try:
+        fields = Path("/proc/self/schedstat").read_text().split()
+        ok = len(fields) == 3 and int(fields[0]) > 0
+    except (OSError, ValueError):
+        ok = False
+    evidence.append("run-queue wait: " + (
+        "/proc/<pid>/schedstat (a cell starved of CPU is the grader's failure, retried)"
+        if ok else "not readable here: a cell stopped by the wall clock is always charged "
+                   "to the submission"))
 
 
 _PROBE_LOCK = threading.Lock()
@@ -511,32 +628,53 @@ def _probe() -> Capabilities:
                "install util-linux (apt-get install util-linux), or grade as a regular user")
         bwrap = False
     cgroup = _probe_cgroup(evidence)
-    caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why)
+    cpu_share = _probe_cpu(cgroup, evidence)
+    _probe_run_queue(evidence)
+    try:
+        _syscalls.program()
+        filtered, unfiltered_why = True, ""
+    except _syscalls.UnsupportedMachine as exc:
+        filtered, unfiltered_why = False, str(exc)
+    caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why, filtered, cpu_share)
     if bwrap:
         from autograder.views import interpreter_view
 
         jail = Jail.of_view(interpreter_view(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
+        # Second line: what keyctl(KEYCTL_GET_KEYRING_ID, session) gives in the sandbox.
+        keyctl = _syscalls.keyctl_number() if filtered else -1
         probe = [sys.executable, "-I", "-c",
-                 "import os,socket; open('/tmp/p','w').write('x'); "
-                 "print(os.getuid(), len(socket.if_nameindex()))"]
-        said = ""
+                 "import os,socket,ctypes; open('/tmp/p','w').write('x'); "
+                 "print(os.getuid(), len(socket.if_nameindex())); "
+                 "c=ctypes.CDLL(None,use_errno=True); c.syscall.restype=ctypes.c_long; "
+                 f"print(c.syscall({keyctl},0,-3,0) if {keyctl}>0 else 0, ctypes.get_errno())"]
+        said, lines = "", []
         try:
             done = subprocess.run(command(probe, jail, caps=caps), capture_output=True,
                                   text=True, timeout=30, check=False)
             ok = done.returncode == 0
             said = done.stderr.strip()
+            lines = done.stdout.splitlines() + ["", ""]
             evidence.append(f"bwrap probe: exit {done.returncode}, uid and interfaces "
-                            f"{done.stdout.strip()!r} {said[:200]!r}")
+                            f"{lines[0].strip()!r} {said[:200]!r}")
         except (OSError, subprocess.SubprocessError) as exc:
             ok = False
             said = str(exc)
             evidence.append(f"bwrap probe failed: {exc}")
+        denied = lines[1:2] == [f"-1 {_syscalls.DENIED_ERRNO}"]
+        if not filtered:
+            evidence.append(f"keyring calls in the sandbox: not filtered ({unfiltered_why})")
+        elif ok:
+            evidence.append("keyring calls in the sandbox: " + (
+                "denied by the seccomp filter (EPERM), in a new session keyring" if denied
+                else f"NOT denied (keyctl gave {lines[1].strip()!r}): rows are flagged"))
         if not ok:
             caps = Capabilities(False, False, cgroup, tuple(evidence), _why_bwrap_failed(
-                said, root))
+                said, root), False, cpu_share)
         else:
-            caps = Capabilities(True, root, cgroup, tuple(evidence))
+            caps = Capabilities(True, root, cgroup, tuple(evidence), "", filtered and denied,
+                                cpu_share)
     return caps
+
 
 
 # What bubblewrap says when the kernel (a sysctl, AppArmor, a container's seccomp profile)

@@ -11,13 +11,16 @@ holds only the assignment's definition, the one frozen submission) inside the sa
 :mod:`autograder.sandbox`, with a temporary ``HOME``, a minimal environment, no network and
 a wall-clock deadline. Afterwards the trusted process reads the scratch gradebook and keeps
 only cell scores it can validate against the template it made itself (known cell, finite,
-``0 <= score <= max``); names, penalties and anything else the run wrote are ignored.
+``0 <= score <= max``); names, penalties and anything else the run wrote are ignored. What
+it reads back (the gradebook, the autograded notebooks) it opens through
+:mod:`autograder.safe_files`: a folder the kernel swapped for a link is never followed.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import math
 import os
 import shutil
@@ -31,7 +34,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from autograder import sandbox
+from autograder import safe_files, sandbox
 from autograder.feedback import student_location
 from autograder.freeze import Frozen, printable
 from autograder.grading import HIDDEN_MARK, hidden_tests_called
@@ -337,26 +340,55 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
         result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s")
         if sandbox.stopping():   # killed by stop_all(): what it left is not a result
             raise sandbox.Interrupted("grading was interrupted")
-        db = course / "gradebook.db"
-        info = os.lstat(db) if os.path.lexists(db) else None
-        if info is None or not os.path.isfile(db) or os.path.islink(db):
-            result.notes.append("nbgrader's scratch gradebook is gone: its cell results are 0")
+        _collect(course, assignment, frozen.student_id, known, notebook_mb, result)
+    return result
+
+
+_GRADEBOOK_CAP = 256 * 2**20   # one assignment's definition and one student's submission
+
+
+def _collect(course: Path, assignment: str, student: str, known: dict[tuple[str, str], float],
+             notebook_mb: float, result: ScratchResult) -> None:
+    """nbgrader's results in the scratch ``course`` into ``result``: the validated cell
+    scores of its gradebook and its autograded notebooks (well-formed JSON only).
+
+    nbgrader's kernel could have written anything there: every path is opened through
+    :mod:`autograder.safe_files`, so a link anywhere on the way (``autograded/<student>/
+    <lab>`` swapped for a link to the host's ``source/<lab>`` or a classmate's folder) is
+    refused, noted and flagged ``nbgrader_output_refused:<name>``, never followed."""
+    def refused(name: str, exc: safe_files.Refused, lost: str) -> None:
+        result.notes.append(f"nbgrader's {name} not read: {printable(exc.where)} in its scratch "
+                            f"course is {exc.detail}; {lost}")
+        result.flags.append(f"nbgrader_output_refused:{name}")
+
+    with tempfile.TemporaryDirectory(prefix="cobotlab-scores-") as private:
+        copy = Path(private) / "gradebook.db"   # sqlite reads a path: a private copy's
+        try:
+            safe_files.copy_file(course, "gradebook.db", copy, _GRADEBOOK_CAP)
+        except safe_files.Refused as exc:
+            if exc.why is safe_files.Why.MISSING:
+                result.notes.append("nbgrader's scratch gradebook is gone: its cell results "
+                                    "are 0")
+            else:
+                refused("gradebook.db", exc, "its cell results are 0")
             result.cells = [CellScore(nb, c, 0.0, m) for (nb, c), m in sorted(known.items())]
         else:
-            private = scratch.path.parent / (scratch.path.name + ".db")
-            shutil.copyfile(db, private, follow_symlinks=False)
-            try:
-                result.cells, notes = _read_scores(private, assignment, frozen.student_id, known)
-            finally:
-                private.unlink()
+            result.cells, notes = _read_scores(copy, assignment, student, known)
             result.notes += notes
-        graded = course / "autograded" / frozen.student_id / assignment
-        for name in sorted({nb for nb, _ in known}):
-            path = graded / f"{name}.ipynb"
-            data = _regular_bytes(path, int(notebook_mb * 2**20))
-            if data is not None:
-                result.notebooks[name] = data
-    return result
+    for name in sorted({nb for nb, _ in known}):
+        try:
+            data = safe_files.read_file(course, ["autograded", student, assignment,
+                                                 f"{name}.ipynb"], int(notebook_mb * 2**20))
+            json.loads(data)
+        except safe_files.Refused as exc:
+            if exc.why is not safe_files.Why.MISSING:   # missing: nbgrader failed, and says so
+                refused(name, exc, "its autograded notebook is not kept")
+            continue
+        except ValueError:
+            result.notes.append(f"nbgrader's autograded notebook {name} is not JSON: not kept")
+            result.flags.append(f"nbgrader_output_refused:{name}")
+            continue
+        result.notebooks[name] = data
 
 
 # ------------------------------------------------------------ nbgrader with cobotlab's executor
@@ -421,14 +453,7 @@ def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db
         result.log = printable(log_text.getvalue()[-4000:], 4000)
         result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s of its own (its cells "
                             "run by the grader)")
-        result.cells, notes = _read_scores(course / "gradebook.db", assignment,
-                                           frozen.student_id, known)
-        result.notes += notes
-        graded = course / "autograded" / frozen.student_id / assignment
-        for name in sorted({nb for nb, _ in known}):
-            data = _regular_bytes(graded / f"{name}.ipynb", int(notebook_mb * 2**20))
-            if data is not None:
-                result.notebooks[name] = data
+        _collect(course, assignment, frozen.student_id, known, notebook_mb, result)
     return result, execute.grade
 
 
@@ -551,26 +576,3 @@ def _worker_execute_class():
                           traceback=[f"{ename}: {evalue}"])
 
     return WorkerExecute
-
-
-def _regular_bytes(path: Path, cap: int) -> bytes | None:
-    """The bytes of a regular JSON file at ``path`` (no link followed), or None."""
-    import json
-
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    except OSError:
-        return None
-    with os.fdopen(fd, "rb") as f:
-        import stat
-
-        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-            return None
-        data = f.read(cap + 1)
-    if len(data) > cap:
-        return None
-    try:
-        json.loads(data)
-    except ValueError:
-        return None
-    return data

@@ -7,38 +7,59 @@ so formgrader, manual overrides and ``nbgrader export`` see them as if HOME had 
 their rows into HOME's ``grades.csv``, their feedback pages and autograded notebooks, and the
 cross-check ledger, so the next regrade at home still compares with nbgrader's own values.
 
-The shard's files are read as data, as a submission is: only regular files (never a link),
-student ids that are safe folder names, scores that are numbers within their cell's points,
-and only for students whose row the shard's ``grades.csv`` has. HOME's gradebook is backed
-up first and checked after, as in ``grade_course``; a late penalty is HOME's rule again.
+The shard's files are read as data, as a submission is (through
+:mod:`autograder.safe_files`: regular files only, no link followed at any depth), student
+ids that are safe folder names, scores that are numbers within their cell's points, and
+only for students whose row the shard's ``grades.csv`` has. A row of a refused folder
+(flagged ``rejected_student_id``, keyed by :func:`autograder.freeze.student_key`) is
+carried over as a row only: it has nothing in the gradebook and no files.
+HOME's gradebook is backed up first and checked after, as in ``grade_course``; a late
+penalty is HOME's rule again.
 """
 
 from __future__ import annotations
 
 import csv
+import fnmatch
 import io
 import json
 import math
-import os
-import stat
+import tempfile
 from pathlib import Path
 
-from autograder import checks, course, feedback_release, freeze, grading, record, registry, scratch
+from autograder import (
+    checks,
+    course,
+    feedback_release,
+    freeze,
+    grading,
+    record,
+    registry,
+    safe_files,
+    scratch,
+)
 
 __all__ = ["merge_shard"]
 
-_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook
+_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook, or grades.csv
+_GRADEBOOK_CAP = 4 * 2**30
 
 
-def _read(path: Path, what: str) -> bytes:
-    data, why = freeze._read_regular(path, _CAP_BYTES)
-    if data is None:
-        raise ValueError(f"{what} {path}: {why}")
-    return data
+def _read(shard: Path, relative: str, what: str) -> bytes:
+    try:
+        return safe_files.read_file(shard, relative, _CAP_BYTES)
+    except safe_files.Refused as exc:
+        raise ValueError(f"{what}: {exc}") from None
+
+
+def _refused_row(row: dict) -> bool:
+    """Whether a grades.csv row is a refused folder's (``rejected_student_id``): a row only,
+    nothing in the gradebook, no feedback."""
+    return "rejected_student_id" in row.get("flags", "").split(";")
 
 
 def _shard_rows(shard: Path, assignment: str) -> list[dict]:
-    text = _read(shard / course.GRADES_CSV, "the shard's grades").decode("utf-8")
+    text = _read(shard, course.GRADES_CSV, "the shard's grades").decode("utf-8")
     rows = [r for r in csv.DictReader(io.StringIO(text)) if r.get("assignment") == assignment]
     if not rows:
         raise ValueError(f"{shard / course.GRADES_CSV} has no row of {assignment!r}: grade the "
@@ -49,7 +70,14 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
             continue   # the shard's grader failed on it: nothing to merge (see merge_shard)
         sid = row.get("student_id", "")
         problem = freeze.student_id_problem(sid)
-        if problem:
+        if _refused_row(row):
+            # its key must be one no accepted id can be (freeze.student_key), so that it can
+            # never stand in for a student's real row at home
+            if problem is None or freeze.printable(sid, 10**6) != sid:
+                raise ValueError(f"the shard's grades.csv flags {freeze.printable(sid, 80)!r} "
+                                 "as a refused folder, but that is not how a refused folder "
+                                 "is named there: was the file edited?")
+        elif problem:
             raise ValueError(f"the shard's grades.csv names a student id that is {problem}: "
                              f"{freeze.printable(sid, 80)!r}")
         try:
@@ -57,6 +85,9 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
         except (KeyError, ValueError):
             raise ValueError(f"the shard's row of {sid} has no numeric raw_score / max_score") \
                 from None
+        if _refused_row(row) and raw != 0:
+            raise ValueError(f"the shard's row of the refused folder {freeze.printable(sid, 80)!r}"
+                             f" scores {raw:g}: a refused folder is never graded")
         if not (math.isfinite(raw) and abs(top - max_points) < 1e-9 and 0 <= raw <= top):
             raise ValueError(
                 f"the shard's row of {sid} scores {raw:g} / {top:g}, but {assignment} is out of "
@@ -67,25 +98,33 @@ def _shard_rows(shard: Path, assignment: str) -> list[dict]:
 def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
     """{student: (timestamp, {(notebook, grade id): (score, points)}, {comment: text})}
     from the shard's gradebook, scores checked against their cells' points."""
+    with tempfile.TemporaryDirectory(prefix="cobotlab-shard-") as private:
+        copy = Path(private) / "gradebook.db"   # nbgrader opens a path: a private copy's
+        try:
+            safe_files.copy_file(shard, "gradebook.db", copy, _GRADEBOOK_CAP)
+        except safe_files.Refused as exc:
+            raise ValueError(f"the shard's gradebook: {exc}") from None
+        return _gradebook_cells(copy, shard / "gradebook.db", assignment, students)
+
+
+def _gradebook_cells(db: Path, named: Path, assignment: str, students: list[str]) -> dict:
+    """:func:`_shard_gradebook` of the gradebook copied to ``db`` (``named`` in messages)."""
     from nbgrader.api import Gradebook, MissingEntry
 
-    db = shard / "gradebook.db"
-    if not (os.path.lexists(db) and stat.S_ISREG(os.lstat(db).st_mode)):
-        raise ValueError(f"the shard's gradebook {db} is missing or not a regular file")
     out = {}
     with Gradebook(f"sqlite:///{db}") as gb:
         for sid in students:
             try:
                 sub = gb.find_submission(assignment, sid)
             except MissingEntry:
-                raise ValueError(f"{db} has no submission of {assignment!r} by {sid}, yet its "
+                raise ValueError(f"{named} has no submission of {assignment!r} by {sid}, yet its "
                                  "grades.csv has a row: the shard's copy is incomplete") from None
             scores, comments = {}, {}
             for nb in sub.notebooks:
                 for g in nb.grades:
                     value, top = float(g.auto_score or 0.0), float(g.max_score or 0.0)
                     if not (math.isfinite(value) and 0.0 <= value <= top):
-                        raise ValueError(f"{db}: cell {g.name!r} of {sid} scores {value:g} "
+                        raise ValueError(f"{named}: cell {g.name!r} of {sid} scores {value:g} "
                                          f"of {top:g} points")
                     scores[(nb.name, g.name)] = (value, top)
                 for c in nb.comments:
@@ -99,20 +138,29 @@ def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: lis
     """The student's feedback page and section, autograded notebooks and the exchange files
     nbgrader's release_feedback reads beside them, regular files only."""
     exchange = freeze.EXCHANGE_FILES
-    for folder, pattern in (("feedback_cobotlab", "feedback.html"),
-                            ("feedback_cobotlab", feedback_release.SECTION),
-                            ("autograded", "*.ipynb"), *(("autograded", n) for n in exchange)):
-        base = shard / folder / sid / assignment
-        for path in sorted(base.glob(pattern)) if base.is_dir() else []:
-            try:
-                data = _read(path, "shard file")
-                problem = freeze.exchange_file_problem(path.name, data) \
-                    if path.name in exchange else None
-                if problem:
-                    raise ValueError(problem)
-                record.write_file(home, f"{folder}/{sid}/{assignment}/{path.name}", data)
-            except (OSError, ValueError) as exc:
-                notes.append(f"{sid}: {folder}/{path.name} not copied: {freeze.printable(exc)}")
+    for folder, patterns in (("feedback_cobotlab", ("feedback.html", feedback_release.SECTION)),
+                             ("autograded", ("*.ipynb", *exchange))):
+        relative = f"{folder}/{sid}/{assignment}"
+        try:
+            base = safe_files.open_folder(shard, relative)
+        except safe_files.Refused as exc:
+            if exc.why is not safe_files.Why.MISSING:
+                notes.append(f"{sid}: {relative} not copied: {freeze.printable(exc)}")
+            continue
+        with base:
+            for entry in base.entries():
+                if not any(fnmatch.fnmatchcase(entry.name, p) for p in patterns):
+                    continue
+                try:
+                    data = base.read(entry.name, _CAP_BYTES)
+                    problem = freeze.exchange_file_problem(entry.name, data) \
+                        if entry.name in exchange else None
+                    if problem:
+                        raise ValueError(problem)
+                    record.write_file(home, f"{relative}/{entry.name}", data)
+                except (OSError, ValueError) as exc:   # safe_files.Refused is a ValueError
+                    notes.append(f"{sid}: {folder}/{freeze.printable(entry.name)} not copied: "
+                                 f"{freeze.printable(exc)}")
 
 
 def _check_assignment(home: Path, assignment: str) -> None:
@@ -164,7 +212,9 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     rows = _shard_rows(shard, assignment)
     ungraded = [r["student_id"] for r in rows if r.get("raw_score") == ""]
     rows = [r for r in rows if r.get("raw_score") != ""]
-    if not rows:
+    refused = [r for r in rows if _refused_row(r)]   # rows only: no gradebook entry, no files
+    rows = [r for r in rows if not _refused_row(r)]
+    if not rows and not refused:
         raise ValueError(f"the shard {shard} graded none of its students (grader errors: "
                          f"{', '.join(ungraded)}): grade the shard again")
     students = [r["student_id"] for r in rows]
@@ -199,6 +249,11 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
         merged.append(course.grade_row(assignment, row["student_id"], nb,
                                        float(row["raw_score"]), float(row["max_score"]), flags,
                                        row.get("timestamp", "")))
+    for row in refused:
+        merged.append(course.grade_row(assignment, row["student_id"],
+                                       {"duedate": row.get("duedate", "")},
+                                       float(row["raw_score"]), float(row["max_score"]),
+                                       row.get("flags", ""), row.get("timestamp", "")))
     record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
                       key=("assignment", "student_id"))
     notes.append(f"merged {len(merged)} student(s) from the shard {shard}")

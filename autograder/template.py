@@ -8,7 +8,9 @@ were run a hundred times with the same result. A template runs them once per gra
 a sandboxed worker of its own, and then forks one process per submission
 (:func:`autograder._worker._serve_forks`). Before any student code runs, each fork moves
 into new user, mount, PID, IPC, UTS and network namespaces with an empty ``/tmp``
-(:mod:`autograder._isolate`), joins the submission's cgroup and drops every capability;
+(:mod:`autograder._isolate`), joins the submission's cgroup, drops every capability, and
+leaves the template's session keyring for an empty one of its own under the keyring filter
+every sandbox has (:mod:`autograder._syscalls`);
 it then loads the submission's own cells from the first one that differs, and answers
 the grader exactly as a cold worker does.
 
@@ -256,6 +258,11 @@ class ForkedProcess:
 
     def kill(self) -> None:
         sandbox.kill_below(self.pid)
+
+    def submission_pid(self) -> int | None:
+        """The host PID of the submission's process 1 (the fork's one child), or None."""
+        children = sandbox._children(self.pid)
+        return children[0] if len(children) == 1 else None
 
     def wait(self, timeout: float | None = None) -> int:
         deadline = None if timeout is None else time.monotonic() + timeout

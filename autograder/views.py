@@ -40,11 +40,11 @@ __all__ = ["View", "interpreter_view", "worker_view", "kernel_view", "OWN_PACKAG
 # cobotlab's packages a lab notebook imports, bound whole: student-facing by design (the
 # student install ships them as they are).
 OWN_PACKAGES = ("robots", "sim_backends")
-# The parts of autograder/ the grading worker needs: itself, the namespaces of a template's
-# forks, its wire protocol, the forbidden-routine tripwire, the stand-ins, and the practice
-# data the notebooks import.
-WORKER_MODULES = ("__init__.py", "_worker.py", "_isolate.py", "wire.py", "forbidden.py",
-                  "standin.py", "datasets.py", "synthetic.py", "data")
+# The parts of autograder/ the grading worker needs: itself, the namespaces and the keyring
+# filter of a template's forks, its wire protocol, the forbidden-routine tripwire, the
+# stand-ins, and the practice data the notebooks import.
+WORKER_MODULES = ("__init__.py", "_worker.py", "_isolate.py", "_syscalls.py", "wire.py",
+                  "forbidden.py", "standin.py", "datasets.py", "synthetic.py", "data")
 # nbgrader's kernel runs the notebook's hidden_test cells: the public scoring and the
 # practice problems of the kernel seeds (data, not the generators behind them).
 KERNEL_MODULES = WORKER_MODULES + ("checks.py", "spec_types.py", "mistakes.py", "practice.py",

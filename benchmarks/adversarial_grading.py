@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import course_kit as kit  # noqa: E402
 
 from autograder import record, sandbox  # noqa: E402
-from autograder.freeze import printable  # noqa: E402
+from autograder.freeze import student_key  # noqa: E402
 
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
@@ -242,7 +242,7 @@ def main() -> None:
         plain = _plain_text(results["plain"][name]) if name in results["plain"] else "-"
         ours = "-"
         if c is not None:
-            row = c["rows"].get(printable(c["folders"][name]))
+            row = c["rows"].get(student_key(c["folders"][name]))
             if row is not None:
                 ours = f"{float(row['score']):g}/10" + (f"; {row['flags']}" if row["flags"] else "")
         print(f"| {name} | {plain} | {ours} |")

@@ -329,7 +329,7 @@ class SandboxedReference:
         self.load_errors = [f"cell {r.get('index')}: {r.get('error')}"
                             for r in self.worker.load_report if not r.get("ok")]
 
-    def __call__(self, spec: FunctionSpec, trial: Trial) -> checks.TrialOutcome:
+    def __call__(self, spec: FunctionSpec, trial: Trial, retries: int = 1) -> checks.TrialOutcome:
         if self.worker is None or not self.worker.alive:
             self._start()
         worker = self.worker
@@ -345,6 +345,11 @@ class SandboxedReference:
             worker.close()
             self.worker = None
             return checks.TrialOutcome(error=f"the worker stopped: {exc}")
+        except grading.GraderError:   # a busy machine starved it: not the reference's loss
+            self.worker = None
+            if retries:
+                return self(spec, trial, retries - 1)
+            raise
         self.tripped |= worker.tripped
         worker.tripped.clear()
         return outcome

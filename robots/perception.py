@@ -49,8 +49,6 @@ __all__ = [
     "detect_chess_board",
     "detect_chessboard",
     "detect_circle_grid",
-    "fit_plane_ransac",
-    "heights_above_plane",
     "point_cloud",
     "project",
     "square_at",
@@ -538,77 +536,33 @@ def _board_candidates(gray, objp, square_m, intrinsics):
     return []
 
 
-def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
-                     iterations: int = 200):
-    """A plane through most of ``points`` (N, 3), metres, in their own frame.
+def _pieces_painted_out(gray, depth, intrinsics, square_m: float,
+                        min_height_m: float = 0.004):
+    """``gray`` with everything standing more than ``min_height_m`` out of the surface around
+    it in the depth image (the pieces on the board) inpainted from its surroundings, or None
+    when the depth image holds too few measurements.
 
-    RANSAC over random triples (``rng``: pass a seeded generator for repeatable results), then
-    a least-squares refit on the inliers of the best triple. Returns ``(centre (3,), unit
-    normal (3,), inlier mask (N,))``, the mask against the refitted plane with the same
-    ``threshold_m``; the normal's sign is arbitrary. Raises ValueError for fewer than 3 points
-    or when every triple tried was collinear.
-    """
-    pts = np.asarray(points, dtype=float).reshape(-1, 3)
-    if len(pts) < 3:
-        raise ValueError(f"a plane needs at least 3 points, got {len(pts)}")
-    best = None
-    for _ in range(iterations):
-        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
-        normal = np.cross(b - a, c - a)
-        if np.linalg.norm(normal) < 1e-12:
-            continue
-        normal /= np.linalg.norm(normal)
-        inliers = np.abs((pts - a) @ normal) < threshold_m
-        if best is None or inliers.sum() > best.sum():
-            best = inliers
-    if best is None:
-        raise ValueError("every sampled triple of points was collinear: no plane to fit")
-    centre = pts[best].mean(axis=0)
-    normal = np.linalg.svd(pts[best] - centre, full_matrices=False)[2][2]
-    return centre, normal, np.abs((pts - centre) @ normal) < threshold_m
-
-
-def heights_above_plane(cloud, sample_rng: np.random.Generator, fit_rng: np.random.Generator,
-                        threshold_m: float = 0.002, sample_size: int = 3000,
-                        iterations: int = 100):
-    """Height (H, W), metres, of each point of an organised camera cloud (H, W, 3) above the
-    cloud's dominant plane (a board or table seen from above), positive towards the camera,
-    NaN where there is no depth; and the fraction of the sampled points on that plane.
-
-    The plane is fitted with :func:`fit_plane_ransac` (``threshold_m``, ``iterations``) on
-    ``sample_size`` valid points drawn with ``sample_rng``; pass seeded generators (the same
-    one twice is fine) for repeatable results. Raises ValueError when fewer than 3 points have
-    depth or no plane can be fitted.
-    """
-    valid = np.all(np.isfinite(cloud), axis=2)
-    pts = cloud[valid]
-    if len(pts) < 3:
-        raise ValueError(f"a plane needs at least 3 points with depth, got {len(pts)}")
-    sample = pts[sample_rng.choice(len(pts), min(sample_size, len(pts)), replace=False)]
-    centre, normal, inliers = fit_plane_ransac(sample, threshold_m, fit_rng, iterations)
-    if normal @ centre > 0:
-        normal = -normal  # towards the camera, so heights above the plane are positive
-    height = np.full(cloud.shape[:2], np.nan)
-    height[valid] = (pts - centre) @ normal
-    return height, float(inliers.sum()) / len(sample)
-
-
-def _pieces_painted_out(gray, depth, intrinsics, min_height_m: float = 0.004,
-                        threshold_m: float = 0.002):
-    """``gray`` with everything standing more than ``min_height_m`` above the dominant plane
-    of the depth image (the board) inpainted from its surroundings, or None when the depth
-    shows no plane (see ``heights_above_plane``; seeded, so deterministic)."""
-    cloud = point_cloud(depth, intrinsics)
-    if np.all(np.isfinite(cloud), axis=2).sum() < 500:
+    No plane is fitted: a morphological closing of the depth image with a disc wider than a
+    square (``across`` below) fills every patch nearer to the camera that the disc does not
+    fit in (a piece, or two touching ones) with the depth around it, and leaves a flat or
+    tilted surface as it is (a closing keeps a linear function). Its difference from the depth
+    is how far a pixel stands out, along the ray. A 5 x 5 median first keeps depth noise of a
+    few millimetres from standing out."""
+    z = np.asarray(depth, dtype=np.float32)
+    valid = np.isfinite(z) & (z > 0)
+    if valid.sum() < 500:
         return None
-    rng = np.random.default_rng(0)
-    try:
-        height, on_plane = heights_above_plane(cloud, rng, rng, threshold_m)
-    except ValueError:
-        return None
-    if on_plane < 0.3:
-        return None
-    above = np.nan_to_num(height, nan=-1.0) > min_height_m
+    # The disc spans 1.5 squares at the median depth in view: wider than any piece, and
+    # besides the pieces its closing fills at most the tips of the board's outer corners, a
+    # square away from the inner corners the detectors look for.
+    across = 1.5
+    size = int(np.ceil(intrinsics.fx * across * square_m / float(np.median(z[valid])))) | 1
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    # Holes become depth 0, nearer than anything: the closing fills them from their rims
+    # instead of spreading them over the board (and they are left out of the mask).
+    surface = cv2.medianBlur(np.where(valid, z, 0.0).astype(np.float32), 5)
+    closed = cv2.morphologyEx(surface, cv2.MORPH_CLOSE, disc, borderType=cv2.BORDER_REPLICATE)
+    above = valid & (closed - surface > min_height_m)
     mask = cv2.dilate(above.astype(np.uint8), np.ones((3, 3), np.uint8))
     return cv2.inpaint(gray, mask, 3, cv2.INPAINT_TELEA)
 
@@ -642,7 +596,7 @@ def detect_chess_board(frame: Frame, intrinsics: Intrinsics, square_m: float,
     if not kept and frame.depth is not None:
         # Pieces can break the pattern so that no detector finds all 49 corners (black pieces
         # on dark squares by a corner); with a depth image they can be painted out first.
-        clean = _pieces_painted_out(gray, frame.depth, intrinsics)
+        clean = _pieces_painted_out(gray, frame.depth, intrinsics, square_m)
         if clean is not None:
             kept = _board_candidates(clean, objp, square_m, intrinsics)
     if not kept:

@@ -846,7 +846,7 @@ class PickPlaceResult:
 
 def _plane_heights(cloud):
     """Height (H, W) of each point above the dominant plane (the board) in a camera cloud."""
-    from robots.perception import heights_above_plane
+    from solutions.perception import heights_above_plane
 
     if np.all(np.isfinite(cloud), axis=2).sum() < 100:
         raise TargetLostError("the depth image is empty; nothing to servo on")

@@ -11,6 +11,11 @@ does. Two functions that differ only in naming and comments normalise to the sam
 the source notebooks, and every function of each private spec module's ``ANSWERS``, nested
 defs included); :func:`find_answers` reports where any of them occurs among the function defs
 of some files (.py sources, and the code cells of .ipynb notebooks).
+
+:func:`find_near_copies` finds what the exact search cannot: a copy with a few lines changed.
+The same functions are cut into statements, each normalised on its own (:func:`statements`),
+and a function def of the files that holds at least ``NEAR_SHARE`` of a reference's
+non-trivial statements, and at least ``NEAR_STATEMENTS`` of them, is reported.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import inspect
 import json
 import pkgutil
 import textwrap
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -207,20 +213,168 @@ def code_of(path: Path) -> list[str]:
     return []
 
 
+def _files(paths) -> list[Path]:
+    """``paths`` with each folder replaced by the .py and .ipynb files under it."""
+    files = []
+    for path in map(Path, paths):
+        files += sorted(p for p in path.rglob("*") if p.suffix in (".py", ".ipynb")) \
+            if path.is_dir() else [path]
+    return files
+
+
 def find_answers(paths, needles: list[Needle]) -> list[str]:
     """Where any needle occurs among the function defs of ``paths`` (files, or folders
     searched for .py and .ipynb files): "<file>: def <name> is <origin>" per finding."""
     by_form: dict[str, list[str]] = {}
     for needle in needles:
         by_form.setdefault(needle.form, []).append(needle.origin)
-    files = []
-    for path in map(Path, paths):
-        files += sorted(p for p in path.rglob("*") if p.suffix in (".py", ".ipynb")) \
-            if path.is_dir() else [path]
     findings = []
-    for file in files:
+    for file in _files(paths):
         for code in code_of(file):
             for node in functions_in(code):
                 for origin in by_form.get(normalise(node), ()):
                     findings.append(f"{file}: def {node.name} is {origin}")
     return findings
+
+
+# --------------------------------------------------------------------------- near copies
+#
+# Exact matching misses a copy with a line or two changed (robots/perception.py once shipped
+# lab 5's RANSAC plane fit with NaN filtering and the normal's orientation left out). The
+# measure below compares functions statement by statement instead: the share of a reference's
+# statements that a candidate function also holds.
+
+# The nodes of a statement that only moves names and constants around (``return x``,
+# ``best = None``, ``continue``, a bare ``raise``, a docstring, an import): such a statement
+# says nothing about how an answer is computed, and nearly every function has one, so it is
+# never counted.
+_TRIVIAL_NODES = (ast.Expr, ast.Assign, ast.Return, ast.Pass, ast.Break, ast.Continue,
+                  ast.Raise, ast.Delete, ast.Global, ast.Nonlocal, ast.Import, ast.ImportFrom,
+                  ast.alias, ast.Name, ast.Constant, ast.Tuple, ast.List, ast.Starred,
+                  ast.expr_context)
+
+# A candidate holding at least this share of a reference's statements, and at least this
+# many of them, is a near copy. Four statements are the least that make an algorithm rather
+# than a coincidence (two functions may both convert their input and loop over a range).
+NEAR_SHARE = 0.5
+NEAR_STATEMENTS = 4
+
+
+# The fields of a compound statement that hold statements (or handlers and cases holding
+# them): cut from the header, their statements counted one by one.
+_BLOCKS = ("body", "orelse", "finalbody", "handlers", "cases")
+
+
+def _is_trivial(node: ast.AST) -> bool:
+    return all(isinstance(n, _TRIVIAL_NODES) for n in ast.walk(node))
+
+
+def statements(function: ast.AST) -> list[str]:
+    """The normalised non-trivial statements of one function def, nested blocks included,
+    in order. A compound statement counts as its header (``for i in range(n):`` without its
+    body), and its body's statements count one by one; a nested def counts as its body.
+
+    Each statement is normalised on its own (placeholders numbered from ``_0`` again), so
+    that a renamed variable, a statement inserted before it or two statements swapped change
+    nothing; builtins the function rebinds are renamed as :func:`normalise` renames them."""
+    tree = ast.parse(ast.unparse(function))  # a copy: headers are cut from their bodies
+    bound = _bound_names(tree)
+    forms: list[str] = []
+
+    def visit(body: list) -> None:
+        for stmt in _Normaliser._without_docstring(body):
+            if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                visit(stmt.body)
+                continue
+            blocks = []
+            for field in _BLOCKS:
+                if getattr(stmt, field, None):
+                    blocks.append(getattr(stmt, field))
+                    setattr(stmt, field, [])
+            header = _Normaliser(bound).visit(stmt)
+            if header is not None and not _is_trivial(header):
+                forms.append(ast.dump(header, annotate_fields=False, include_attributes=False))
+            for block in blocks:
+                for part in block:   # an except handler's or a match case's body
+                    visit(part.body if isinstance(part, (ast.excepthandler, ast.match_case))
+                          else [part])
+
+    root = tree.body[0]
+    visit(root.body if isinstance(root, (ast.FunctionDef, ast.AsyncFunctionDef)) else [root])
+    return forms
+
+
+@dataclass(frozen=True)
+class Reference:
+    """One piece of answer code (a def of a solution region or of a private answer): where
+    it comes from and its normalised non-trivial statements (see :func:`statements`)."""
+
+    origin: str
+    forms: tuple[str, ...]
+
+
+def reference_statements(labs_dir: Path = LABS_DIR) -> list[Reference]:
+    """The statements of every function def of the source notebooks' solution regions and
+    of the private ``ANSWERS`` (the same functions :func:`answer_functions` collects)."""
+    found = []
+    for origin, code in solution_regions(labs_dir):
+        for node in functions_in(code):
+            found.append(Reference(f"{origin}: def {node.name}", tuple(statements(node))))
+    for origin, func in private_answers():
+        for node in functions_in(textwrap.dedent(inspect.getsource(func))):
+            found.append(Reference(f"{origin}: def {node.name}", tuple(statements(node))))
+    return found
+
+
+@dataclass(frozen=True)
+class Resemblance:
+    """How much of a reference one candidate function holds: ``matched`` of the reference's
+    ``total`` statements (each of the candidate's statements matches one at most)."""
+
+    reference: str
+    where: str
+    matched: int
+    total: int
+
+    @property
+    def share(self) -> float:
+        return self.matched / self.total if self.total else 0.0
+
+    @property
+    def near_copy(self) -> bool:
+        return self.share >= NEAR_SHARE and self.matched >= NEAR_STATEMENTS
+
+    def __str__(self) -> str:
+        return (f"{self.where} holds {self.matched} of {self.total} statements "
+                f"({self.share:.0%}) of {self.reference}")
+
+
+def resemblances(paths, references: list[Reference]):
+    """Every (reference, function def of ``paths``) pair sharing a statement, as
+    :class:`Resemblance` (``paths``: files, or folders searched for .py and .ipynb files)."""
+    wanted = [(ref, Counter(ref.forms)) for ref in references if ref.forms]
+    for file in _files(paths):
+        for code in code_of(file):
+            for node in functions_in(code):
+                held = Counter(statements(node))
+                for ref, forms in wanted:
+                    matched = sum((forms & held).values())
+                    if matched:
+                        yield Resemblance(ref.origin, f"{file}: def {node.name}", matched,
+                                          len(ref.forms))
+
+
+def closest_functions(paths, references: list[Reference]) -> dict[str, Resemblance]:
+    """For each reference (by origin), the function def of ``paths`` that holds the largest
+    share of its statements; no entry when no function holds any."""
+    best: dict[str, Resemblance] = {}
+    for found in resemblances(paths, references):
+        if found.reference not in best or found.matched > best[found.reference].matched:
+            best[found.reference] = found
+    return best
+
+
+def find_near_copies(paths, references: list[Reference]) -> list[str]:
+    """Where a function def of ``paths`` is a near copy of a reference (at least
+    ``NEAR_SHARE`` of its statements and ``NEAR_STATEMENTS`` of them): one line each."""
+    return [str(r) for r in resemblances(paths, references) if r.near_copy]

@@ -6,6 +6,7 @@ autograder.course.grade_course. Each lab's test file uses these with its own ass
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import json
@@ -201,9 +202,13 @@ def submit_case(course: Path, assignment: str, name: str, case: dict) -> str:
     """Hand in corpus case ``name`` (its cells and its ``layout:``); returns its folder name.
 
     Layouts: ``symlink_notebook_to_source``, ``symlink_folder_to_victim`` (a student named
-    ``victim`` must be submitted too), ``fifo_notebook``.
+    ``victim`` must be submitted too), ``fifo_notebook``. ``@COURSE@`` in the case's code
+    becomes the course's path on the host (what an attack would have to guess).
     """
     student = case["student"] or name
+    here = str(course.resolve())
+    case = dict(case, extra=case["extra"] and case["extra"].replace("@COURSE@", here),
+                replace={k: v.replace("@COURSE@", here) for k, v in case["replace"].items()})
     folder = course / "submitted" / student / assignment
     layout = case["layout"]
     if layout == "symlink_folder_to_victim":
@@ -259,6 +264,41 @@ def serve_localhost(port: int, reply: bytes, stop) -> bool:
 
     threading.Thread(target=serve, daemon=True).start()
     return True
+
+
+@contextlib.contextmanager
+def instructor_keyring(session_token: bytes, user_token: bytes | None = None):
+    """This thread (and what it starts from now on) as an instructor's SSH login: a new
+    session keyring holding ``session_token`` (as pam_keyinit's holds a login's tokens) and,
+    when given, ``user_token`` in its user keyring; both removed afterwards. Keys named
+    ``cobotlab-instructor-token`` and ``cobotlab-instructor-user-token``."""
+    import ctypes
+    import platform
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.syscall.restype = ctypes.c_long
+    add_key, keyctl = {"x86_64": (248, 250), "aarch64": (217, 219)}[platform.machine()]
+
+    def call(*args) -> int:
+        result = libc.syscall(*args)
+        if result < 0:
+            raise OSError(ctypes.get_errno(), "keyring call")
+        return result
+
+    call(keyctl, 1, None)   # KEYCTL_JOIN_SESSION_KEYRING, anonymous: this thread's own
+    planted = [(call(add_key, b"user", b"cobotlab-instructor-token", session_token,
+                     len(session_token), -3), -3)]
+    if user_token is not None:
+        planted.append((call(add_key, b"user", b"cobotlab-instructor-user-token", user_token,
+                             len(user_token), -4), -4))
+    try:
+        yield
+    finally:
+        for key, ring in planted:
+            try:
+                call(keyctl, 9, key, ring)   # KEYCTL_UNLINK
+            except OSError:
+                pass
 
 
 # nbgrader's own (trusting) autograde runs, for the cross-check, on the cases built to fool it

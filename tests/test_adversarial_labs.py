@@ -49,12 +49,16 @@ LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
 
 def _retarget(case: dict, functions: tuple[str, ...]) -> dict[str, str]:
     """The case's replaced cells moved from lab 0's functions onto ``functions``: the same
-    body under the lab's name, taking whatever arguments the grader passes."""
+    body under the lab's name, taking whatever arguments the grader passes (a name bound
+    by an assignment, not a def, is bound to the same value under the lab's name)."""
     moved = {}
     for lab0_name, name in zip(LAB0_FUNCTIONS, functions):
         if lab0_name in case["replace"]:
             source, n = re.subn(rf"def {lab0_name}\([^)]*\):", f"def {name}(*args, **kwargs):",
                                 case["replace"][lab0_name], count=1)
+            if n == 0:
+                source, n = re.subn(rf"^{lab0_name}(\s*=)", rf"{name}\1", source, count=1,
+                                    flags=re.MULTILINE)
             assert n == 1, (lab0_name, case["replace"][lab0_name])
             moved[name] = source
     return moved

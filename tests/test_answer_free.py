@@ -13,7 +13,10 @@ instructor's side. Here:
   run inside the loop as before);
 * no solution region of a source notebook and no private ``ANSWERS`` function, normalised
   through ``ast``, appears in the student wheel or in ``cobotlab labs student``'s output;
-* and that search finds a renamed copy planted on purpose.
+* nor a near copy of one: no function there holds half or more of such a function's
+  statements (robots/perception.py once shipped lab 5's RANSAC plane fit with two of its
+  lines changed, which the exact search could not see);
+* and both searches find a renamed copy planted on purpose.
 """
 
 from __future__ import annotations
@@ -253,7 +256,63 @@ def unrelated(a, b):
     assert len(findings) == 1 and "_true_interaction" in findings[0], findings
 
 
-def test_the_student_wheel_holds_no_answer_code(needles, tmp_path_factory):
+@pytest.fixture(scope="module")
+def references():
+    """The statements of every solution region's and private answer's function defs."""
+    found = answer_leaks.reference_statements()
+    # every graded function's solution is among them, with statements to compare
+    names = {r.origin.rsplit("def ", 1)[1] for r in found if r.forms}
+    for lab, specs in checks.SCORING.items():
+        for spec in specs:
+            assert spec.name in names, f"{lab}.{spec.name}: no solution statements found"
+    return found
+
+
+def test_the_near_copy_search_finds_a_copy_with_two_lines_changed(references, needles,
+                                                                  tmp_path):
+    """Lab 5's RANSAC plane fit renamed, commented, its NaN filter left out and its normal
+    normalised in place: the exact search misses it, the statement search does not."""
+    planted = tmp_path / "innocent.py"
+    planted.write_text('''
+import numpy
+
+
+def dominant_surface(cloud, tolerance, rounds=200, seed=1):
+    """Nothing to see here."""
+    xyz = numpy.asarray(cloud, dtype=float).reshape(-1, 3)
+    gen = numpy.random.default_rng(seed)
+    winner = None
+    for _ in range(rounds):
+        p, q, r = xyz[gen.choice(len(xyz), 3, replace=False)]
+        axis = numpy.cross(q - p, r - p)
+        if numpy.linalg.norm(axis) < 1e-12:
+            continue
+        axis /= numpy.linalg.norm(axis)  # unit length
+        close = numpy.abs((xyz - p) @ axis) < tolerance
+        if winner is None or close.sum() > winner.sum():
+            winner = close
+    middle = xyz[winner].mean(axis=0)
+    up = numpy.linalg.svd(xyz[winner] - middle, full_matrices=False)[2][2]
+    if up @ middle > 0:
+        up = -up
+    return middle, up
+
+
+def unrelated(points, k):
+    pts = numpy.asarray(points, dtype=float).reshape(-1, 3)
+    for _ in range(k):
+        pts = pts - pts.mean(axis=0)
+    return pts
+''')
+    assert answer_leaks.find_answers([planted], needles) == []
+    findings = answer_leaks.find_near_copies([planted], references)
+    assert findings and all("def dominant_surface holds" in f for f in findings), findings
+    assert any("lab5_depth.ipynb" in f and "def fit_plane_ransac" in f for f in findings)
+
+
+@pytest.fixture(scope="module")
+def unpacked_wheel(tmp_path_factory) -> Path:
+    """The student wheel, built from a copy of the sources and unpacked."""
     from test_student_install import _build_wheel
 
     wheel = _build_wheel(tmp_path_factory)
@@ -262,10 +321,22 @@ def test_the_student_wheel_holds_no_answer_code(needles, tmp_path_factory):
     assert any(n.startswith("autograder/scoring/") for n in names)
     unpacked = tmp_path_factory.mktemp("wheel")
     zipfile.ZipFile(wheel).extractall(unpacked)
-    assert answer_leaks.find_answers([unpacked], needles) == []
+    return unpacked
 
 
-def test_the_student_labs_hold_no_answer_code_and_carry_practice_data(needles, tmp_path):
+def test_the_student_wheel_holds_no_answer_code(needles, unpacked_wheel):
+    assert answer_leaks.find_answers([unpacked_wheel], needles) == []
+
+
+def test_the_student_wheel_holds_no_near_copy_of_an_answer(references, unpacked_wheel):
+    """No function a student receives holds half or more of a solution's (or private
+    answer's) statements: the functions a lab grades stay out of the library, which passes
+    the students' own functions in where it needs them (robots/labkit)."""
+    assert answer_leaks.find_near_copies([unpacked_wheel], references) == []
+
+
+def test_the_student_labs_hold_no_answer_code_and_carry_practice_data(needles, references,
+                                                                      tmp_path):
     from cobotlab.labs import write_student_labs
 
     written = write_student_labs(tmp_path / "labs")
@@ -273,6 +344,7 @@ def test_the_student_labs_hold_no_answer_code_and_carry_practice_data(needles, t
     for lab in LABS:
         assert (tmp_path / "labs" / lab / practice.practice_file_name(lab)).is_file()
     assert answer_leaks.find_answers([tmp_path / "labs"], needles) == []
+    assert answer_leaks.find_near_copies([tmp_path / "labs"], references) == []
 
 
 @pytest.mark.parametrize("which", ["worker", "kernel"])

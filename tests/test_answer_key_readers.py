@@ -9,6 +9,7 @@ a regular install) it must score exactly what the blank scores, and be flagged.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import course_kit as kit
@@ -57,9 +58,22 @@ def test_the_reader_works_where_the_answer_key_is_in_reach(name, monkeypatch):
 
 
 @pytest.mark.parametrize("name", sorted(READERS))
-def test_the_reader_scores_the_blank_and_is_flagged_in_the_worker(tmp_path, name):
+def test_the_reader_scores_the_blank_and_is_flagged_in_the_worker(tmp_path, name, monkeypatch):
     case, function = _case(name), READERS[name]
     lab = case["lab"]
+    spec = checks.spec_for(function, lab)
+    if spec.forbidden:
+        # Code it builds at run time could call a forbidden routine: the static rule scores
+        # it zero without running it. The worker's view is what is tested here, so it is
+        # graded once more with nothing forbidden, and runs.
+        path = submission(tmp_path, ["import numpy as np", case["replace"][function]],
+                          "static", lab)
+        ruled = grading.grade_notebook([path], lab, "static", SECRET, None, LIMITS)
+        by_name = {f.name: f for f in ruled.functions}
+        assert by_name[function].points == 0.0 and by_name[function].forbidden, \
+            by_name[function].summary()
+        monkeypatch.setattr(checks, "SPECS", {lab: tuple(
+            dataclasses.replace(s, forbidden=()) for s in checks.SPECS[lab])})
     graded = {}
     blank = [f"def {function}(*args):\n    raise NotImplementedError()"]
     for who, cells in (("blank", blank), (name, [case["replace"][function]])):

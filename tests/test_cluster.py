@@ -164,8 +164,9 @@ def _submit_class(course):
     kit.submit(course, ASSIGNMENT, "blank")
     kit.submit(course, ASSIGNMENT, "wrong", replace={
         **solutions, "invert_pose": solutions["invert_pose"].replace("-R.T @ t", "-t")})
-    case = kit.corpus(ASSIGNMENT)["reply_flood"]
-    kit.submit(course, ASSIGNMENT, "reply_flood", replace=case["replace"], extra=case["extra"])
+    for name in ("reply_flood", "huge_values"):
+        case = kit.corpus(ASSIGNMENT)[name]
+        kit.submit(course, ASSIGNMENT, name, replace=case["replace"], extra=case["extra"])
 
 
 def _cobotlab_cells(course) -> dict:
@@ -250,7 +251,8 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
 
     rows = outcome["rows"]
     ids = [r["student_id"] for r in rows]
-    assert sorted(ids) == sorted({"reference", "blank", "wrong", "reply_flood"}) == sorted(
+    assert sorted(ids) == sorted({"reference", "blank", "wrong", "reply_flood",
+                                  "huge_values"}) == sorted(
         r["student_id"] for r in local_rows), "one row per submission"
     by_id = {r["student_id"]: r for r in rows}
     # the same scores and flags as the local run, the killed worker's submission too. Only
@@ -261,6 +263,10 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
         {s: _comparable(r) for s, r in by_id.items()}
     assert by_id["reference"]["score"] == 10.0 and by_id["blank"]["score"] == 0.0
     assert by_id["reply_flood"]["score"] == 0.0
+    # 400-digit answers and a forged reply cost the student, never the grader (no
+    # grader_error on the worker's side, nor in this process's validation of its reply)
+    assert by_id["huge_values"]["score"] == 0.0
+    assert "grader_error" not in by_id["huge_values"]["flags"]
     assert 0 < by_id["wrong"]["score"] < 10
     # recorded once per submission: grades.csv and the gradebook as a local run has them
     csv_rows = kit.read_grades(remote)

@@ -98,6 +98,15 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     monkeypatch.setattr(sandbox, "_probe", lambda: probes.append(1) or real_probe())
     sandbox.forget_capabilities()
     fault = BrokenSandbox(monkeypatch, first_start=True, always={"broken"})
+    # What a trusting `nbgrader autograde` left for a notebook built to fool its kernel:
+    # full marks in every cell, which cobotlab never gave.
+    with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
+        gb.update_or_create_student("broken")
+        for nb in gb.update_or_create_submission(ASSIGNMENT, "broken").notebooks:
+            for g in nb.grades:
+                g.auto_score, g.needs_manual_grade = g.max_score, False
+        gb.db.commit()
+    assert all(v for v in _cobotlab_cells(course, "broken").values())
 
     # Each worker a new interpreter in a new sandbox (a template's forks use no worker_jail:
     # its own failure is the next test's)
@@ -117,7 +126,14 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     assert rows["broken"]["score"] == "" and rows["broken"]["raw_score"] == "", rows["broken"]
     assert "grader_error" in rows["broken"]["flags"].split(";")
     assert kit.read_grades(course)["broken"]["score"] == ""
-    assert _cobotlab_cells(course, "broken") is None
+    # ... and none in the gradebook either: nbgrader's export and formgrader show no score
+    # cobotlab did not give, and formgrader asks for a look.
+    assert set(_cobotlab_cells(course, "broken").values()) == {None}
+    with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
+        sub = gb.find_submission(ASSIGNMENT, "broken")
+        assert sub.score == 0 and sub.needs_manual_grade
+        assert all("not graded" in c.auto_comment for nb in sub.notebooks
+                   for c in nb.comments)
     assert _cobotlab_cells(course, "ada") and all(
         v is not None for v in _cobotlab_cells(course, "ada").values())
     assert "NOT GRADED (1): broken" in out, out

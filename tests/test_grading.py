@@ -305,6 +305,84 @@ def test_forbidden_routines_zero_the_function_that_reaches_them_only(tmp_path):
                 if f.startswith("forbidden")]
 
 
+# Student code runs in the worker's own process, so it can switch the worker's tripwire off
+# (here through the garbage collector): the worker then reports no call at all.
+SILENCE_TRIPWIRE = """
+import gc
+for _kind in [o for o in gc.get_objects() if isinstance(o, type) and o.__name__ == "Tripwire"]:
+    _kind.__enter__ = lambda self: self
+    _kind.__exit__ = lambda self, *exc: False
+"""
+# Lab 5's graded names bound, without a def, to objects that call the library: an instance of
+# a class with __call__ (robots.perception.point_cloud) and a functools.partial of a helper
+# (cv2.solvePnP, a C routine). With the tripwire on, the worker would see both calls.
+LAB5_BOUND = """
+import functools
+import cv2
+import numpy as np
+from robots import perception
+from robots.interfaces import Intrinsics
+
+class _Backproject:
+    def __call__(self, depth_raw, K, depth_scale):
+        h, w = np.shape(depth_raw)
+        camera = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], w, h)
+        return perception.point_cloud(np.asarray(depth_raw, float) * depth_scale, camera)
+
+backproject = _Backproject()
+
+def _pnp(corners_px, width_m, height_m, K):
+    w, h = width_m / 2, height_m / 2
+    square = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
+    _, rvec, tvec = cv2.solvePnP(square, np.asarray(corners_px, float), np.asarray(K, float),
+                                 None, flags=cv2.SOLVEPNP_IPPE)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+    return T
+
+rectangle_pose = functools.partial(_pnp)
+"""
+
+
+def test_what_is_bound_to_a_graded_name_is_scanned_whatever_the_worker_reports(tmp_path):
+    # Before the scan followed assignments to the graded name, this earned 4 of 4 unflagged.
+    grade = grading.grade_notebook(_notebook(tmp_path, SILENCE_TRIPWIRE, LAB5_BOUND),
+                                   "lab5_depth", "eve", SECRET, "n", LIMITS)
+    by_name = {f.name: f for f in grade.functions}
+    assert by_name["backproject"].points == 0 and by_name["rectangle_pose"].points == 0
+    assert by_name["backproject"].forbidden == ("robots.perception.point_cloud",)
+    assert by_name["rectangle_pose"].forbidden == ("cv2.solvePnP",)
+    assert {"forbidden:robots.perception.point_cloud", "forbidden:cv2.solvePnP"} <= \
+        set(grade.flags)
+
+
+# An honest lab 0 notebook that compares its answers with the library's, in cells of its own
+# and in a helper no graded function calls, under the same local names its functions use.
+COMPARED = """
+import cv2
+import threading
+from robots import geometry as geo
+T = geo.pose_from_rotvec(np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0, 3.0]))
+out = geo.invert(T)
+checked = []
+def compare(poses):
+    checked.append(np.abs(compose_chain(poses) - geo.compose(*poses)).max())
+    checked.append(np.abs(invert_pose(poses[0]) - vars(geo)["invert"](poses[0])).max())
+compare([T, out])
+R = cv2.Rodrigues(np.array([0.1, 0.2, 0.3]))[0]
+worker = threading.Thread(target=lambda: checked.append(geo.invert(T)))
+worker.start()
+worker.join()
+"""
+
+
+def test_the_forbidden_routines_used_outside_the_graded_functions_cost_nothing(tmp_path):
+    grade = grading.grade_notebook(_notebook(tmp_path, REFERENCE, COMPARED), "lab0_frames",
+                                   "a", SECRET, "n", LIMITS)
+    assert grade.score == 10.0 and not [f for f in grade.flags if f.startswith("forbidden")], \
+        (grade.flags, [f.errors[:1] for f in grade.functions])
+
+
 def test_without_bubblewrap_the_rlimits_fallback_still_grades_and_says_so(tmp_path):
     import subprocess
     import sys

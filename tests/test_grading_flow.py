@@ -33,7 +33,8 @@ FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 SLICE = ("gradebook_overwrite", "config_injection", "copy_source", "overwrite_classmate",
          "neutralise_hidden_tests", "env_and_localhost", "grades_csv_symlink", "write_outside",
          "symlink_notebook", "symlink_folder", "fifo_notebook", "newline_student_id",
-         "import_solutions")
+         "invisible_twin_student_id", "escaped_twin_student_id", "import_solutions",
+         "keyring")
 TOKEN = "instructor-token-5f1e"
 SERVICE_PORT = 47613
 ROOT = Path(__file__).resolve().parent.parent
@@ -116,10 +117,11 @@ def test_the_corpus_slice_through_cobotlab_grade(tmp_path):
     env = dict(os.environ, HOME=str(home), COBOTLAB_TEST_INSTRUCTOR_TOKEN=TOKEN)
     env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
     try:
-        done = subprocess.run([str(Path(sys.executable).parent / "cobotlab"), "grade", str(course),
-                               ASSIGNMENT,
-                               "--workers", "2"], env=env, capture_output=True, text=True,
-                              timeout=1500, check=False)
+        # the instructor's login keeps a token in its session keyring (pam_keyinit)
+        with kit.instructor_keyring(TOKEN.encode()):
+            done = subprocess.run([str(Path(sys.executable).parent / "cobotlab"), "grade",
+                                   str(course), ASSIGNMENT, "--workers", "2"], env=env,
+                                  capture_output=True, text=True, timeout=1500, check=False)
     finally:
         stop.set()
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
@@ -175,3 +177,45 @@ def test_the_corpus_slice_through_cobotlab_grade(tmp_path):
     assert _orphans() == orphans_before
     if service:
         assert TOKEN not in (course / ".cobotlab" / "last_run.log").read_text()
+
+
+# Attacks that act where nbgrader's own kernel runs the notebook (`--nbgrader-kernel`, or an
+# assignment of several notebooks): the kernel swaps its output folders for links to the
+# host course's answer key and to a classmate's folder.
+KERNEL_LINKS = ("autograded_link_to_source", "autograded_link_to_classmate")
+VICTIM_MARK = "victim-work-5c0ffee"
+
+
+def test_nbgrader_s_kernel_cannot_swap_its_output_folders_for_links(tmp_path):
+    cases = kit.corpus(ASSIGNMENT)
+    course = kit.released_course(tmp_path, ASSIGNMENT)
+    answer_key = course / "source" / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
+    assert "### BEGIN SOLUTION" in answer_key.read_text()
+    work = kit.solution_sources(ASSIGNMENT, FUNCTIONS)
+    work["invert_pose"] += f"\n# {VICTIM_MARK}\n"
+    kit.submit(course, ASSIGNMENT, "victim", replace=work)
+    attackers = [kit.submit_case(course, ASSIGNMENT, name, cases[name]) for name in KERNEL_LINKS]
+
+    from autograder.course import grade_course
+
+    rows = {r["student_id"]: r for r in grade_course(
+        course, ASSIGNMENT, workers=2, run_nbgrader=True, nbgrader_kernel=True,
+        students=attackers, quiet=True)}
+    # nbgrader's feedback pages are made from the autograded notebooks the grader recorded
+    env = dict(os.environ, PATH=os.path.dirname(sys.executable) + os.pathsep
+               + os.environ.get("PATH", ""))
+    subprocess.run([sys.executable, "-m", "nbgrader", "generate_feedback", ASSIGNMENT],
+                   cwd=course, env=env, capture_output=True, timeout=300, check=False)
+
+    for name in attackers:
+        for top in ("autograded", "feedback"):
+            for path in (course / top / name).rglob("*"):
+                assert not path.is_symlink(), path
+                if path.is_file():
+                    text = path.read_text(errors="replace")
+                    assert "BEGIN SOLUTION" not in text, (name, path)
+                    assert VICTIM_MARK not in text, (name, path)
+        assert float(rows[name]["score"]) == 0.0, rows[name]
+        flags = rows[name]["flags"].split(";")
+        assert f"nbgrader_output_refused:{ASSIGNMENT}" in flags, (name, rows[name]["flags"])
+    assert (course / "submitted" / "victim" / ASSIGNMENT).is_dir()

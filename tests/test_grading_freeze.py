@@ -176,3 +176,74 @@ def test_a_rerun_after_an_interrupted_run_restores_and_says_so(tmp_path):
     marker.write_text(json.dumps({"pid": os.getpid() + 0}))
     assert course_mod._begin_run(course, private) == [
         "the previous run was interrupted; gradebook.db checked: ok"]
+
+
+# Pairs of refused folder names that shared one grades.csv row when a refused id's row was
+# keyed by its printable form cut at 200 characters (then spreadsheet-escaped): an invisible
+# character and its escaped spelling, two long names alike for their first 200 characters,
+# and a formula-like name against an accepted name with the apostrophe a spreadsheet cell
+# gets; and a name that is not UTF-8 (it could not be written to grades.csv at all).
+TWINS = {"a\u202eb": "a\\u202eb", "a\\u202eb": "a\\\\u202eb",
+         "x" * 200 + "1": "x" * 200 + "1", "x" * 200 + "2": "x" * 200 + "2",
+         "=ben": "\\x3dben", os.fsdecode(b"caf\xe9"): "caf\\udce9"}
+ACCEPTED = ("ana", "'=ben")
+
+
+def test_every_refused_folder_gets_a_row_of_its_own_and_accepted_rows_stay(tmp_path, capsys):
+    from autograder.course import grade_course, init_course
+
+    course = init_course(tmp_path / "course")
+    for student in ACCEPTED:   # handed in nothing to run: no student code in this test
+        (_hand_in(course, student) / "timestamp.txt").write_text("2026-11-20 10:00:00 UTC")
+    grade_course(course, ASSIGNMENT, quiet=True)
+    before = (course / "grades.csv").read_text().splitlines()
+
+    for name in TWINS:
+        _hand_in(course, name, _nb())
+    (tmp_path / "store").mkdir()
+    frozen = {f.student_id: f for f in freeze.freeze_submissions(
+        course / "submitted", ASSIGNMENT, EXPECTED, tmp_path / "store")}
+    assert sorted(frozen) == sorted([*TWINS.values(), *ACCEPTED])
+    grade_course(course, ASSIGNMENT, quiet=False)
+    summary = capsys.readouterr().out
+
+    with open(course / "grades.csv", newline="", encoding="utf-8") as f:
+        rows = {r["student_id"]: r for r in csv.DictReader(f)}
+    assert sorted(rows) == sorted([*TWINS.values(), *ACCEPTED])
+    for name, key in TWINS.items():
+        assert rows[key]["flags"] == "rejected_student_id", rows[key]
+        assert rows[key]["score"] == "0.0" and not frozen[key].accepted
+        # the key gives the folder's name back
+        assert key.encode("ascii", "backslashreplace").decode("unicode_escape") == name
+    for student in ACCEPTED:
+        assert frozen[student].accepted and rows[student]["flags"] == ""
+    # accepted rows are byte for byte what they were
+    after = (course / "grades.csv").read_text().splitlines()
+    assert [line for line in after if ",ana," in line] == \
+        [line for line in before if ",ana," in line]
+    assert [line for line in after if ",'=ben," in line] == \
+        [line for line in before if ",'=ben," in line]
+    # the summary cuts a long id to fit, but still tells the two apart
+    long = [line.split()[0] for line in summary.splitlines() if line.startswith("x" * 40)]
+    assert len(long) == 2 and long[0] != long[1], summary
+
+
+def test_a_shard_s_refused_rows_merge_as_rows_and_cannot_pose_as_a_student(tmp_path):
+    from autograder import shards
+    from autograder.course import GRADE_COLUMNS, GRADES_CSV, grade_row
+
+    def shard_rows(*rows):
+        record.write_csv(tmp_path, GRADES_CSV, GRADE_COLUMNS, list(rows))
+        return shards._shard_rows(tmp_path, ASSIGNMENT)
+
+    ana = grade_row(ASSIGNMENT, "ana", {}, 7.0, 10.0, "")
+    refused = [grade_row(ASSIGNMENT, freeze.student_key(name), {}, 0.0, 10.0,
+                         "rejected_student_id") for name in TWINS]
+    got = shard_rows(ana, *refused)
+    assert sorted(r["student_id"] for r in got) == sorted(["ana", *TWINS.values()])
+    # a row flagged as a refused folder under an accepted id would replace that student's
+    # row at home: the shard is refused instead, as it is for a refused row with points
+    with pytest.raises(ValueError, match="not how a refused folder is named"):
+        shard_rows(ana, grade_row(ASSIGNMENT, "bo", {}, 0.0, 10.0, "rejected_student_id"))
+    with pytest.raises(ValueError, match="never graded"):
+        shard_rows(ana, {**refused[0], "raw_score": 5.0})

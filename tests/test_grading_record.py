@@ -121,11 +121,12 @@ def test_regrade_reproduces_every_score_and_a_fresh_run_replays(released, tmp_pa
 def test_grades_csv_keeps_every_assignment_and_replaces_a_regraded_row(released, tmp_path):
     course = kit.fresh_course(released, tmp_path)
     kit.submit(course, LAB0, "ana", replace=_solutions())
-    kit.submit(course, LAB0, "=ben")  # blank; a name a spreadsheet would run
+    kit.submit(course, LAB0, "=ben")  # a name a spreadsheet would run: refused
     _submit_blank_from_source(course, LAB1, "ana")
     grade_course(course, LAB0, limits=LIMITS, quiet=True)
     grade_course(course, LAB1, limits=LIMITS, quiet=True)
-    assert _scores(course, LAB0) == {"ana": "10.0", "'=ben": "0.0"}
+    # keyed by freeze.student_key: no formula, and not the accepted id "'=ben"
+    assert _scores(course, LAB0) == {"ana": "10.0", "\\x3dben": "0.0"}
     assert _scores(course, LAB1) == {"ana": "0.0"}
 
     # ana hands in lab 0 again, blank this time; only she is regraded
@@ -134,7 +135,7 @@ def test_grades_csv_keeps_every_assignment_and_replaces_a_regraded_row(released,
     with open(course / "grades.csv") as f:
         rows = list(csv.DictReader(f))
     assert sorted((r["assignment"], r["student_id"], r["score"]) for r in rows) == [
-        (LAB0, "'=ben", "0.0"), (LAB0, "ana", "0.0"), (LAB1, "ana", "0.0")]
+        (LAB0, "\\x3dben", "0.0"), (LAB0, "ana", "0.0"), (LAB1, "ana", "0.0")]
     assert (course / "grades.csv").read_text().count("assignment,duedate,") == 1
 
 

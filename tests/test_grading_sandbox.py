@@ -178,10 +178,88 @@ def test_the_tripwire_reports_a_forbidden_call_however_it_is_reached(tmp_path):
     with grading.Worker([code], LIMITS) as w:
         outcome = w.call("invert_pose", (__import__("numpy").eye(4),), 5,
                          ("robots.geometry.invert",))
-        assert outcome.error is None and w.tripped == {"robots.geometry.invert"}
+        assert "ForbiddenCall" in outcome.error and w.tripped == {"robots.geometry.invert"}
     # and the trusted static scan finds it without running anything
     assert forbidden.static_hits([code], "invert_pose", ("robots.geometry.invert",)) == [
         "robots.geometry.invert"]
+
+
+# Ways to reach a forbidden routine that no scan of the graded function's code can follow,
+# each past a profile hook on the calling thread: the module attribute rebound to a decoy
+# after saving the routine, and the saved routine called directly or by a thread started
+# while loading, fed over a pipe, that finds it by a computed name; a copy of the routine's
+# code with the hook switched off; a C
+# routine saved from vars(cv2) before the call; a returned list that computes itself only
+# when the reply is sent. The notebook uses both routines while it loads, which is fine.
+UNSEEN = """
+import os, sys, threading, types
+import cv2
+import numpy as np
+from robots import geometry as geo
+loaded = (geo.invert(np.eye(4)), cv2.Rodrigues(np.zeros(3))[0])
+ask_r, ask_w = os.pipe()
+tell_r, tell_w = os.pipe()
+def serve():
+    while True:
+        pose = np.frombuffer(os.read(ask_r, 128)).reshape(4, 4)
+        try:
+            out = globals()["".join(reversed("devas"))](pose)
+        except BaseException:
+            out = np.full((4, 4), np.nan)
+        os.write(tell_w, np.ascontiguousarray(out, dtype=float).tobytes())
+threading.Thread(target=serve, daemon=True).start()
+def by_thread(T):
+    os.write(ask_w, np.ascontiguousarray(T, dtype=float).tobytes())
+    return np.frombuffer(os.read(tell_r, 128)).reshape(4, 4)
+copy = types.FunctionType(geo.invert.__code__, geo.invert.__globals__)
+def by_copy_unprofiled(T):
+    sys.setprofile(None)
+    return copy(T)
+saved = geo.invert
+geo.invert = lambda T: np.eye(4)
+def by_saved(T):
+    return saved(T)
+rodrigues = vars(cv2)["Rodri" + "gues"]
+def by_saved_c(r):
+    return rodrigues(np.asarray(r, dtype=float))[0]
+class Later(list):
+    def __iter__(self):
+        return iter(saved(self.pose).tolist())
+def by_later(T):
+    later = Later()
+    later.pose = T
+    return later
+"""
+
+
+def test_a_forbidden_routine_answers_no_graded_call_however_it_is_reached():
+    import numpy as np
+
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    inverse = np.linalg.inv(T)
+    rotation = __import__("cv2").Rodrigues(np.array([0.1, 0.2, 0.3]))[0]
+    invert, rodrigues = ("robots.geometry.invert",), ("cv2.Rodrigues",)
+    with grading.Worker([UNSEEN], LIMITS, forbidden=invert + rodrigues) as w:
+        assert w.load_report[0]["ok"] is True, w.load_report
+        for name, args, names, right in [("by_thread", (T,), invert, inverse),
+                                         ("by_saved", (T,), invert, inverse),
+                                         ("by_saved_c", ([0.1, 0.2, 0.3],), rodrigues, rotation),
+                                         ("by_later", (T,), invert, inverse)]:
+            outcome = w.call(name, args, 5, names)
+            assert w.tripped == set(names), (name, outcome)
+            # the routine itself was poisoned: no answer to credit, whatever the report says
+            value = np.asarray(outcome.value if outcome.value is not None else np.nan)
+            assert value.shape != right.shape or not np.allclose(value, right), (name, outcome)
+            w.tripped.clear()
+        # a copy of the code is not the routine: the hook it switched off is the evidence
+        assert w.call("by_copy_unprofiled", (T,), 5, invert).error is None
+        assert w.tripped == set(invert)
+        w.tripped.clear()
+        # once the call is over, the routines answer again, for the notebook and its thread
+        assert w.call("by_saved", (T,), 5).error is None
+        assert np.allclose(w.call("by_thread", (T,), 5).value, inverse)
+        assert not w.tripped
 
 
 def test_the_sandbox_probe_reports_its_evidence():

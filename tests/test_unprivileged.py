@@ -22,10 +22,12 @@ built from the working tree: a regular install, as on a course server.
 
 Graded as the user: the notebook-layer cases of the lab 0 corpus but one (the three that
 fool nbgrader's own kernel in a first run with ``--nbgrader-kernel``, so that its
-cross-check flags them, as tests/test_corpus_batch_a.py does for root), five course, host
+cross-check flags them, as tests/test_corpus_batch_a.py does for root), six course, host
 and layout cases of tests/test_grading_flow.py's slice (the gradebook, files outside the
-scratch space, a symlinked notebook, a symlinked folder, the answer key), the victim they
-aim at, the reference and a blank: 24 submissions. Left to the root tests:
+scratch space, a symlinked notebook, a symlinked folder, the answer key, the keyrings:
+the user's login token in the grader's session keyring), the victim they aim at, the
+reference and a blank. tests/test_grading_keyrings.py and the worker part of
+tests/test_grading_contention.py also run as the user. Left to the root tests:
 ``infinite_loop``, which costs over a minute of CPU at the command line's default time
 limits (``cobotlab grade`` has no option to lower them) and meets only per-process timers
 (the cell and call CPU timers, RLIMIT_CPU), the same for any user; ``memory_bomb`` stays, as
@@ -64,7 +66,7 @@ KERNEL_CASES = kit.FOOL_NBGRADER
 ROOT_ONLY = ("infinite_loop",)
 # Of tests/test_grading_flow.py's course, host and layout slice: one attack per path.
 FLOW_CASES = ("gradebook_overwrite", "write_outside", "symlink_notebook", "symlink_folder",
-              "import_solutions")
+              "import_solutions", "keyring")
 # A user namespace of the user's own in which no further one may be made: bubblewrap's
 # --unshare-user then fails as where the kernel, a sysctl, AppArmor or a container's seccomp
 # profile forbids unprivileged user namespaces. The process keeps its uid; exec drops the
@@ -272,10 +274,12 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     kernel = _students_file(ta, course, "kernel", ["reference", *KERNEL_CASES])
     rest = _students_file(ta, course, "rest", sorted(folders - set(KERNEL_CASES)
                                                      - {"reference"}))
-    first = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", "--no-progress",
-                        "--nbgrader-kernel", "--students", kernel)
-    second = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", "--no-progress",
-                         "--students", rest)
+    # the user's login session keeps a token in its session keyring (pam_keyinit)
+    with kit.instructor_keyring(b"the user's login token"):
+        first = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", "--no-progress",
+                            "--nbgrader-kernel", "--students", kernel)
+        second = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", "--no-progress",
+                             "--students", rest)
     for done in (first, second):
         header = done.stdout.splitlines()[0]
         assert "sandbox: bubblewrap" in header and "rlimits only" not in header, header
@@ -331,6 +335,31 @@ def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     assert float(grades["blank"]["score"]) == 0.0
     assert float(grades["geometry_invert"]["score"]) == 0.0
     assert "forbidden:robots.geometry.invert" in grades["geometry_invert"]["flags"]
+
+
+# Run as the user, against its installed cobotlab: with no cgroup of its own, each
+# submission's CPU is read from its worker process. Not the template's forks: bubblewrap's
+# --disable-userns leaves the user's template no user namespace to fork a sandbox into, so
+# the user's grading starts every submission cold.
+AS_THE_USER = ("test_grading_keyrings.py", "test_grading_contention.py")
+NOT_AS_THE_USER = "not correct_submission and not template_fork"
+
+
+@pytest.mark.timeout(300)
+def test_keyrings_and_a_busy_core_as_the_user(ta):
+    """tests/test_grading_keyrings.py (cold worker and nbgrader's kernel jail: the user's
+    own keys, in any session, unlisted) and the worker part of
+    tests/test_grading_contention.py (a starved cell or call is the grader's failure, a
+    sleeping one or one crowded out by its own processes the student's), run by the
+    user."""
+    tests = ta.base / "tests"
+    tests.mkdir(exist_ok=True)
+    for name in (*AS_THE_USER, "course_kit.py", "conftest.py"):
+        shutil.copy2(Path(__file__).with_name(name), tests / name)
+    _give(tests, ta.user)
+    done = ta.run(["python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "-k",
+                   NOT_AS_THE_USER, *AS_THE_USER], cwd=tests)
+    assert " passed" in done.stdout and "skipped" not in done.stdout, done.stdout[-3000:]
 
 
 # A notebook that sleeps, in a kernel that outlives its parent (ipykernel's parent poller

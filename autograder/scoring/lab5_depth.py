@@ -140,7 +140,7 @@ FIT_PLANE_RANSAC = FunctionSpec(
     signature="fit_plane_ransac(points (N, 3) m, inlier_m, iterations=500, seed=0) -> "
               "(centre (3,), unit normal (3,) towards the camera)",
     parameters="points, inlier_m, iterations=500, seed=0",
-    forbidden=("robots.perception.fit_plane_ransac",),
+    forbidden=("solutions.perception.fit_plane_ransac",),
 )
 
 

@@ -1,0 +1,210 @@
+"""A busy machine is the grader's problem, never the student's (issue 37, item 2).
+
+Each submission's processes share one cgroup with the CPU weight of one busy process
+(``cpu.shares`` / ``cpu.weight``), so a submission running thirty busy processes takes no
+more of the machine from the one graded beside it than one busy process would; and a cell
+or call stopped by the wall clock while under its CPU limit, having waited for a CPU most
+of that time, is the grader's failure (GraderError: graded again in a fresh sandbox), while
+one that sleeps past the wall clock is still the student's time-out. The wall clock counts
+only the time the worker could run (the seconds it waited for a CPU are added back, up to
+three times the limit), so a cell that is only slowed by a busy machine is simply graded.
+
+Contention is made real by pinning the grader, and so every sandbox it starts, to one core
+beside the busy processes, whatever else the machine runs. Real bubblewrap, real cgroups,
+real template forks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+import course_kit as kit
+import pytest
+
+from autograder import grading, sandbox
+from autograder.template import Template
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not sandbox.capabilities().bwrap,
+                                 reason="bubblewrap cannot run here")]
+
+BURN = """\
+import time
+def burn(cpu_s):
+    start = time.process_time()
+    while time.process_time() - start < cpu_s:
+        pass
+def slow():
+    burn(0.8)
+    return 1
+def sleeper():
+    time.sleep(100)
+"""
+# 1 s of CPU a cell or call, 2 s of wall clock: a burn of 0.8 s needs 40 % of a core, and
+# beside HOGS busy processes on its core the worker gets about 1 / (HOGS + 1).
+LIMITS = grading.Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30, wall_factor=2)
+HOGS = 8
+
+
+def _spin(core: int) -> None:
+    # A session of its own (the kernel's autogroups share the CPU between sessions) on the
+    # grader's core: the machine busy with other work, outside any submission's cgroup.
+    os.setsid()
+    os.sched_setaffinity(0, {core})
+    while True:
+        pass
+
+
+@contextlib.contextmanager
+def _one_core():
+    """This thread (and what it starts from now on) pinned to one core; yields it."""
+    cpus = os.sched_getaffinity(0)
+    core = min(cpus)
+    os.sched_setaffinity(0, {core})
+    try:
+        yield core
+    finally:
+        os.sched_setaffinity(0, cpus)
+
+
+@contextlib.contextmanager
+def _busy(core: int, n: int):
+    """``n`` busy processes on ``core``, killed on the way out."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")
+    hogs = [context.Process(target=_spin, args=(core,), daemon=True) for _ in range(n)]
+    for hog in hogs:
+        hog.start()
+    try:
+        yield
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.join()
+
+
+def _cgroup(forked: bool):
+    """A fork's CPU is read from its cgroup (where there is one), a cold worker's from its
+    processes: both ways of judging are used."""
+    if forked and sandbox.capabilities().cgroup:
+        return sandbox.Cgroup(LIMITS.memory_mb, LIMITS.max_processes)
+    return None
+
+
+# Busy processes of the submission's own, each in a session of its own, for at most 30 s.
+CROWD = """\
+import os
+for _ in range(8):
+    if os.fork() == 0:
+        os.setsid()
+        _stop = time.monotonic() + 30
+        while time.monotonic() < _stop:
+            pass
+        os._exit(0)
+burn(0.8)
+"""
+# 6 s of wall clock for its 1 s limit: the submission's own processes use that second even
+# when a few other busy processes (another test file's, a neighbour's) share the core.
+CROWD_LIMITS = grading.Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30,
+                              wall_factor=6)
+
+
+@pytest.mark.parametrize("forked", [False, True], ids=["cold", "template_fork"])
+def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students(forked):
+    with _one_core() as core:
+        template = Template([BURN], LIMITS, cpu_s=60) if forked else None
+        cgroup = _cgroup(forked)
+        try:
+            with _busy(core, HOGS):
+                # a sleeping cell and a sleeping call are not runnable: their time-outs
+                # stay the student's, however busy the core
+                with grading.Worker([BURN, "time.sleep(100)"], LIMITS, cgroup=cgroup,
+                                    template=template) as w:
+                    assert w.load_report[1]["error"] == "timed out", w.load_report
+                    slept = w.call("sleeper", (), 1)
+                    assert slept.error.startswith("timed out") and slept.seconds >= 2.0
+                    # a call that needs 0.8 s of its 1 s and gets a ninth of a core
+                    with pytest.raises(grading.GraderError, match="waited .* for a CPU"):
+                        w.call("slow", (), 1)
+                    assert not w.alive
+                # the same for a cell while loading
+                with pytest.raises(grading.GraderError, match="cell 1 was stopped"):
+                    grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
+                                   template=template)
+            # Beside two busy processes it needs 2.4 s of wall clock for its 0.8 s: the
+            # time it waited for the core is added back to its 2 s (up to three times
+            # that), so it is graded, not retried nor timed out
+            with _busy(core, 2):
+                with grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
+                                    template=template) as w:
+                    assert w.load_report[1]["ok"], w.load_report
+                    outcome = w.call("slow", (), 1)
+                    assert outcome.value == 1 and outcome.seconds > 2.0, outcome
+            # Its own eight busy processes leave its cell a ninth of what it gets: the
+            # submission used its CPU, so the time-out is its own, not a retry.
+            with grading.Worker([BURN, CROWD], CROWD_LIMITS, cgroup=cgroup,
+                                template=template) as w:
+                assert w.load_report[1]["error"] == "timed out", w.load_report
+        finally:
+            if template is not None:
+                template.close()
+            if cgroup is not None:
+                cgroup.remove()
+
+
+LAB = "lab0_frames"
+FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
+# A correct notebook whose invert_pose cell needs 1.5 s of CPU before it defines the
+# function (8 s allowed, 16 s of wall clock: a tenth of the core is enough, so a busy
+# machine around the test does not starve it; beside the hog's twenty processes without
+# a share of its own it got a twentieth): stopped, it leaves invert_pose undefined.
+NEEDS_CPU = """\
+import time
+_start = time.process_time()
+while time.process_time() - _start < 1.5:
+    pass
+"""
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.skipif(sandbox.capabilities().cpu_share is None,
+                    reason="no cpu controller for a submission's cgroup here")
+def test_a_correct_submission_beside_a_cpu_hog_scores_full_marks(tmp_path):
+    """tests/adversarial/cpu_hog.py (a bounded crowd of busy processes) and a correct
+    notebook graded at once, ``--workers 2`` on one core, with a notebook whose function
+    sleeps (charged its time-out as ever). Without a CPU share per submission the correct
+    notebook's cell met its wall clock and the function it defines scored 0."""
+    course = kit.released_course(tmp_path, LAB)
+    reference = kit.solution_sources(LAB, FUNCTIONS)
+    kit.submit(course, LAB, "correct",
+               replace=dict(reference, invert_pose=NEEDS_CPU + reference["invert_pose"]))
+    hog = kit.corpus(LAB)["cpu_hog"]
+    kit.submit_case(course, LAB, "cpu_hog", hog)
+    sleeps = reference["invert_pose"].replace("    R = ", "    time.sleep(100)\n    R = ", 1)
+    assert sleeps != reference["invert_pose"]
+    kit.submit(course, LAB, "sleeper", replace=dict(reference, invert_pose=sleeps),
+               extra="import time\n")
+    limits = grading.Limits(cell_timeout_s=8, call_timeout_s=2, load_timeout_s=60,
+                            wall_factor=2)
+    with _one_core():
+        rows = grading_rows(course, limits)
+    # nbgrader is not run here (its flag says so): the grader's own flags are the point
+    assert rows["correct"]["score"] == 10.0, rows["correct"]
+    assert rows["correct"]["flags"] == "nbgrader_no_result", rows["correct"]
+    assert rows["cpu_hog"]["score"] <= hog["earned"], rows["cpu_hog"]
+    assert "grader_error" not in rows["cpu_hog"]["flags"], rows["cpu_hog"]
+    assert "timed_out:invert_pose" in rows["sleeper"]["flags"], rows["sleeper"]
+    assert "grader_error" not in rows["sleeper"]["flags"], rows["sleeper"]
+    log = (course / ".cobotlab" / "last_run.log").read_text()
+    assert "cpu share: " in log and "grader error" not in log, log[:3000]
+    correct = next(line for line in log.splitlines() if line.startswith("correct: "))
+    assert "timed out" not in correct, correct
+
+
+def grading_rows(course, limits) -> dict[str, dict]:
+    from autograder.course import grade_course
+
+    return {r["student_id"]: r for r in grade_course(course, LAB, workers=2, limits=limits,
+                                                       quiet=True)}
