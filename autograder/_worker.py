@@ -104,18 +104,41 @@ def _waited_s() -> float:
 
 def _sandbox_cpu_s() -> float | None:
     """CPU seconds of every process in this sandbox's PID namespace, reaped children
-    included; None outside one (the host's processes are not the submission's)."""
+    included; None outside one (the host's processes are not the submission's).
+
+    A fork of the template may keep the template's ``/proc`` (see
+    :func:`autograder._isolate.enter_own_pid_namespace`), which lists other submissions
+    too: there only this process's descendants count, which are all of its namespace's
+    processes, since it is that namespace's process 1 (orphans are reparented to it).
+    """
     if os.getpid() > 2:   # a sandbox's worker is process 1 (a fork) or 2 (bubblewrap's)
         return None
-    total = 0
+    stats = {}
     for pid in os.listdir("/proc"):
         if pid.isdigit():
             try:
                 with open(f"/proc/{pid}/stat", "rb") as f:
-                    total += sum(int(x) for x in f.read().rsplit(b")", 1)[1].split()[11:15])
-            except (OSError, ValueError, IndexError):
+                    fields = f.read().rsplit(b")", 1)[1].split()
+                stats[int(pid)] = (int(fields[1]), [int(x) for x in fields[11:15]])
+            except (OSError, ValueError, IndexError):   # a process that just ended
                 pass
-    return total / os.sysconf("SC_CLK_TCK")
+    try:
+        me = int(os.readlink("/proc/self"))
+    except (OSError, ValueError):
+        return None
+    ours = set(stats)   # our own /proc: every process listed is the sandbox's
+    if me != os.getpid():
+        ours, grew = {me}, True
+        while grew:
+            found = {pid for pid, (parent, _) in stats.items() if parent in ours} - ours
+            ours |= found
+            grew = bool(found)
+    # This process's own time as the kernel keeps it for its CPU timer and for the
+    # grader's cgroup (/proc's ticks are sampled, and may reach the limit first): a cell
+    # stopped at its wall clock that had not reached its CPU limit must be stretched.
+    mine = stats.pop(me, (0, [0, 0, 0, 0]))[1]
+    ticks = sum(sum(stats[pid][1]) for pid in ours if pid in stats) + mine[2] + mine[3]
+    return ticks / os.sysconf("SC_CLK_TCK") + time.process_time()
 
 
 def _wall_left(now: float) -> float:

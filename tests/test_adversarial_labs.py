@@ -95,6 +95,7 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     for name, case in cases.items():
         row = grades[name]
         assert row["max_score"] == blank["max_score"], (name, row)
+        assert row["score"] != "", ("graded: no grader error", name, row)
         assert row["score"] <= blank["score"], (name, row)
         flags = row["flags"].split(";")
         for wanted in _scan_flags(case):
