@@ -45,7 +45,12 @@ OUTPUT_KEEP = 4096
 
 
 class _Timeout(BaseException):
-    """Raised by the alarm; a BaseException so ``except Exception`` in student code misses it."""
+    """Raised by the alarm; a BaseException so ``except Exception`` in student code misses it.
+    ``by_cpu``: the CPU timer fired (the code used its CPU limit), not the wall clock."""
+
+    def __init__(self, by_cpu: bool = False):
+        super().__init__()
+        self.by_cpu = by_cpu
 
 
 class _CappedWriter(io.TextIOBase):
@@ -166,7 +171,7 @@ def _on_alarm(signum, frame):
         if left:
             signal.setitimer(signal.ITIMER_REAL, left)
             return
-    raise _Timeout()
+    raise _Timeout(by_cpu=signum == signal.SIGPROF)
 
 
 def _describe(exc: BaseException) -> str:
@@ -176,6 +181,16 @@ def _describe(exc: BaseException) -> str:
     if len(message) > 300:
         message = message[:300] + "..."
     return f"{type(exc).__name__}: {message}" if message else type(exc).__name__
+
+
+def _failure(exc: BaseException) -> dict:
+    """The reply for a cell or call that raised ``exc``. A time-out by the CPU timer says so:
+    the grader then charges it to the submission without judging starvation (the one claim
+    it takes from the worker, since it can only cost the submission that makes it)."""
+    reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+    if isinstance(exc, _Timeout) and exc.by_cpu:
+        reply["limit"] = "cpu"
+    return reply
 
 
 def _where(exc: BaseException) -> str:
@@ -354,7 +369,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
                 reply = {"ok": True}
             except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
-                reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+                reply = _failure(exc)
             reply["seconds"] = time.monotonic() - started
             reply["cpu_seconds"] = time.process_time() - cpu_started
             reply["output_chars"] = out.total + err.total
@@ -378,7 +393,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 reply = {"ok": False, "error": f"returned a value that is not an array or "
                                                f"number ({exc})"}
             except BaseException as exc:  # noqa: BLE001
-                reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+                reply = _failure(exc)
             if tripwire.hits:
                 reply["forbidden"] = sorted(tripwire.hits)
             reply["seconds"] = time.monotonic() - started

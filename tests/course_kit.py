@@ -316,7 +316,7 @@ def corpus_batch_parts() -> tuple[list[str], list[str]]:
     return kernel, [n for n in names if n not in kernel]
 
 
-def _log_lines(course: Path, student: str) -> list[str]:
+def log_lines(course: Path, student: str) -> list[str]:
     """What the last grade run's log says of ``student`` (for a failing test's message)."""
     log = course / ".cobotlab" / "last_run.log"
     text = log.read_text() if log.exists() else ""
@@ -355,8 +355,8 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     forked = {r["student_id"]: (r["score"], r["flags"]) for r in rows}
     started_cold = {r["student_id"]: (r["score"], r["flags"]) for r in cold_rows}
     differ = {k for k in set(forked) | set(started_cold) if forked.get(k) != started_cold.get(k)}
-    assert not differ, [(k, forked.get(k), started_cold.get(k), _log_lines(course, k),
-                         _log_lines(cold, k)) for k in sorted(differ)]
+    assert not differ, [(k, forked.get(k), started_cold.get(k), log_lines(course, k),
+                         log_lines(cold, k)) for k in sorted(differ)]
     grades = {r["student_id"]: r for r in rows}
     assert set(grades) == set(cases) | {"reference"}, "every submission gets a row"
     # without a kernel run nbgrader has no result for the reference, and says so

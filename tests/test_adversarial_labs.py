@@ -90,12 +90,14 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     grades = {r["student_id"]: r for r in rows}
     assert set(grades) == set(cases) | {"blank"}, "every submission gets a row"
     blank = grades["blank"]
-    assert blank["score"] == 0.0 and blank["max_score"] == 10.0, blank
+    assert blank["score"] == 0.0 and blank["max_score"] == 10.0, \
+        (blank, kit.log_lines(course, "blank"))
     assert not any(f.startswith("suspicious") for f in blank["flags"].split(";")), blank
     for name, case in cases.items():
         row = grades[name]
         assert row["max_score"] == blank["max_score"], (name, row)
-        assert row["score"] != "", ("graded: no grader error", name, row)
+        assert row["score"] != "", ("graded: no grader error", name, row,
+                                    kit.log_lines(course, name))
         assert row["score"] <= blank["score"], (name, row)
         flags = row["flags"].split(";")
         for wanted in _scan_flags(case):
