@@ -287,7 +287,7 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
         if not np.all(np.isfinite(arr[:3])) or arr[2] <= 0 or np.isinf(arr[3]):
             raise ValueError(f"{name} {arr} needs finite x, y, a positive area and a finite "
                              "angle (NaN for a round blob)")
-        check_normalised(arr[:2], f"{name}[:2] (the centroid x, y)")
+        check_normalised(arr[:2], f"{name}[:2]")  # the centroid (x, y)
     depth = _finite_number(depth, "depth", "metres")
     if not depth > 0:
         raise ValueError(f"depth must be positive finite metres, got {depth}")
