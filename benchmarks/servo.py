@@ -22,20 +22,42 @@ looks. Where the fixed camera's estimate cannot single out the piece from the ho
 is about as near a neighbour), the wrist camera looks again from its overview poses; the
 row name counts those trials. Prints markdown tables.
 See also benchmarks/servo_endpoint.py (endpoint open against closed loop, fixed camera).
+
+    .venv/bin/python benchmarks/servo.py --check-cost   # only the cost of the input checks
+
+--check-cost (issue 38): what the checks that name a student's mistake cost where they sit,
+in ``invert`` / ``compose`` / ``transform_points`` (a non-rigid pose) and in the servo laws
+(pixels for normalised coordinates, deg/s): each case runs with the checks and with them
+switched off (the previous fast path: the same code with ``_refuse_non_rigid``,
+``check_normalised`` and ``check_angular_speed`` replaced by no-ops), in alternating blocks
+in one process so that a busy machine slows both alike, timed in CPU seconds of this process
+(``time.process_time``: the other processes on a shared machine do not count), with 95 %
+bootstrap intervals of the medians and of their difference. The last rows are whole kinematic servo runs, where the
+cost must be negligible.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 import time
 from pathlib import Path
+
+if "--check-cost" in sys.argv:
+    # One BLAS thread: idle BLAS threads spin and their CPU time, counted by process_time,
+    # swamped a servo run's own (0.54 s instead of 0.04 s for 8 runs on a busy machine). Set
+    # before numpy loads its BLAS.
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
 
 import numpy as np
 from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from robots import geometry as geo
 from robots import perception as P
 from robots.geometry import (
     compose,
@@ -183,6 +205,105 @@ def pick_trials(arm: str, trials: int, overview: bool = False) -> list[str]:
     return lines
 
 
+@contextlib.contextmanager
+def _checks(on: bool):
+    """The input checks of issue 38 as they are (``on``) or replaced by no-ops: the previous
+    fast path, with everything else identical."""
+    saved = geo._refuse_non_rigid, S.check_normalised, S.check_angular_speed
+    if not on:
+        geo._refuse_non_rigid = lambda T, label: None
+        S.check_normalised = lambda xy, name: xy
+        S.check_angular_speed = lambda value, name: value
+    try:
+        yield
+    finally:
+        geo._refuse_non_rigid, S.check_normalised, S.check_angular_speed = saved
+
+
+def _bootstrap_median(x: np.ndarray, rng, n_boot: int = 2000) -> np.ndarray:
+    """Medians of ``n_boot`` resamples of ``x`` (with replacement)."""
+    return np.median(x[rng.integers(0, len(x), (n_boot, len(x)))], axis=1)
+
+
+def _time_blocks(fn, reps: int, block_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """CPU seconds per call of ``fn`` with the checks off and on: ``reps`` blocks each, in
+    alternating order (off-on, on-off, ...), each block as many calls as fill ``block_s``."""
+    clock = time.process_time
+    with _checks(True):
+        fn()  # warm up; also proves the good input passes the checks
+        t0, n = clock(), 0
+        while clock() - t0 < block_s / 4:
+            fn()
+            n += 1
+    number = max(1, int(4 * n))
+    times = {False: [], True: []}
+    for r in range(reps):
+        for on in ((False, True) if r % 2 == 0 else (True, False)):
+            with _checks(on):
+                t0 = clock()
+                for _ in range(number):
+                    fn()
+                times[on].append((clock() - t0) / number)
+    return np.array(times[False]), np.array(times[True])
+
+
+def check_cost(reps: int) -> list[str]:
+    """The table of --check-cost: per case the median time per call without and with the
+    checks, the added time and the ratio, each with a 95 % bootstrap interval."""
+    from sim_backends.world import default_intrinsics
+
+    rng = np.random.default_rng(38)
+    T = S.offset_start(make_pose(np.diag([1.0, -1.0, -1.0]), [0, 0, 0.5]), [0, 0, 0], 0.1, 20.0,
+                       rng)
+    T2 = compose(T, make_pose(t=[0.01, 0.02, 0.03]))
+    stack = np.stack([S.offset_start(T, [0, 0, 0], 0.1, 20.0, rng) for _ in range(200)])
+    pts = rng.uniform(-0.2, 0.2, (100, 3))
+    square = np.array([[-.04, -.04, 0], [.04, -.04, 0], [.04, .04, 0], [-.04, .04, 0]])
+    s_star = S.normalised_projection(square + [0, 0, 0.5])
+    s = s_star + rng.normal(0, 0.01, s_star.shape)
+    z = np.full(4, 0.5)
+    intr = default_intrinsics(320, 240)
+    goal = make_pose(np.diag([1.0, -1.0, -1.0]), [0, 0, 0.5])
+    starts = [S.offset_start(goal, [0, 0, 0], 0.10, 20.0, np.random.default_rng(k))
+              for k in range(8)]
+    twist = np.array([0.1, -0.05, 0.02, 0.3, -0.2, 0.1])
+
+    def servo_runs(method):
+        return lambda: [S.simulate_servo(method, st, goal, square, intr) for st in starts]
+
+    cases = [
+        ("invert(T), one pose", lambda: invert(T), 0.01),
+        ("invert(stack), 200 poses", lambda: invert(stack), 0.01),
+        ("compose(T, T2)", lambda: compose(T, T2), 0.01),
+        ("compose(stack, T), 200 poses", lambda: compose(stack, T), 0.01),
+        ("transform_points(T, points), 100 points", lambda: transform_points(T, pts), 0.01),
+        ("ibvs_velocity, 4 points", lambda: S.ibvs_velocity(s, s_star, z, 1.0), 0.01),
+        ("interaction_matrix, 4 points", lambda: S.interaction_matrix(s, z), 0.01),
+        ("saturate(twist, 0.25, 1.0)", lambda: S.saturate(twist, 0.25, 1.0), 0.01),
+        ("simulate_servo IBVS, 8 runs (kinematic)", servo_runs("ibvs"), 0.0),
+        ("simulate_servo PBVS, 8 runs (kinematic)", servo_runs("pbvs"), 0.0),
+    ]
+    lines = ["| case | without the checks (us) | with (us) | added (us) | ratio |",
+             "|---|---|---|---|---|"]
+    for name, fn, block_s in tqdm(cases, desc="check cost", leave=False):
+        n_reps = reps if block_s else max(10, reps // 5)  # 8 whole servo runs are one block
+        off, on = _time_blocks(fn, n_reps, block_s)
+        b_off, b_on = _bootstrap_median(off, rng), _bootstrap_median(on, rng)
+
+        def ci(b, scale=1e6):
+            lo, hi = np.percentile(b * scale, [2.5, 97.5])
+            return f"[{lo:.3g}, {hi:.3g}]"
+
+        added, ratio = b_on - b_off, b_on / b_off
+        lines.append(
+            f"| {name} | {np.median(off) * 1e6:.3g} {ci(b_off)} | {np.median(on) * 1e6:.3g} "
+            f"{ci(b_on)} | {(np.median(on) - np.median(off)) * 1e6:+.3g} {ci(added)} | "
+            f"{np.median(on) / np.median(off):.3f} {ci(ratio, 1.0)} |")
+    lines.append(f"\n({n_reps} blocks per arm for the servo runs, {reps} for the rest; 95 % "
+                 "bootstrap intervals of the medians, 2000 resamples)")
+    return lines
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=100)
@@ -195,9 +316,19 @@ def main(argv=None) -> None:
                          "off by the same error as the wrist camera's)")
     ap.add_argument("--skip-convergence", action="store_true")
     ap.add_argument("--skip-pick", action="store_true")
+    ap.add_argument("--check-cost", action="store_true",
+                    help="only measure what the input checks (non-rigid poses, pixels for "
+                         "normalised coordinates, deg/s) cost, with and without them")
+    ap.add_argument("--reps", type=int, default=100,
+                    help="--check-cost: timed blocks of 10 ms per arm and case (default 100; "
+                         "a fifth as many blocks of 8 whole servo runs)")
     args = ap.parse_args(argv)
     trials = 10 if args.quick else args.trials
     t0 = time.time()
+    if args.check_cost:
+        print("\n".join(check_cost(args.reps)))
+        print(f"({time.time() - t0:.0f} s)")
+        return
     if not args.skip_convergence:
         print("\n".join(convergence(trials)))
         print()

@@ -15,8 +15,10 @@ Every function that takes poses validates them and raises ``ValueError`` naming 
 the first bad one, so a student sees "pose 7 has det -1" rather than a wrong answer later.
 The exceptions, by design, are the fast paths the solvers call in their inner loops:
 ``invert``, ``compose``, ``relative`` and ``transform_points`` check shapes (and refuse
-strings, None and complex values) but not rigidity or finiteness; validate untrusted poses
-once, at the public entry, with ``as_pose`` / ``as_poses``.
+strings, None and complex values) and refuse a rotation block that is not orthonormal within
+``FAST_PATH_RIGID_TOL`` (a student's scaled or hand-typed matrix), but they do not repair
+rounding, check det or the bottom row, or refuse NaN (NaN in, NaN out); validate untrusted
+poses once, at the public entry, with ``as_pose`` / ``as_poses``.
 """
 
 from __future__ import annotations
@@ -35,10 +37,20 @@ ORTHONORMAL_TOL = 1e-6
 #: ``project_to_so3``) with a warning naming it: a matrix printed or saved to 5-6 decimals
 #: carries errors of 1e-6 to 1e-5. Larger errors are not rounding, so they are refused.
 REPAIR_TOL = 1e-4
+#: The fast paths (``invert``, ``compose``, ``relative``, ``transform_points``) refuse a pose
+#: whose rotation block has max |R^T R - I| above this, and pass anything below unchanged (no
+#: repair: they sit in inner loops). It is the autograder's own bound for "a returned rotation
+#: block is a rotation" (``autograder.spec_types.pose_errors``), 10x ``REPAIR_TOL``: loose
+#: enough for everything a solver hands them (float32 poses ~1e-7, long chains of products
+#: ~1e-12, matrices printed to 4 decimals ~1e-4), tight enough for every mistake that makes a
+#: matrix non-rigid (a scale or unit inside R, K or a homography in place of a pose, a sum or
+#: an average of rotations, a rotation typed to 2 decimals).
+FAST_PATH_RIGID_TOL = 1e-3
 
 __all__ = [
     "ORTHONORMAL_TOL",
     "REPAIR_TOL",
+    "FAST_PATH_RIGID_TOL",
     "as_real_array",
     "warn_caller",
     "as_poses",
@@ -107,10 +119,63 @@ def as_real_array(x, name: str) -> np.ndarray:
                          f"shape), got {type(x).__name__}: {err}") from None
 
 
-def _orthonormal_message(label: str, gram_error: float) -> str:
-    return (f"{label} is not orthonormal (max |R^T R - I| = {gram_error:.2e} > {REPAIR_TOL:g}, "
+def _orthonormal_message(label: str, gram_error: float, tol: float = REPAIR_TOL) -> str:
+    return (f"{label} is not orthonormal (max |R^T R - I| = {gram_error:.2e} > {tol:g}, "
             "far more than rounding); re-orthogonalise it (robots.geometry.project_to_so3) or "
             "check that it really is a rotation matrix")
+
+
+def _refuse_non_rigid(T: np.ndarray, label: str) -> None:
+    """``ValueError`` naming ``label`` (and the index in a stack) unless every rotation block
+    of ``T`` (..., 4, 4) has max |R^T R - I| <= ``FAST_PATH_RIGID_TOL``; NaN passes.
+
+    The fast paths' check. A single pose is judged on plain floats (the sum of
+    ``_gram_error``, an upper bound of the max, written out here: 0.7 us, where one numpy
+    3 x 3 product costs more in call overhead); a stack in one vectorised pass. Only a
+    failure pays for the exact max and the message."""
+    if T.ndim == 2:
+        (a, b, c, _), (d, e, f, _), (g, h, i, _), _ = T.tolist()
+        if not (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
+                + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
+                + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i)
+                > FAST_PATH_RIGID_TOL):  # NaN compares False: NaN in, NaN out
+            return
+        blocks, where = T[None, :3, :3], [()]
+    else:
+        R = T[..., :3, :3]
+        G = np.matmul(np.swapaxes(R, -1, -2), R)
+        np.subtract(G, _EYE3, out=G)
+        np.abs(G, out=G)
+        if not (G > FAST_PATH_RIGID_TOL).any():
+            return
+        blocks = R.reshape(-1, 3, 3)
+        where = list(np.ndindex(T.shape[:-2]))
+    errors = np.abs(np.swapaxes(blocks, -1, -2) @ blocks - _EYE3).max(axis=(-2, -1))
+    bad = np.flatnonzero(errors > FAST_PATH_RIGID_TOL)
+    if not bad.size:  # the sum bound flagged a pose whose max is within the tolerance
+        return
+    k = int(bad[0])
+    index = "".join(f"[{i}]" for i in where[k])
+    lengths = np.linalg.norm(blocks[k], axis=0)
+    raise ValueError(
+        f"{label}{index} is not a rigid pose: its rotation block is not orthonormal (max "
+        f"|R^T R - I| = {errors[k]:.2e} > {FAST_PATH_RIGID_TOL:g}; column lengths "
+        f"{', '.join(f'{v:.4g}' for v in lengths)}, a rotation's are 1). Build poses with "
+        "geometry.make_pose(R, t) or geometry.pose_from_rotvec, or re-orthonormalise R with "
+        "geometry.project_to_so3; look for a scale or unit inside R, or K or a homography "
+        "where a pose belongs")
+
+
+def _fast_pose(T, label: str) -> np.ndarray:
+    """``T`` as a float64 (4, 4) pose or (..., 4, 4) stack for the fast paths: shape and
+    rigidity checked (``_refuse_non_rigid``), nothing copied when already float64."""
+    if type(T) is not np.ndarray or T.dtype is not _F64:
+        T = as_real_array(T, label)
+    if T.shape[-2:] != (4, 4):
+        raise ValueError(f"{label} must be a pose (4, 4) or a stack (N, 4, 4), got shape "
+                         f"{T.shape}")
+    _refuse_non_rigid(T, label)
+    return T
 
 
 def _check_rotation_block(R: np.ndarray, label: str) -> bool:
@@ -132,13 +197,21 @@ def _check_rotation_block(R: np.ndarray, label: str) -> bool:
 
 def warn_caller(message: str, category=UserWarning) -> None:
     """Warn, attributing the warning to the first caller outside robots/ and solutions/, so
-    a student sees the line of their own notebook that passed the data."""
+    a student sees the line of their own notebook that passed the data. The ``__init__`` that
+    ``dataclasses`` generates for a class defined there (file ``<string>``) counts as inside:
+    a check in ``__post_init__`` names the line that built the object."""
     import inspect
 
     project = Path(__file__).resolve().parent.parent
     inside = (project / "robots", project / "solutions")
+
+    def is_inside(code) -> bool:
+        if code.co_filename == "<string>" and code.co_name == "__init__":
+            return True  # a dataclass's generated __init__
+        return Path(code.co_filename).resolve().parent in inside
+
     level, frame = 1, inspect.currentframe()
-    while frame is not None and Path(frame.f_code.co_filename).resolve().parent in inside:
+    while frame is not None and is_inside(frame.f_code):
         frame, level = frame.f_back, level + 1
     warnings.warn(message, category, stacklevel=level)
 
@@ -274,18 +347,19 @@ def invert(T) -> np.ndarray:
 
     Uses R^T rather than a general matrix inverse, so the result stays exactly rigid.
 
-    Fast path, unvalidated by design: solvers call this in their inner loops on poses they
-    validated once at their public entry (``as_pose`` / ``as_poses``). Only the shape is
-    checked (and strings, None, complex values are refused). The rotation block is NOT checked
-    to be a rotation, nor the bottom row, nor finiteness: NaN in gives NaN out, and a
-    non-rigid T gives the rigid reading ``[R^T, -R^T t]``, not ``np.linalg.inv(T)``. Validate
-    untrusted input first with ``as_pose(T)``.
+    Fast path: solvers call this in their inner loops on poses they validated once at their
+    public entry (``as_pose`` / ``as_poses``). The shape is checked (strings, None, complex
+    values are refused) and so is rigidity, cheaply: a rotation block with max |R^T R - I|
+    above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming ``T`` (and the index in
+    a stack), since ``[R^T, -R^T t]`` is no inverse of a non-rigid matrix. Not checked: det
+    (a reflection is inverted as it is), the bottom row, finiteness (NaN in, NaN out), and
+    rounding is not repaired. Validate untrusted input fully with ``as_pose(T)``.
     """
-    if type(T) is not np.ndarray or T.dtype is not _F64:
-        T = as_real_array(T, "T")
-    if T.shape[-2:] != (4, 4):
-        raise ValueError(f"invert: T must be a pose (4, 4) or a stack (N, 4, 4), got shape "
-                         f"{T.shape}")
+    return _invert(T, "invert: T")
+
+
+def _invert(T, label: str) -> np.ndarray:
+    T = _fast_pose(T, label)
     R_t = np.swapaxes(T[..., :3, :3], -1, -2)
     out = np.zeros_like(T)
     out[..., :3, :3] = R_t
@@ -299,21 +373,26 @@ def compose(*poses) -> np.ndarray:
 
     Arguments may be (4, 4) or (N, 4, 4) stacks; stacks broadcast against single poses.
 
-    Fast path, unvalidated by design (it sits in the solvers' inner loops): each argument's
-    shape is checked, and strings, None and complex values are refused, but rotation blocks,
-    bottom rows and finiteness are not: NaN in gives NaN out and non-rigid matrices are
-    multiplied as they are. Validate untrusted poses with ``as_pose`` / ``as_poses`` once, at
-    the public entry.
+    Fast path (it sits in the solvers' inner loops): each argument's shape is checked, strings,
+    None and complex values are refused, and a rotation block with max |R^T R - I| above
+    ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming the argument (``compose
+    argument 1[7]``: the second argument, pose 7 of its stack). Not checked: det, bottom rows,
+    finiteness (NaN in gives NaN out); rounding is not repaired. Validate untrusted poses
+    fully with ``as_pose`` / ``as_poses`` once, at the public entry.
     """
+    return _compose(poses, _COMPOSE_LABELS if len(poses) <= len(_COMPOSE_LABELS) else
+                    [f"compose argument {i}" for i in range(len(poses))])
+
+
+_COMPOSE_LABELS = tuple(f"compose argument {i}" for i in range(8))  # built once, not per call
+
+
+def _compose(poses, labels) -> np.ndarray:
     if not poses:
         return np.eye(4)
     out = None
-    for i, T in enumerate(poses):
-        if type(T) is not np.ndarray or T.dtype is not _F64:
-            T = as_real_array(T, f"compose argument {i}")
-        if T.shape[-2:] != (4, 4):
-            raise ValueError(f"compose argument {i} must be a pose (4, 4) or a stack (N, 4, 4), "
-                             f"got shape {T.shape}")
+    for T, label in zip(poses, labels):
+        T = _fast_pose(T, label)
         if out is None:
             out = T
             continue
@@ -322,7 +401,7 @@ def compose(*poses) -> np.ndarray:
                 np.broadcast_shapes(out.shape[:-2], T.shape[:-2])
             except ValueError:
                 raise ValueError(
-                    f"compose argument {i} is a stack of shape {T.shape} but the poses before "
+                    f"{label} is a stack of shape {T.shape} but the poses before "
                     f"it chain to shape {out.shape}: stacks must have the same length (single "
                     "poses broadcast against stacks)") from None
         out = out @ T
@@ -332,18 +411,20 @@ def compose(*poses) -> np.ndarray:
 def relative(a_T_b, a_T_c) -> np.ndarray:
     """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a.
 
-    A fast path like :func:`invert` and :func:`compose`: shapes are checked, rigidity and
-    finiteness are not."""
-    return compose(invert(a_T_b), a_T_c)
+    A fast path like :func:`invert` and :func:`compose`: shapes and rigidity are checked
+    (``ValueError`` naming ``a_T_b`` or ``a_T_c``), finiteness is not."""
+    return _compose((_invert(a_T_b, "relative: a_T_b"), a_T_c), ("inv(a_T_b)", "relative: a_T_c"))
 
 
 def transform_points(a_T_b, points_b) -> np.ndarray:
     """Map points (N, 3) or (3,) given in frame b into frame a. Metres in, metres out.
 
-    Fast path, unvalidated by design (it sits in inner loops: projections, residuals): the
-    shapes are checked -- ``a_T_b`` one (4, 4) pose, ``points_b`` (..., 3) -- and strings,
-    None and complex values are refused, but the pose is not checked to be rigid and NaN
-    passes through (NaN in, NaN out). Validate an untrusted pose with ``as_pose`` first.
+    Fast path (it sits in inner loops: projections, residuals): the shapes are checked --
+    ``a_T_b`` one (4, 4) pose, ``points_b`` (..., 3), with a hint when ``points_b`` looks
+    transposed, (3, N) -- strings, None and complex values are refused, and a rotation block
+    with max |R^T R - I| above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming
+    ``a_T_b``. NaN passes through (NaN in, NaN out). Validate an untrusted pose fully with
+    ``as_pose`` first.
     """
     T = a_T_b if type(a_T_b) is np.ndarray and a_T_b.dtype is _F64 else \
         as_real_array(a_T_b, "a_T_b")
@@ -359,6 +440,7 @@ def transform_points(a_T_b, points_b) -> np.ndarray:
                 if p.ndim == 2 and p.shape[0] == 3 else "")
         raise ValueError(f"transform_points: points_b must have shape (N, 3) or (3,) (metres), "
                          f"got shape {p.shape}{hint}")
+    _refuse_non_rigid(T, "transform_points: a_T_b")
     return p @ T[:3, :3].T + T[:3, 3]
 
 
@@ -691,6 +773,7 @@ def rotation_angle_deg(R, name: str = "R") -> np.ndarray | float:
 
 
 _EXACT_ROTATION_TOL = 1e-9
+_EYE3 = np.eye(3)
 
 
 def _dets(R: np.ndarray) -> np.ndarray:

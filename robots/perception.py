@@ -41,7 +41,9 @@ __all__ = [
     "ServoTimeoutError",
     "TargetLostError",
     "TargetOutOfViewError",
+    "NORMALISED_MAX",
     "base_T_cam_from",
+    "check_normalised",
     "deproject",
     "depth_at",
     "detect_aruco",
@@ -86,13 +88,53 @@ class ServoTimeoutError(ServoError):
 
 # --------------------------------------------------------------------------- pixels <-> metres
 
+#: A normalised image coordinate (x = X / Z = (u - cx) / fx) beyond this in magnitude is a ray
+#: more than 84 deg off the optical axis: no camera of the labs sees it (a D435's colour
+#: camera sees about 35 deg off axis, a wide-angle lens 60). Pixels are 10 to thousands.
+NORMALISED_MAX = 10.0
+
+
+def check_normalised(xy, name: str) -> np.ndarray:
+    """``xy`` (..., 2), normalised image coordinates ``(x, y) = (X / Z, Y / Z)``, as a float64
+    array; ``ValueError`` naming ``name`` when a coordinate exceeds ``NORMALISED_MAX`` (10) in
+    magnitude: those are pixels, which must be normalised with K^-1 first.
+
+    The shared check for everything that takes normalised coordinates (the servo laws, the
+    lab 3 helpers). The shape's last axis must be 2 (a (2, N) array gets a "transposed?"
+    hint); NaN is left to the caller."""
+    arr = np.asarray(xy, dtype=float)
+    if arr.ndim == 0 or arr.shape[-1] != 2:
+        hint = (f"; transposed? pass {name}.T (shape {arr.shape[::-1]})"
+                if arr.ndim == 2 and arr.shape[0] == 2 else "")
+        raise ValueError(f"{name} must have shape (N, 2) (normalised image coordinates x, y), "
+                         f"got shape {arr.shape}{hint}")
+    if arr.size <= 64:  # a servo law's few features: plain floats beat numpy's call overhead
+        flat = arr.ravel().tolist()
+        if flat and -NORMALISED_MAX <= min(flat) and max(flat) <= NORMALISED_MAX:
+            return arr
+    big = np.abs(arr) > NORMALISED_MAX  # NaN compares False: not this check's business
+    if big.any():
+        k = np.unravel_index(int(np.argmax(big)), arr.shape)[:-1]
+        at = f"{name}[{', '.join(map(str, k))}]" if k else name
+        raise ValueError(
+            f"{name} look like pixel coordinates, not normalised image coordinates: {at} = "
+            f"{np.array2string(arr[k], precision=4)}, while a normalised coordinate x = X / Z "
+            f"stays within +-{NORMALISED_MAX:g} (a ray 84 deg off the optical axis). Normalise "
+            "the pixels with K^-1 first: [x, y, 1] = np.linalg.inv(K) @ [u, v, 1], i.e. "
+            "x = (u - cx) / fx, y = (v - cy) / fy (with lens distortion: "
+            "cv2.undistortPoints(uv, K, dist))")
+    return arr
+
 
 def _as_points(points, dim: int, name: str) -> np.ndarray:
     arr = np.asarray(points, dtype=float)
     if arr.ndim == 1:
         arr = arr.reshape(1, -1)
     if arr.ndim != 2 or arr.shape[1] != dim:
-        raise ValueError(f"{name} must have shape (N, {dim}) or ({dim},), got {np.shape(points)}")
+        hint = (f"; transposed? pass {name}.T (shape {arr.shape[::-1]})"
+                if arr.ndim == 2 and arr.shape[0] == dim else "")
+        raise ValueError(f"{name} must have shape (N, {dim}) or ({dim},), got "
+                         f"{np.shape(points)}{hint}")
     bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
     if bad.size:
         raise ValueError(f"{name}[{bad[0]}] is not finite ({arr[bad[0]]}); drop it first")

@@ -13,16 +13,37 @@ inside it. A TCP that rotates while moving can bulge out slightly; keep the floo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from robots.geometry import as_pose, rotation_angle_deg
+from robots.geometry import as_pose, rotation_angle_deg, warn_caller
 
-__all__ = ["Safety", "SafetyError", "ask_on_terminal"]
+__all__ = ["ANGULAR_SPEED_MAX", "Safety", "SafetyError", "ask_on_terminal",
+           "check_angular_speed"]
 
 MODES = ("auto", "confirm")
+
+#: rad/s. An angular speed (or speed limit) above one turn per second looks like deg/s: no
+#: cobot joint or wrist turns that fast (UR e-Series: pi rad/s on the base joints, 2 pi on
+#: the wrist; Panda: 2.6 rad/s), while 30 deg/s, typed as 30, is 4.8 turns a second.
+ANGULAR_SPEED_MAX = 2.0 * math.pi
+
+
+def check_angular_speed(value: float, name: str) -> float:
+    """``value`` (an angular speed or limit, rad/s) unchanged; a warning naming ``name`` when
+    it is finite and above ``ANGULAR_SPEED_MAX`` (a turn per second): it looks like deg/s.
+
+    A warning, not an error: the number is legal, only implausible (inf means "no limit" and
+    passes silently). Shared by the safety limits and the servo laws' saturation."""
+    if value > ANGULAR_SPEED_MAX and math.isfinite(value):
+        warn_caller(
+            f"{name} = {value:g} rad/s is more than a turn per second ({math.degrees(value):.4g} "
+            f"deg/s): it looks like deg/s. Angular speeds are rad/s: pass "
+            f"np.radians({value:g}) = {math.radians(value):.4g}")
+    return value
 
 
 class SafetyError(RuntimeError):
@@ -109,6 +130,7 @@ class Safety:
         self.max_joint_speed = _positive(self.max_joint_speed, "max_joint_speed", "rad/s")
         self.max_step = _positive(self.max_step, "max_step", "metres")
         self.max_rotation_step = _positive(self.max_rotation_step, "max_rotation_step", "radians")
+        self._warn_degrees()
         self.max_joint_step = _positive(self.max_joint_step, "max_joint_step", "radians")
         if self.joint_limits is not None:
             self.joint_limits = _as_limits(self.joint_limits, "Safety.joint_limits")
@@ -118,6 +140,24 @@ class Safety:
             raise ValueError(
                 "Safety.confirm must be a callable taking the message and returning bool"
             )
+
+    def _warn_degrees(self) -> None:
+        """Warn once per value (validate runs before every move) about an angular limit that
+        looks like degrees: a joint speed cap above a turn per second, a rotation step above
+        a full turn."""
+        seen = self.__dict__.setdefault("_warned_values", {})
+        for name, value in (("max_joint_speed", self.max_joint_speed),
+                            ("max_rotation_step", self.max_rotation_step)):
+            if seen.get(name) == value:
+                continue
+            seen[name] = value
+            if name == "max_joint_speed":
+                check_angular_speed(value, "Safety.max_joint_speed")
+            elif value > 2.0 * math.pi:
+                warn_caller(
+                    f"Safety.max_rotation_step = {value:g} rad is more than a full turn "
+                    f"({math.degrees(value):.4g} deg): it looks like degrees. Angles are "
+                    f"radians: pass np.radians({value:g}) = {math.radians(value):.4g}")
 
     # ----------------------------------------------------------------------- Cartesian
 
@@ -205,9 +245,13 @@ class Safety:
         if not np.isfinite(speed) or speed <= 0:
             raise ValueError(f"speed must be a positive number of rad/s, got {speed}")
         if speed > self.max_joint_speed:
+            degrees = (f"; {speed:g} rad/s is more than a turn per second: if you meant "
+                       f"{speed:g} deg/s, pass np.radians({speed:g}) = {math.radians(speed):.4g}"
+                       if speed > ANGULAR_SPEED_MAX else "")
             raise SafetyError(
                 f"joint speed {speed:.3f} rad/s exceeds Safety.max_joint_speed="
                 f"{self.max_joint_speed:.3f} rad/s; move slower (speed <= {self.max_joint_speed:g})"
+                f"{degrees}"
             )
         limits = self._effective_limits(len(target), robot_limits)
         if limits is not None:

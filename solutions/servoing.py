@@ -34,7 +34,9 @@ from robots.perception import (
     ServoTimeoutError,
     TargetLostError,
     TargetOutOfViewError,
+    check_normalised,
 )
+from robots.safety import check_angular_speed
 
 __all__ = [
     "ConvergenceMonitor",
@@ -134,14 +136,15 @@ def interaction_matrix(points_xy, depths) -> np.ndarray:
     """The (2N, 6) interaction matrix L of N point features: ``d(x, y)/dt = L @ v_cam``.
 
     ``points_xy`` (N, 2) are normalised coordinates (not reshaped: camera-frame points (N, 3)
-    are refused, give ``normalised_projection`` of them), ``depths`` (N,) their depths Z (m,
-    > 0; one number is used for every point), ``v_cam`` the camera's body twist. Per point
-    (Chaumette & Hutchinson 2006)::
+    are refused, give ``normalised_projection`` of them; pixels, beyond +-10, are refused
+    naming K^-1), ``depths`` (N,) their depths Z (m, > 0; one number is used for every
+    point), ``v_cam`` the camera's body twist. Per point (Chaumette & Hutchinson 2006)::
 
         [ -1/Z   0    x/Z   x y     -(1 + x^2)   y ]
         [  0    -1/Z  y/Z   1 + y^2  -x y        -x ]
     """
-    return _interaction_matrix(points_xy, depths, "points_xy", "depths")
+    xy = _points(points_xy, 2, "points_xy", "normalised image coordinates x = X/Z, y = Y/Z")
+    return _interaction_matrix(check_normalised(xy, "points_xy"), depths, "points_xy", "depths")
 
 
 def _interaction_matrix(points_xy, depths, xy_name: str, z_name: str) -> np.ndarray:
@@ -197,16 +200,19 @@ def ibvs_velocity(s, s_star, depths, gain: float = 1.0, depths_star=None,
     average of both (the best-behaved choice for large rotations). At least 3 points are
     needed for all 6 degrees of freedom (4 to avoid the ambiguous cases).
 
-    Never returns a non-finite twist: NaN or inf in any argument raises ``ValueError`` naming
-    it, and so does a rank-deficient interaction matrix (smallest singular value below
+    Pixels where normalised coordinates belong (beyond +-10, see
+    ``robots.perception.check_normalised``) raise ``ValueError`` naming ``s`` or ``s_star`` and
+    the fix (K^-1). Never returns a non-finite twist: NaN or inf in any argument raises
+    ``ValueError`` naming it, and so does a rank-deficient interaction matrix (smallest singular value below
     ``IBVS_RANK_TOL`` of the largest: identical or collinear features), naming the features.
     A negative gain is accepted (it drives the features away: the classic sign mistake, which
     the convergence monitor catches).
     """
     if mode not in ("current", "desired", "mean"):
         raise ValueError(f"mode must be 'current', 'desired' or 'mean', got {mode!r}")
-    s = _points(s, 2, "s", "current normalised image coordinates")
-    s_star = _points(s_star, 2, "s_star", "desired normalised image coordinates")
+    s = check_normalised(_points(s, 2, "s", "current normalised image coordinates"), "s")
+    s_star = check_normalised(_points(s_star, 2, "s_star", "desired normalised image coordinates"),
+                              "s_star")
     if s.shape != s_star.shape:
         raise ValueError(f"s has {len(s)} points but s_star {len(s_star)}; they must pair up")
     if len(s) < 3:
@@ -281,6 +287,7 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
         if not np.all(np.isfinite(arr[:3])) or arr[2] <= 0 or np.isinf(arr[3]):
             raise ValueError(f"{name} {arr} needs finite x, y, a positive area and a finite "
                              "angle (NaN for a round blob)")
+        check_normalised(arr[:2], f"{name}[:2]")  # the centroid (x, y)
     depth = _finite_number(depth, "depth", "metres")
     if not depth > 0:
         raise ValueError(f"depth must be positive finite metres, got {depth}")
@@ -300,7 +307,9 @@ def saturate(twist, max_linear: float, max_angular: float) -> np.ndarray:
     |w| <= max_angular (rad/s).
 
     The limits must be numbers >= 0 (inf: no limit); a negative or NaN limit raises
-    ``ValueError`` (a negative one would reverse the twist), as does a non-finite twist."""
+    ``ValueError`` (a negative one would reverse the twist), as does a non-finite twist. A
+    finite ``max_angular`` above a turn per second warns that it looks like deg/s
+    (``robots.safety.check_angular_speed``)."""
     twist = _twist(twist, "twist")
     limits = []
     for name, limit in (("max_linear", max_linear), ("max_angular", max_angular)):
@@ -315,6 +324,7 @@ def saturate(twist, max_linear: float, max_angular: float) -> np.ndarray:
                              f"{limit!r}")
         limits.append(float(value))
     max_linear, max_angular = limits
+    check_angular_speed(max_angular, "max_angular")
     scale = 1.0
     nv, nw = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
     if nv > max_linear:

@@ -100,10 +100,14 @@ def show_tops(rgb, squares, tops_uv) -> None:
     plt.show()
 
 
-def to_pixels(s, K) -> np.ndarray:
-    """Pixels (..., 2) of normalised image coordinates ``s`` (..., 2) under intrinsics K."""
-    s = np.asarray(s, dtype=float)
-    return s @ np.asarray(K, dtype=float)[:2, :2].T + np.asarray(K, dtype=float)[:2, 2]
+def to_pixels(s, K, name: str = "s") -> np.ndarray:
+    """Pixels (..., 2) of normalised image coordinates ``s`` (..., 2) under intrinsics K.
+
+    ``s`` that are already pixels (beyond +-10) or transposed, (2, N), raise ``ValueError``
+    naming ``name`` (``robots.perception.check_normalised``)."""
+    s = P.check_normalised(s, name)
+    K = np.asarray(K, dtype=float)
+    return s @ K[:2, :2].T + K[:2, 2]
 
 
 def plot_servo_runs(runs, s_star, K, image_size, dt: float) -> None:
@@ -119,10 +123,10 @@ def plot_servo_runs(runs, s_star, K, image_size, dt: float) -> None:
     width, height = image_size
     laws = [name for name in runs if "flipped" not in name]
     fig, axes = plt.subplots(len(laws), 3, figsize=(14, 3.6 * len(laws)), squeeze=False)
-    goal_px = to_pixels(s_star, K)
+    goal_px = to_pixels(s_star, K, "s_star")
     for row, name in zip(axes, laws):
         tracks, _, _, twists = runs[name]
-        uv = to_pixels(tracks, K)
+        uv = to_pixels(tracks, K, f"the tracks of runs[{name!r}]")
         ax = row[0]
         for k in range(uv.shape[1]):
             ax.plot(uv[:, k, 0], uv[:, k, 1], "-", lw=1.2)
