@@ -558,6 +558,7 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
                                        "would see its answer in check(); draw from a wider "
                                        "range so the two never coincide", spec.name))
     row["trivial"] = _trivial(spec, gate, report)
+    row["trivial_seconds"] = round(gate.seconds, 2)
     row["tolerances"] = tolerances.rows(gate, report)
     return row
 
