@@ -570,11 +570,21 @@ def _trivial(spec: FunctionSpec, gate: fairness.TrivialGate, report: Report) -> 
         low, high = score.interval()
         rows.append({"answer": score.answer, "mean": score.mean, "low": low, "high": high,
                      "draws": score.draws, "check": score.check, "raises": score.raises})
+    # One finding per check that credits trivial answers (the best of them named, the count
+    # of the others): a plane's offset check credits the mean and the median of the points
+    # with any normal, which is one fault, not eight.
+    groups: dict[str | None, list[fairness.TrivialScore]] = {}
     for score in gate.failing():
+        groups.setdefault("raises" if score.raises else score.check, []).append(score)
+    for scores in groups.values():
+        score = scores[0]
         low, high = score.interval()
+        also = "" if len(scores) == 1 else (
+            f"; {len(scores) - 1} more above it the same way, e.g. {scores[1].answer!r} "
+            f"({scores[1].mean:.1%})")
         what = (f"{spec.name}: the trivial answer {score.answer!r} earns {score.mean:.1%} of "
                 f"its points on average (95 % interval [{low:.1%}, {high:.1%}] over "
-                f"{score.draws} draws; at most {fairness.TRIVIAL_LIMIT:.0%} allowed), ")
+                f"{score.draws} draws; at most {fairness.TRIVIAL_LIMIT:.0%} allowed{also}), ")
         if score.raises:
             fix = ("from the problems that expect that exception alone. Fix: a degenerate "
                    "problem shows that the function refuses bad input, not that it solves "

@@ -290,10 +290,14 @@ def test_a_tolerance_as_large_as_the_answer_fails_the_trivial_gate(lab):
     _edit(spec, "tol_mm = 6.0 * sigma * 1000.0 / math.sqrt(n)",
           "tol_mm = 6.0 * sigma * 1e6 / math.sqrt(n)")
     report = verify_lab(LAB, draws=20, progress=False)
-    trivial = [f.message for f in report.findings if f.check == "trivial"]
-    assert any(m.startswith("mean_offset: the trivial answer 'zeros' earns 100.0% of its "
-                            "points") and "credited by the check 'offset'" in m
-               for m in trivial), trivial
+    # one finding for the check, naming the best trivial answer and counting the others
+    (trivial,) = [f.message for f in report.findings if f.check == "trivial"]
+    assert trivial.startswith("mean_offset: the trivial answer ") and \
+        "earns 100.0% of its points on average" in trivial, trivial
+    assert "credited by the check 'offset'" in trivial and "more above it" in trivial
+    (row,) = report.functions
+    (zeros,) = [t for t in row["trivial"] if t["answer"] == "zeros"]
+    assert zeros["mean"] == 1.0 and zeros["check"] == "offset" and zeros["draws"] == 20
     (warning,) = report.warnings
     assert warning.check == "tolerance" and "check 'offset' reaches" in warning.message
     assert " m)" in warning.message   # millimetres past a metre are shown in metres too
