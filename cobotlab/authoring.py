@@ -30,7 +30,7 @@ from pathlib import Path
 from autograder import registry
 from autograder.registry import LabError
 
-__all__ = ["SKELETON", "new_lab", "next_steps"]
+__all__ = ["SKELETON", "GITIGNORE_LINES", "new_lab", "next_steps", "write_gitignore"]
 
 SKELETON = Path(__file__).resolve().parent / "templates" / "skeleton"
 DEFAULT_LAB_FOLDER = "labs"
@@ -46,6 +46,52 @@ _CONFIG_TEXT = f"""\
 # Add a lab with `cobotlab labs new NAME`.
 lab_folders = ["{DEFAULT_LAB_FOLDER}"]
 """
+
+
+# What a course folder holds that must never reach its git repository: the grading secret
+# and every file with students' work, scores or names (the grader's files are named in
+# autograder/course.py and record.py; nbgrader's gradebook, its SQLite journals and its log).
+# The private specs and verify's reports (.cobotlab/specs/, .cobotlab/verified/) are the
+# course's own work and stay in it.
+GITIGNORE_LINES = (
+    ".cobotlab/secret",
+    ".cobotlab/runs.jsonl",
+    ".cobotlab/last_run.log",
+    ".cobotlab/gradebook.backup.db",
+    ".cobotlab/.gradebook.backup.tmp",
+    ".cobotlab/grading-in-progress",
+    ".cobotlab/nbgrader_cells.json",
+    "gradebook.db*",
+    ".gradebook.restore.tmp",
+    "grades.csv",
+    "nbgrader_grades.csv",
+    ".nbgrader.log",
+    "submitted/",
+    "autograded/",
+    "feedback/",
+    "feedback_cobotlab/",
+    "exchange/",
+)
+_GITIGNORE_HEADER = ("# cobotlab: the grading secret and the students' data (submissions, "
+                     "grades, gradebook, logs)\n# never go into the repository\n")
+
+
+def write_gitignore(course_dir) -> bool:
+    """Make the course's ``.gitignore`` ignore every line of :data:`GITIGNORE_LINES`: write
+    it if there is none, else append the lines it lacks (an author's own lines stay as they
+    are). True when the file was written or changed."""
+    path = Path(course_dir) / ".gitignore"
+    text = path.read_text(encoding="utf-8") if path.is_file() else ""
+    present = {line.strip() for line in text.splitlines()}
+    missing = [line for line in GITIGNORE_LINES if line not in present]
+    if not missing:
+        return False
+    if text and not text.endswith("\n"):
+        text += "\n"
+    header = _GITIGNORE_HEADER if _GITIGNORE_HEADER.splitlines()[0] not in present else ""
+    path.write_text(text + ("\n" if text and header else "") + header
+                    + "".join(f"{line}\n" for line in missing), encoding="utf-8")
+    return True
 
 
 @dataclass(frozen=True)
@@ -379,6 +425,10 @@ def new_lab(name: str, course_dir=".", from_lab: str | None = None) -> list[Path
     a copy of that lab under the new name: notebook, data files, public scoring and private
     spec, its references to the old name rewritten.
 
+    The course's ``.gitignore`` is written, or completed, so that the grading secret and the
+    students' data (:data:`GITIGNORE_LINES`) stay out of its repository; it is among the
+    files returned when it changed.
+
     Raises :class:`autograder.registry.LabError`, having written nothing, for a name that is
     not valid or is already a lab, an existing lab folder or spec file, or an unknown
     ``from_lab``. ``registry.use_course(course_dir)`` then finds the new lab.
@@ -423,7 +473,8 @@ def new_lab(name: str, course_dir=".", from_lab: str | None = None) -> list[Path
     notebook = Path(f"{name}.ipynb")
     ordered = [notebook] + [f for f in files if f not in (notebook, Path(registry.SCORING_FILE))]
     written = [target / f for f in ordered] + [target / registry.SCORING_FILE, spec_target]
-    return written + ([root / registry.CONFIG_NAME] if new_config else [])
+    written += [root / registry.CONFIG_NAME] if new_config else []
+    return written + ([root / ".gitignore"] if write_gitignore(root) else [])
 
 
 def next_steps(written: list[Path], course_dir) -> list[str]:

@@ -171,6 +171,10 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="hidden draws per graded function (default 3688: with no loss, the "
                              "95 %% bound on the reference's loss rate is below 1e-3; use "
                              "10000 before a release)")
+    verify.add_argument("--worst", action="store_true",
+                        help="after the table, print each function's worst problem (where the "
+                             "reference came closest to its tolerance) as a notebook cell: "
+                             "the inputs as numpy literals, the call, the errors")
     verify.add_argument("--json", default=None, metavar="FILE",
                         help="write the JSON report to FILE instead of the course's "
                              ".cobotlab/verified/<lab>.json (where `cobotlab grade` looks)")
@@ -757,7 +761,8 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "labs" and args.labs_command == "verify":
             from cobotlab.verify import run_verify
 
-            return run_verify(args.path, draws=args.draws, json_out=args.json)
+            return run_verify(args.path, draws=args.draws, json_out=args.json,
+                              worst=args.worst)
         elif args.command == "course" and args.course_command == "init":
             from autograder.course import init_course
 

@@ -14,7 +14,19 @@ Two kinds of evidence, one table:
   bubblewrap worker and answer N hidden draws there, scored exactly as the grader scores
   them; each code mistake of the spec answers the first draws (1,000 at most) in this
   process (it is the author's own code). The reference must never lose credit; each mistake
-  must lose it on at least 99 % of draws (the Clopper-Pearson 95 % lower bound).
+  must lose it on at least 99 % of draws (the Clopper-Pearson 95 % lower bound); the table
+  also gives the share of *problems* each mistake loses, which a draw-level count hides.
+* **trivial answers** (:mod:`autograder.trivial`): on the first ``TRIVIAL_DRAWS`` draws the
+  answers that compute nothing (zeros, the identity, a constant unit vector, the inputs
+  echoed back, the mean of the input points, another problem's truth, raising on every
+  problem) are scored the same way; one that earns more than 5 % of a function's points on
+  average fails the lab, naming the answer and the check that credits it.
+* **tolerances**: per check, the range of its tolerance over the draws in the check's unit,
+  with a warning (not a failure) where the largest is as large as a trivial answer's typical
+  error, e.g. a 3.5 m tolerance on a translation.
+
+``--worst`` prints, per function, the reference's worst problem (the one closest to its
+tolerance) as a notebook cell: the inputs as numpy literals, the call, the measured errors.
 
 The default N is the smallest number of draws whose 0 losses bound the loss rate below 1e-3
 (95 % Clopper-Pearson); ``--draws 10000`` is for a release. The JSON report (default
@@ -39,11 +51,16 @@ import numpy as np
 from autograder import checks, fairness, grading, registry, wire
 from autograder.spec_types import FunctionSpec, Trial
 
-__all__ = ["Finding", "run_verify", "verify_lab", "DEFAULT_RATE", "MISTAKE_DRAWS"]
+__all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
+           "TRIVIAL_DRAWS"]
 
 DEFAULT_RATE = 1e-3          # the reference's loss rate the default draws can bound
 MISTAKE_TARGET = 0.99        # a mistake's Clopper-Pearson lower bound must reach this
 MISTAKE_DRAWS = 1000         # 1,000 losses in 1,000 draws bound the rate above 99.6 %
+# Trivial answers are scored on the first 200 draws: with none credited, the 95 % bound on
+# their mean share is 1.8 %, well under the 5 % they may earn; 200 draws of lab 5's 48-problem
+# fit_flange_circle take about 30 s on one core.
+TRIVIAL_DRAWS = 200
 SECRET = "cobotlab-labs-verify"   # not the course's: verify needs no course secret
 SOLUTION_BEGIN, SOLUTION_END = "### BEGIN SOLUTION", "### END SOLUTION"
 
@@ -66,6 +83,7 @@ class Report:
     findings: list[Finding] = field(default_factory=list)
     functions: list[dict] = field(default_factory=list)
     seconds: float = 0.0
+    warnings: list[Finding] = field(default_factory=list)   # shown, never a failure
 
     @property
     def passed(self) -> bool:
@@ -74,6 +92,7 @@ class Report:
     def to_json(self) -> dict:
         return {"lab": self.lab, "spec_hash": self.spec_hash, "draws": self.draws,
                 "passed": self.passed, "findings": [asdict(f) for f in self.findings],
+                "warnings": [asdict(f) for f in self.warnings],
                 "functions": self.functions, "seconds": round(self.seconds, 1)}
 
 
@@ -468,6 +487,13 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     callers.update((m.label, fairness.in_process(m.func)) for m in spec.code_mistakes)
     totals: dict[str, fairness.DrawStats] = {}
     worst_draw, worst_margin = None, -math.inf
+    gate = fairness.TrivialGate(spec)
+    tolerances = _Tolerances(spec)
+
+    def on_draw(k: int, trials: list[Trial]) -> None:
+        tolerances.add(trials)
+        if k < TRIVIAL_DRAWS:
+            gate.add(trials)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -478,7 +504,8 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
         for k in range(draws):
             one = fairness.score_draws(spec, lab, range(k, k + 1), callers, rng_of,
                                        correct=("reference",),
-                                       mistakes_stop=min(draws, MISTAKE_DRAWS))
+                                       mistakes_stop=min(draws, MISTAKE_DRAWS),
+                                       on_draw=on_draw)
             if one["reference"].margin > worst_margin:
                 worst_draw, worst_margin = fairness.student_id(k), one["reference"].margin
             totals = {name: totals[name].merged(s) if name in totals else s
@@ -488,14 +515,20 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     finally:
         if bar is not None:
             bar.close()
+    worst = totals["reference"].worst if "reference" in totals else None
     row = {"function": spec.name, "points": spec.points, "variants": [],
-           "worst_draw": worst_draw, "worst_margin": worst_margin}
+           "worst_draw": worst_draw, "worst_margin": worst_margin,
+           "worst_problem": None if worst is None else {
+               "draw": worst.student, "problem": worst.problem, "label": worst.trial,
+               "check": worst.check, "error": worst.error, "tolerance": worst.tolerance,
+               "unit": worst.unit, "reason": worst.reason}}
     for label, stats in totals.items():
         low, high = fairness.clopper_pearson(stats.lost, stats.seen)
         loss = stats.first_loss
         row["variants"].append({
             "variant": label, "correct": stats.correct, "draws": stats.seen,
             "lost": stats.lost, "low": low, "high": high,
+            "problems": stats.problems, "problems_lost": stats.problems_lost,
             "margin": stats.margin if stats.correct else None,
             "first_loss": loss.describe() if loss else None})
         if stats.correct and stats.lost:
@@ -524,7 +557,98 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
                                        f"practice problem ({seen_practice[0]!r}): students "
                                        "would see its answer in check(); draw from a wider "
                                        "range so the two never coincide", spec.name))
+    row["trivial"] = _trivial(spec, gate, report)
+    row["trivial_seconds"] = round(gate.seconds, 2)
+    row["tolerances"] = tolerances.rows(gate, report)
     return row
+
+
+def _trivial(spec: FunctionSpec, gate: fairness.TrivialGate, report: Report) -> list[dict]:
+    """The trivial answers' rows, best first; a finding for each above the limit."""
+    rows = []
+    for score in gate.ranked():
+        low, high = score.interval()
+        rows.append({"answer": score.answer, "mean": score.mean, "low": low, "high": high,
+                     "draws": score.draws, "check": score.check, "raises": score.raises})
+    # One finding per check that credits trivial answers (the best of them named, the count
+    # of the others): a plane's offset check credits the mean and the median of the points
+    # with any normal, which is one fault, not eight.
+    groups: dict[str | None, list[fairness.TrivialScore]] = {}
+    for score in gate.failing():
+        groups.setdefault("raises" if score.raises else score.check, []).append(score)
+    for scores in groups.values():
+        score = scores[0]
+        low, high = score.interval()
+        also = "" if len(scores) == 1 else (
+            f"; {len(scores) - 1} more above it the same way, e.g. {scores[1].answer!r} "
+            f"({scores[1].mean:.1%})")
+        what = (f"{spec.name}: the trivial answer {score.answer!r} earns {score.mean:.1%} of "
+                f"its points on average (95 % interval [{low:.1%}, {high:.1%}] over "
+                f"{score.draws} draws; at most {fairness.TRIVIAL_LIMIT:.0%} allowed{also}), ")
+        if score.raises:
+            fix = ("from the problems that expect that exception alone. Fix: a degenerate "
+                   "problem shows that the function refuses bad input, not that it solves "
+                   "anything: fewer of them per student, or worth less than the others")
+        else:
+            fix = (f"credited by the check {score.check!r}. Fix: the check must measure what "
+                   "only a computed answer gets right: derive its tolerance from the "
+                   "problem's noise (is it wider than the method needs?), score the part of "
+                   "the answer the check ignores, mark problems where a constant is right "
+                   "all_or_nothing, or draw problems on which the trivial answer is far off")
+        report.findings.append(Finding("trivial", what + fix, spec.name))
+    return rows
+
+
+class _Tolerances:
+    """Per check, the range of its full-credit tolerance over the problems of all draws
+    (problems that expect an exception have no tolerance that counts and are left out)."""
+
+    def __init__(self, spec: FunctionSpec):
+        self.spec = spec
+        self.low = {c.name: math.inf for c in spec.checks}
+        self.high = {c.name: -math.inf for c in spec.checks}
+
+    def add(self, trials: list[Trial]) -> None:
+        for trial in trials:
+            if trial.raises is not None:
+                continue
+            for c in self.spec.checks:
+                tol = float(trial.tol[c.name])
+                self.low[c.name] = min(self.low[c.name], tol)
+                self.high[c.name] = max(self.high[c.name], tol)
+
+    def rows(self, gate: fairness.TrivialGate, report: Report) -> list[dict]:
+        """One row per check; a warning where the largest tolerance reaches the typical
+        error of the best trivial answer on that check (the truth's own size, in effect)."""
+        rows = []
+        for c in self.spec.checks:
+            typical, by = math.inf, None
+            for score in gate.scores.values():
+                error = score.typical_error(c.name)
+                if not score.raises and error < typical:
+                    typical, by = error, score.answer
+            low, high = self.low[c.name], self.high[c.name]
+            rows.append({"check": c.name, "unit": c.unit, "low": low, "high": high,
+                         "trivial_error": typical, "trivial_answer": by})
+            if math.isfinite(high) and high >= typical:
+                unit = f" {c.unit}" if c.unit else ""
+                report.warnings.append(Finding("tolerance", (
+                    f"{self.spec.name}: the tolerance of check {c.name!r} reaches "
+                    f"{_quantity(high, c.unit)} while the trivial answer {by!r} is typically "
+                    f"off by only {typical:.3g}{unit} on it: a tolerance as large as the "
+                    "quantity it checks gives credit for nothing on some problems; derive "
+                    "it from the problem's noise, or redraw such ill-conditioned problems"),
+                    self.spec.name))
+        return rows
+
+
+def _quantity(value: float, unit: str) -> str:
+    """``value`` in ``unit``, with metres beside millimetres once it is past a metre (so a
+    3.5 m tolerance reads as one)."""
+    text = f"{value:.3g} {unit}".strip()
+    if unit == "mm" and abs(value) >= 1000:
+        text += f" (= {value / 1000:.3g} m)"
+    return text
 
 
 def _draws_to_show(rate: float) -> int:
@@ -536,25 +660,64 @@ def _draws_to_show(rate: float) -> int:
 # --------------------------------------------------------------------------- the table
 
 
+def _clip(text: str, width: int) -> str:
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
 def _print(report: Report, out=None) -> None:
     out = out or sys.stdout   # looked up now: a caller may have redirected it
     print(f"cobotlab labs verify {report.lab}: {report.draws} hidden draws per function, "
           f"spec {report.spec_hash}", file=out)
     print(f"{'function':<24} {'variant':<46} {'lost / draws':>14}  {'95% interval':<20} "
-          f"{'margin':>7}", file=out)
+          f"{'problems lost':>18} {'margin':>7}", file=out)
     for row in report.functions:
         for v in row["variants"]:
-            label = ("+ " if v["correct"] else "- ") + v["variant"]
-            label = label if len(label) <= 46 else label[:43] + "..."
+            label = _clip(("+ " if v["correct"] else "- ") + v["variant"], 46)
             margin = v.get("margin")
             margin = f"{margin:.3g}" if isinstance(margin, (int, float)) and \
                 math.isfinite(margin) else ""
+            problems = v.get("problems") or 0
+            share = f"{v.get('problems_lost', 0) / problems:6.1%}" if problems else ""
             print(f"{row['function']:<24} {label:<46} {v['lost']:>6} / {v['draws']:<6} "
-                  f"[{v['low']:.4f}, {v['high']:.4f}]   {margin:>7}", file=out)
+                  f"[{v['low']:.4f}, {v['high']:.4f}]   {share:>18} {margin:>7}", file=out)
+    trivial = [row for row in report.functions if row.get("trivial")]
+    if trivial:
+        print(f"\ntrivial answers: mean share of the function's points (at most "
+              f"{fairness.TRIVIAL_LIMIT:.0%}), 95 % interval, the check that credits it",
+              file=out)
+        print(f"{'function':<24} {'trivial answer':<46} {'draws':>6} {'mean':>7}  "
+              f"{'95% interval':<18} check", file=out)
+        for row in trivial:
+            best = row["trivial"][0]
+            shown = [best] + [t for t in row["trivial"][1:]
+                              if t["mean"] > fairness.TRIVIAL_LIMIT]
+            for t in shown:
+                flag = "FAIL " if t["mean"] > fairness.TRIVIAL_LIMIT else ""
+                print(f"{row['function']:<24} {_clip(t['answer'], 46):<46} {t['draws']:>6} "
+                      f"{t['mean']:>7.2%}  [{t['low']:.3f}, {t['high']:.3f}]   "
+                      f"{flag}{t['check'] or '-'}", file=out)
+    tolerances = [row for row in report.functions if row.get("tolerances")]
+    if tolerances:
+        print("\ntolerances over the draws (full credit within), in each check's unit; the "
+              "typical error of the best trivial answer beside them", file=out)
+        print(f"{'function':<24} {'check':<14} {'unit':<9} {'smallest':>10} {'largest':>22} "
+              f"{'trivial error':>14}", file=out)
+        for row in tolerances:
+            for t in row["tolerances"]:
+                if not math.isfinite(t["high"]):
+                    continue
+                typical = t["trivial_error"]
+                typical = f"{typical:.3g}" if math.isfinite(typical) else "-"
+                print(f"{row['function']:<24} {t['check']:<14} {t['unit'] or '(ratio)':<9} "
+                      f"{t['low']:>10.3g} {_quantity(t['high'], t['unit']):>22} "
+                      f"{typical:>14}", file=out)
+    print("", file=out)
     for row in report.functions:
         if row.get("worst_draw") is not None:
             print(f"{row['function']}: reference's worst draw {row['worst_draw']}, largest "
                   f"error / tolerance {row['worst_margin']:.3g}", file=out)
+    for f in report.warnings:
+        print(f"WARN {f.check}: {f.message}", file=out)
     for f in report.findings:
         print(f"FAIL {f.check}: {f.message}", file=out)
     verdict = "passed" if report.passed else f"FAILED ({len(report.findings)} problem" + \
@@ -562,9 +725,97 @@ def _print(report: Report, out=None) -> None:
     print(f"{report.lab}: {verdict} in {report.seconds:.0f} s", file=out)
 
 
-def run_verify(path: str, draws: int | None = None, json_out: str | None = None) -> int:
-    """The command: verify the lab PATH names, print the table, write the JSON; 0 when the
-    lab passed, 1 when it did not."""
+# --------------------------------------------------------------------------- --worst
+
+
+def _py(value) -> str:
+    """``value`` as Python source that rebuilds it exactly (numpy arrays with their dtype,
+    floats by their shortest round-tripping repr, NaN and inf spelled out)."""
+    if isinstance(value, np.ndarray):
+        return f"np.array({_py(value.tolist())}, dtype={value.dtype.name!r})"
+    if isinstance(value, (bool, np.bool_)):
+        return repr(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return repr(int(value))
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if math.isnan(value):
+            return "float('nan')"
+        if math.isinf(value):
+            return "float('inf')" if value > 0 else "-float('inf')"
+        return repr(value)
+    if isinstance(value, tuple):
+        inner = ", ".join(_py(v) for v in value)
+        return f"({inner},)" if len(value) == 1 else f"({inner})"
+    if isinstance(value, list):
+        return "[" + ", ".join(_py(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_py(k)}: {_py(v)}" for k, v in value.items()) + "}"
+    if value is None or isinstance(value, str):
+        return repr(value)
+    raise TypeError(f"cannot write a {type(value).__name__} as a Python literal")
+
+
+def worst_cell(lab: str, spec: FunctionSpec, student: str, problem: int,
+               note: str = "") -> str:
+    """A notebook cell (Python source) that rebuilds problem ``problem`` of ``student``'s
+    hidden problems of ``spec`` (as verify drew them), calls the notebook's function on it and
+    prints the measured errors, the tolerances and the score. It holds the hidden truth:
+    for the author's notebook, never a released one."""
+    trials = checks.make_trials(spec, grading.problem_rng(SECRET, None, lab, student,
+                                                          spec.name))
+    trial = trials[problem]
+    call = f"spec.drive({spec.name}, trial)" if spec.drive is not None else \
+        f"{spec.name}(*trial.args)"
+    lines = [f"# {lab}.{spec.name}: problem {problem} of {student}'s hidden problems "
+             f"({trial.label!r}), from `cobotlab labs verify --worst`."]
+    lines += [f"# {part}" for part in note.splitlines() if part]
+    lines += [
+        "# It holds the hidden truth: keep it in the author's notebook, never in a release.",
+        "import numpy as np",
+        "",
+        "from autograder import checks",
+        "",
+        f"spec = checks.spec_for({spec.name!r}, assignment={lab!r})",
+        "trial = checks.Trial(",
+        f"    args={_py(tuple(trial.args))},",
+        f"    truth={_py(trial.truth)},",
+        f"    tol={_py(dict(trial.tol))},",
+        f"    label={trial.label!r}, all_or_nothing={trial.all_or_nothing!r}, "
+        f"raises={trial.raises!r})",
+        "try:",
+        f"    answer = {call}",
+        "    outcome = checks.TrialOutcome(value=answer)",
+        "    print('errors:', spec.measure(answer, trial), 'tolerances:', trial.tol)",
+        "except Exception as exc:",
+        "    outcome = checks.TrialOutcome(error=f'{type(exc).__name__}: {exc}')",
+        "print(checks.score_function(spec, [trial], [outcome]).summary())",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _worst_cells(report: Report) -> list[str]:
+    specs = {s.name: s for s in registry.specs(report.lab)}
+    cells = []
+    for row in report.functions:
+        worst = row.get("worst_problem")
+        if not worst or worst.get("problem") is None or row["function"] not in specs:
+            continue
+        unit = f" {worst['unit']}" if worst.get("unit") else ""
+        note = (f"The reference's largest error / tolerance over {report.draws} draws: "
+                f"{row['worst_margin']:.3g}" + (
+                    f" (check {worst['check']}: {worst['error']:.3g}{unit} of "
+                    f"{worst['tolerance']:.3g}{unit})." if worst.get("check") else "."))
+        cells.append(worst_cell(report.lab, specs[row["function"]], worst["draw"],
+                                worst["problem"], note))
+    return cells
+
+
+def run_verify(path: str, draws: int | None = None, json_out: str | None = None,
+               worst: bool = False) -> int:
+    """The command: verify the lab PATH names, print the table, write the JSON; with
+    ``worst``, then print each function's worst problem as a notebook cell. 0 when the lab
+    passed, 1 when it did not."""
     if draws is not None and draws < 1:
         raise ValueError(f"--draws must be at least 1, got {draws}")
     name = _lab_from_path(path)
@@ -574,4 +825,7 @@ def run_verify(path: str, draws: int | None = None, json_out: str | None = None)
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_text(json.dumps(report.to_json(), indent=1, default=float) + "\n")
     print(f"wrote {target}")
+    if worst:
+        for cell in _worst_cells(report):
+            print(f"\n# ---- cell ----\n{cell}", end="")
     return 0 if report.passed else 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 import ast
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -70,7 +71,7 @@ def test_the_skeleton_is_a_complete_lab_the_registry_finds(skeleton):
     lab = course / "labs" / SKELETON
     assert written == [lab / f"{SKELETON}.ipynb", lab / "scoring.py",
                        course / ".cobotlab" / "specs" / f"{SKELETON}.py",
-                       course / "cobotlab.toml"]
+                       course / "cobotlab.toml", course / ".gitignore"]
     assert 'lab_folders = ["labs"]' in (course / "cobotlab.toml").read_text()
     assert not [p for p in course.iterdir() if p.name.startswith(".cobotlab-new")]
 
@@ -192,6 +193,46 @@ def _refused(course: Path, name: str, from_lab=None, *words: str) -> None:
     for word in words:
         assert word in message, message
     assert (_tree(course) if course.exists() else None) == before
+
+
+def test_the_course_gitignore_keeps_the_secret_and_the_students_data_out(tmp_path):
+    """`labs new` writes the course's .gitignore, or completes the author's own: the grading
+    secret, grades.csv, the gradebook with its backup and journals, the run logs and the
+    students' folders are never committed; the private specs and verify's reports are."""
+    from cobotlab.authoring import GITIGNORE_LINES
+
+    course = tmp_path / "course"
+    course.mkdir()
+    (course / ".gitignore").write_text("*.pyc\ngrades.csv")   # the author's, no final newline
+    written = new_lab("first", course)
+    assert course / ".gitignore" in written
+    text = (course / ".gitignore").read_text()
+    lines = text.splitlines()
+    assert lines[:2] == ["*.pyc", "grades.csv"] and lines.count("grades.csv") == 1
+    assert set(GITIGNORE_LINES) <= set(lines)
+    # a second lab changes nothing
+    assert course / ".gitignore" not in new_lab("second", course)
+    assert (course / ".gitignore").read_text() == text
+
+    # What git itself ignores: every file the grader writes with students' data, and none
+    # of the course's own work.
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    subprocess.run(["git", "init", "-q", str(course)], check=True)
+    students = ["grades.csv", "nbgrader_grades.csv", "gradebook.db", "gradebook.db-journal",
+                ".nbgrader.log", ".cobotlab/secret", ".cobotlab/runs.jsonl",
+                ".cobotlab/last_run.log", ".cobotlab/gradebook.backup.db",
+                ".cobotlab/nbgrader_cells.json", "submitted/s1/first/first.ipynb",
+                "autograded/s1/first/first.ipynb", "feedback/s1/first/first.html",
+                "feedback_cobotlab/s1/first/feedback.html", "exchange/cobotlab/inbound/x"]
+    own = [".cobotlab/specs/first.py", ".cobotlab/verified/first.json", "labs/first/scoring.py",
+           "cobotlab.toml", "source/first/first.ipynb"]
+    for name in students + own:
+        (course / name).parent.mkdir(parents=True, exist_ok=True)
+        (course / name).touch()
+    done = subprocess.run(["git", "-C", str(course), "check-ignore", *students, *own],
+                          capture_output=True, text=True, check=False)
+    assert sorted(done.stdout.split()) == sorted(students)
 
 
 def test_bad_names_and_taken_places_are_refused_leaving_nothing(tmp_path):

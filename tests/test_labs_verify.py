@@ -231,3 +231,73 @@ def test_course_init_with_a_broken_lab_names_it_and_writes_nothing(lab, capsys):
     assert len(err.strip().splitlines()) == 1
     assert sorted(p.relative_to(course) for p in course.rglob("*")
                   if "__pycache__" not in p.parts) == before
+
+
+# --------------------------------------------------------------------------- what an author sees
+# (issue 38, items 1 and 4): trivial answers, each mistake's share of problems, the
+# tolerances in the check's unit, and the worst problem as a notebook cell.
+
+
+@needs_bwrap
+def test_the_skeleton_shows_trivial_answers_tolerances_and_its_worst_problem(lab, capsys):
+    import ast
+
+    report = verify_lab(LAB, draws=30, progress=False)
+    # 30 draws cannot show a mistake's 99 %: that is the only finding
+    assert {f.check for f in report.findings} == {"draws"}, report.findings
+    (row,) = report.functions
+    # no trivial answer earns credit on the skeleton: its offsets are 5 to 50 mm, its
+    # tolerances a few mm; the best one's interval is given
+    best = row["trivial"][0]
+    assert best["draws"] == 30 and best["mean"] <= 0.05 and best["low"] <= best["mean"] \
+        <= best["high"]
+    assert {"zeros", "(0, 0, 1)", "truth of another problem"} <= \
+        {t["answer"] for t in row["trivial"]}
+    # the tolerance range, in the check's unit, against a trivial answer's typical error
+    (tol,) = row["tolerances"]
+    assert tol["check"] == "offset" and tol["unit"] == "mm"
+    assert 6 * 0.2 / 40 ** 0.5 <= tol["low"] <= tol["high"] <= 6 * 2.0 / 5 ** 0.5
+    assert tol["high"] < 5.0 <= tol["trivial_error"]
+    assert report.warnings == []
+    # the wrong sign loses every problem, not only every draw; the reference none
+    variants = {v["variant"]: v for v in row["variants"]}
+    assert variants["reference"]["problems_lost"] == 0
+    (mistake,) = [v for v in variants.values() if not v["correct"]]
+    assert mistake["problems"] == 30 * 12 == mistake["problems_lost"]
+    assert row["worst_problem"]["check"] == "offset"
+
+    assert cli.main(["labs", "verify", LAB, "--draws", "30", "--worst"]) == 1
+    out = capsys.readouterr().out
+    assert "trivial answers: mean share of the function's points" in out
+    assert "tolerances over the draws" in out and "problems lost" in out
+    cell = out.split("# ---- cell ----\n", 1)[1]
+    ast.parse(cell)   # pastes into a notebook as it is
+    # and, run beside the reference, it rebuilds the worst problem: full credit, no error
+    namespace: dict = {}
+    exec("import numpy as np\n"   # noqa: S102 - our own cell and the skeleton's reference
+         "def mean_offset(measured, commanded):\n"
+         "    return np.mean(np.asarray(measured) - np.asarray(commanded), axis=0)\n" + cell,
+         namespace)
+    assert "mean_offset: 2 / 2 points" in capsys.readouterr().out
+
+
+@needs_bwrap
+def test_a_tolerance_as_large_as_the_answer_fails_the_trivial_gate(lab):
+    """Tolerances of metres on an offset of millimetres (a tolerance in the wrong unit):
+    answering zeros earns full credit, which verify refuses, naming the answer and the
+    check, and the tolerance table warns in metres."""
+    _, _, spec = lab
+    _edit(spec, "tol_mm = 6.0 * sigma * 1000.0 / math.sqrt(n)",
+          "tol_mm = 6.0 * sigma * 1e6 / math.sqrt(n)")
+    report = verify_lab(LAB, draws=20, progress=False)
+    # one finding for the check, naming the best trivial answer and counting the others
+    (trivial,) = [f.message for f in report.findings if f.check == "trivial"]
+    assert trivial.startswith("mean_offset: the trivial answer ") and \
+        "earns 100.0% of its points on average" in trivial, trivial
+    assert "credited by the check 'offset'" in trivial and "more above it" in trivial
+    (row,) = report.functions
+    (zeros,) = [t for t in row["trivial"] if t["answer"] == "zeros"]
+    assert zeros["mean"] == 1.0 and zeros["check"] == "offset" and zeros["draws"] == 20
+    (warning,) = report.warnings
+    assert warning.check == "tolerance" and "check 'offset' reaches" in warning.message
+    assert " m)" in warning.message   # millimetres past a metre are shown in metres too
