@@ -558,6 +558,14 @@ SHORT_NAMES = {
     "_rectangle_swapped": "width and height swapped",
     "_rectangle_k_ignored": "K not inverted (pixels used as rays)",
     "_rectangle_not_orthogonal": "edge directions not made orthogonal",
+    # lab 5, issue 38: the mistakes the text warns about
+    "_backproject_ray_length": "depth taken as the ray's length",
+    "_backproject_index_uv": "depth[u, v] for depth[v, u]",
+    "_plane_uncentred": "refit SVD on uncentred points",
+    "_circle_centroid": "centroid of the rim as the centre",
+    "_circle_diameter": "diameter used as the radius",
+    "_circle_uncentred": "rim plane by SVD of uncentred points",
+    "_registration_uncentred": "uncentred cross-covariance",
 }
 
 

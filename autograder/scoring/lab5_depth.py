@@ -11,7 +11,11 @@ poses.
   must point towards the camera, so one pointing away is 180 deg off) and how far the
   returned centre lies from the true plane (mm), on point clouds with outliers;
 * ``fit_flange_circle(rim_points, radius_m)``: the centre (mm) and the normal (deg, towards
-  the camera) of the flange face from points on partial arcs of its rim;
+  the camera) of the flange face from points on partial arcs of its rim.
+
+The centre and the normal of these two are one answer: each check earns the band of the
+worst part (:func:`_worth_only_together`), so a right point with a constant normal, or a
+point anywhere on the plane, earns nothing;
 * ``base_T_cam_from_flanges(cam_centres, base_T_flanges)``: the pose's rotation (deg) and
   translation (mm);
 * ``rectangle_pose(corners_px, width_m, height_m, K)``: the pose's rotation (deg) and
@@ -33,6 +37,11 @@ from autograder.spec_types import Check, FunctionSpec, OutputError, Trial, measu
 # Noisy problems: full credit within the tolerance, half within three times it (a method that
 # is right but sloppy, e.g. too few RANSAC iterations), nothing beyond.
 NOISY_BANDS = ((1.0, 1.0), (3.0, 0.5))
+# The plane's tolerances are no noise sd but the width of RANSAC's own ambiguity (a plane
+# anywhere in the inlier band over the face: up to 17 deg on a 40 mm face with a 3 mm band),
+# so three times them says nothing (51 deg: the constant normal (0, 0, -1) on most faces,
+# 9 mm: the housing 6.5 mm behind): full credit within them, none beyond.
+PLANE_BANDS = ((1.0, 1.0),)
 
 
 # --------------------------------------------------------------------------- back-projection
@@ -51,7 +60,8 @@ def _measure_backproject(value, trial: Trial) -> dict[str, float]:
         if P.ndim == 2 and P.shape[1] == 3 and P.shape[0] in (h * w, int(np.sum(truth[..., 2] > 0))):
             why = "one point per pixel in the image's layout, not a flat list of points"
         elif P.shape == (w, h, 3):
-            why = "rows first: [v, u], not [u, v]"
+            why = ("rows first: the image is indexed depth[v, u] (row v, column u), not "
+                   "depth[u, v]")
         elif P.shape == (3, h, w):
             why = "the (x, y, z) axis last, e.g. np.stack([x, y, z], axis=-1)"
         raise OutputError(f"returned shape {P.shape}, expected ({h}, {w}, 3): {why}")
@@ -119,23 +129,39 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
 
 
+def _worth_only_together(errors: dict[str, float], tol: dict[str, float]) -> dict[str, float]:
+    """Each error raised to the worst of ``errors`` as a multiple of its own tolerance.
+
+    A centre and a normal are one answer: a point on the plane with any normal, or the right
+    normal at any point, is no plane. Without this the trivial answers scored (the median of
+    the points with the constant normal (0, 0, -1): 1.42 / 2 on fit_plane_ransac; the mean of
+    the rim: 0.49 / 2 on fit_flange_circle, whose depth check credits any point on the
+    plane). Each check then earns the band of the worst part, in its own unit. A general
+    ``Check.requires`` (autograder/spec_types.py) would replace this function."""
+    worst = max(errors[k] / tol[k] for k in errors)   # the tolerances are all > 0
+    return {k: max(e, worst * tol[k]) for k, e in errors.items()}
+
+
 def _measure_plane(value, trial: Trial) -> dict[str, float]:
     centre, normal = _as_centre_normal(value)
     true_centre, true_normal = trial.truth
-    return {"normal": _angle_deg(normal, true_normal),
-            "offset": abs(float((centre - true_centre) @ true_normal)) * 1000.0}
+    return _worth_only_together(
+        {"normal": _angle_deg(normal, true_normal),
+         "offset": abs(float((centre - true_centre) @ true_normal)) * 1000.0}, trial.tol)
 
 
 FIT_PLANE_RANSAC = FunctionSpec(
     name="fit_plane_ransac", points=2.0, n_trials=6, practice_trials=2, make_trial=None,
     measure=_measure_plane,
     checks=(
-        Check("normal", "deg", 0.5, NOISY_BANDS,
+        Check("normal", "deg", 0.5, PLANE_BANDS,
               "RANSAC over random triples, then a least-squares refit on the best inliers; "
-              "the normal points towards the camera (normal @ centre < 0)"),
-        Check("offset", "mm", 0.5, NOISY_BANDS,
+              "the normal points towards the camera (normal @ centre < 0); counts only "
+              "with the centre on the plane too"),
+        Check("offset", "mm", 0.5, PLANE_BANDS,
               "the centre (mean of the inliers) lies on the plane: outliers (a surface "
-              "behind, flying pixels) must not pull it"),
+              "behind, flying pixels) must not pull it; counts only with the normal right "
+              "too"),
     ),
     signature="fit_plane_ransac(points (N, 3) m, inlier_m, iterations=500, seed=0) -> "
               "(centre (3,), unit normal (3,) towards the camera)",
@@ -149,9 +175,10 @@ def _measure_circle(value, trial: Trial) -> dict[str, float]:
     true_centre, true_normal = trial.truth
     d = centre - true_centre
     along = float(d @ true_normal)
-    return {"centre": float(np.linalg.norm(d - along * true_normal)) * 1000.0,
-            "depth": abs(along) * 1000.0,
-            "normal": _angle_deg(normal, true_normal)}
+    return _worth_only_together(
+        {"centre": float(np.linalg.norm(d - along * true_normal)) * 1000.0,
+         "depth": abs(along) * 1000.0,
+         "normal": _angle_deg(normal, true_normal)}, trial.tol)
 
 
 FIT_FLANGE_CIRCLE = FunctionSpec(
@@ -165,11 +192,13 @@ FIT_FLANGE_CIRCLE = FunctionSpec(
         Check("centre", "mm", 0.5, NOISY_BANDS,
               "the centre within the flange's plane: a circle of the known radius by "
               "geometric least squares (|p - c| - r); the algebraic (Kasa) fit alone errs on "
-              "a partial arc"),
+              "a partial arc; counts only with the depth and the normal right too"),
         Check("depth", "mm", 0.2, NOISY_BANDS,
-              "the centre lies in the plane of the rim (SVD of the rim points)"),
+              "the centre lies in the plane of the rim (SVD of the centred rim points); "
+              "counts only with the centre in the plane and the normal right too"),
         Check("normal", "deg", 0.3, NOISY_BANDS,
-              "the rim's plane normal, pointing towards the camera (normal @ centre < 0)"),
+              "the rim's plane normal, pointing towards the camera (normal @ centre < 0); "
+              "counts only with the centre right too"),
     ),
     signature="fit_flange_circle(rim_points (N, 3) m, radius_m) -> (centre (3,), unit normal "
               "(3,) towards the camera)",

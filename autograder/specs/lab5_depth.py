@@ -52,12 +52,14 @@ def _random_K(rng, h: int, w: int, f_range=(200.0, 900.0)) -> np.ndarray:
 NOISE_K = (0.0025, 0.0045)
 
 
-def _tilted_normal(rng, max_deg: float) -> np.ndarray:
-    """A unit normal towards the camera (-z side), up to ``max_deg`` off the optical axis."""
+def _tilted_normal(rng, max_deg: float, min_deg: float = 0.0) -> np.ndarray:
+    """A unit normal towards the camera (-z side), ``min_deg`` to ``max_deg`` off the optical
+    axis, turned any way about it."""
     axis = rng.normal(size=3)
     axis[2] = 0.0
     axis /= np.linalg.norm(axis)
-    return Rotation.from_rotvec(axis * math.radians(rng.uniform(0.0, max_deg))).apply([0, 0, -1.0])
+    return Rotation.from_rotvec(axis * math.radians(rng.uniform(min_deg, max_deg))).apply(
+        [0, 0, -1.0])
 
 
 def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +93,12 @@ def _trial_backproject(rng, index: int) -> Trial:
     # columns cannot be swapped unnoticed.
     h = int(rng.integers(24, 56))
     w = int(rng.integers(h + 8, 88))
-    K = _random_K(rng, h, w)
+    # A depth camera's field of view (D435: 87 deg wide, D415: 65 deg): 60-90 deg across
+    # the image's width. With a narrow one (f of 200-900 px on 88 px) the rays are nearly
+    # parallel, and depth taken as the ray's length would land within 0.2 % of the truth,
+    # where a wrong answer near the truth would be named after it.
+    f_lo, f_hi = (w / (2 * math.tan(math.radians(deg) / 2)) for deg in (90.0, 60.0))
+    K = _random_K(rng, h, w, (f_lo, f_hi))
     scale = DEPTH_SCALES[index % len(DEPTH_SCALES)]
     # A table plane 0.3-2.5 m away, tilted up to 40 deg, with a box standing on it.
     n = _tilted_normal(rng, 40.0)
@@ -138,8 +145,14 @@ DEPTH_SCALE_WORDS = ("depth_scale is taken as 0.001 m per unit: cameras differ (
                      "0.0001); multiply by the depth_scale argument")
 
 
+RAY_LENGTH_WORDS = ("the depth is taken as the length of the viewing ray: it is the z "
+                    "coordinate, so p = z K^-1 [u, v, 1], not the unit ray times the depth")
+INDEX_WORDS = ("the depth image is read as depth[u, v]: it is indexed depth[v, u] (row v, "
+               "column u), and the points keep the image's (H, W) layout")
+
+
 def _backproject_with(depth_raw, K, depth_scale, scale=None, swap=False, inverted=False,
-                      holes_nan=True) -> np.ndarray:
+                      holes_nan=True, ray_length=False) -> np.ndarray:
     """Back-projection with one of the classic mistakes switched on."""
     z = np.asarray(depth_raw, dtype=float) * (depth_scale if scale is None else scale)
     if holes_nan:
@@ -148,7 +161,10 @@ def _backproject_with(depth_raw, K, depth_scale, scale=None, swap=False, inverte
     if swap:
         u, v = v, u
     fx, fy = (1 / K[0, 0], 1 / K[1, 1]) if inverted else (K[0, 0], K[1, 1])
-    return np.stack([(u - K[0, 2]) * z / fx, (v - K[1, 2]) * z / fy, z], axis=-1)
+    ray = np.stack([(u - K[0, 2]) / fx, (v - K[1, 2]) / fy, np.ones(z.shape)], axis=-1)
+    if ray_length:
+        ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
+    return ray * z[..., None]
 
 
 def _backproject_units(depth_raw, K, depth_scale):
@@ -171,24 +187,37 @@ def _backproject_holes_at_zero(depth_raw, K, depth_scale):
     return _backproject_with(depth_raw, K, depth_scale, holes_nan=False)
 
 
+def _backproject_ray_length(depth_raw, K, depth_scale):
+    return _backproject_with(depth_raw, K, depth_scale, ray_length=True)
+
+
+def _backproject_index_uv(depth_raw, K, depth_scale):
+    """depth[u, v] for depth[v, u]: the image read column-first, (W, H, 3) points (a loop
+    over u then v that indexes depth[u, v] gets the same, or an IndexError)."""
+    return _backproject_with(np.asarray(depth_raw).T, K, depth_scale, swap=True)
+
+
 BACKPROJECT_MISTAKES = (
     CodeMistake(MM_WORDS, _backproject_units),
     CodeMistake(DEPTH_SCALE_WORDS, _backproject_fixed_scale),
     CodeMistake(UV_WORDS, _backproject_uv_swapped),
     CodeMistake(K_INVERTED_WORDS, _backproject_k_inverted),
     CodeMistake(HOLES_WORDS, _backproject_holes_at_zero),
+    CodeMistake(RAY_LENGTH_WORDS, _backproject_ray_length),
+    CodeMistake(INDEX_WORDS, _backproject_index_uv),
 )
 
 
 # --------------------------------------------------------------------------- RANSAC plane
 
 
-def _flange_scene(rng):
+def _flange_scene(rng, min_tilt_deg: float = 0.0):
     """A flange face seen by a depth camera: (centre, normal towards the camera, radius,
-    focal length px, noise k, e1, e2 in-plane axes)."""
+    focal length px, noise k, e1, e2 in-plane axes); the face turned ``min_tilt_deg`` to 50
+    deg from the optical axis."""
     f = rng.uniform(400.0, 900.0)
     radius = rng.choice(FLANGE_RADII)
-    n = _tilted_normal(rng, 50.0)
+    n = _tilted_normal(rng, 50.0, min_tilt_deg)
     centre = np.array([*rng.uniform(-0.08, 0.08, 2), rng.uniform(0.3, 0.5)])
     return centre, n, float(radius), f, rng.uniform(*NOISE_K), *_plane_basis(n)
 
@@ -204,8 +233,15 @@ def _on_rays(P: np.ndarray, e_n: np.ndarray, c: np.ndarray) -> np.ndarray:
     return P * ((c @ e_n) / (P @ e_n))[:, None]
 
 
+# The plane problems' faces are turned at least this far from the optical axis: the
+# normal's tolerance (2 atan(inlier_m / r), RANSAC's ambiguity) reaches 17 deg on a 40 mm face
+# with a 3 mm band, so a face square to the camera would let the constant normal (0, 0, -1)
+# pass; 20-50 deg keeps it beyond the tolerance on every problem.
+PLANE_MIN_TILT_DEG = 20.0
+
+
 def _trial_plane(rng, index: int) -> Trial:
-    c, n, r, f, k, e1, e2 = _flange_scene(rng)
+    c, n, r, f, k, e1, e2 = _flange_scene(rng, PLANE_MIN_TILT_DEG)
     # The face: pixels on it, one point per (decimated) pixel: uniform over the disc.
     n_face = int(rng.integers(150, 320))
     rho = r * np.sqrt(rng.random(n_face))
@@ -266,15 +302,23 @@ AWAY_WORDS = ("the normal points away from the camera: flip it when normal @ cen
               "camera is at the origin)")
 
 
-def _svd_plane(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+UNCENTRED_WORDS = ("the plane's normal comes from the SVD of the points themselves, not "
+                   "centred: subtract their mean first (the smallest singular vector of "
+                   "uncentred points far from the camera is no normal of their plane)")
+
+
+def _svd_plane(pts: np.ndarray, centred: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, unit normal towards the camera) of ``pts`` by the SVD; ``centred=False`` is
+    the mistake of decomposing the points as they are."""
     centre = pts.mean(axis=0)
-    normal = np.linalg.svd(pts - centre, full_matrices=False)[2][2]
+    normal = np.linalg.svd(pts - centre if centred else pts, full_matrices=False)[2][2]
     return centre, (-normal if normal @ centre > 0 else normal)
 
 
-def _ransac_plane(points, inlier_m, iterations=500, seed=0) -> tuple[np.ndarray, np.ndarray]:
+def _ransac_plane(points, inlier_m, iterations=500, seed=0,
+                  centred: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The lab's RANSAC: the plane of the random triple with the most inliers, refitted (SVD)
-    on them, its normal towards the camera."""
+    on them, its normal towards the camera (``centred=False``: the refit's mistake)."""
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     rng = np.random.default_rng(seed)
@@ -287,7 +331,7 @@ def _ransac_plane(points, inlier_m, iterations=500, seed=0) -> tuple[np.ndarray,
         inliers = np.abs((pts - a) @ (n / np.linalg.norm(n))) < inlier_m
         if best is None or inliers.sum() > best.sum():
             best = inliers
-    return _svd_plane(pts[best])
+    return _svd_plane(pts[best], centred)
 
 
 def _plane_all_points(points, inlier_m, iterations=500, seed=0):
@@ -299,9 +343,14 @@ def _plane_normal_away(points, inlier_m, iterations=500, seed=0):
     return centre, -normal
 
 
+def _plane_uncentred(points, inlier_m, iterations=500, seed=0):
+    return _ransac_plane(points, inlier_m, iterations, seed, centred=False)
+
+
 PLANE_MISTAKES = (
     CodeMistake(NO_RANSAC_WORDS, _plane_all_points),
     CodeMistake(AWAY_WORDS, _plane_normal_away),
+    CodeMistake(UNCENTRED_WORDS, _plane_uncentred),
 )
 
 
@@ -398,11 +447,12 @@ def _kasa(rim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c0 + sol[0] * e1 + sol[1] * e2, n
 
 
-def _refined_circle(rim_points, radius_m) -> tuple[np.ndarray, np.ndarray]:
+def _refined_circle(rim_points, radius_m, centred: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The lab's fit: the algebraic circle in the rim's plane, refined by Gauss-Newton on
-    |p - c| - r with the radius known."""
+    |p - c| - r with the radius known (``centred=False``: the rim's plane by the SVD of the
+    uncentred points, the mistake)."""
     rim = np.asarray(rim_points, dtype=float)
-    c0, n = _svd_plane(rim)
+    c0, n = _svd_plane(rim, centred)
     e1, e2 = _plane_basis(n)
     xy = np.column_stack([(rim - c0) @ e1, (rim - c0) @ e2])
     A = np.column_stack([2 * xy, np.ones(len(xy))])
@@ -426,9 +476,38 @@ def _circle_normal_away(rim_points, radius_m):
     return centre, -normal
 
 
+CENTROID_WORDS = ("the centre is the centroid of the rim points: on a partial arc their mean "
+                  "lies inside the circle, towards the arc (0.7-0.9 r from the centre on "
+                  "90-150 deg of rim); fit the circle of the known radius to them")
+DIAMETER_WORDS = ("the circle was fitted with the diameter as its radius: radius_m is half "
+                  "the ISO 9409-1 outer diameter D, the circle has |p - c| = radius_m")
+
+
+def _circle_centroid(rim_points, radius_m):
+    return _svd_plane(np.asarray(rim_points, dtype=float))
+
+
+def _circle_diameter(rim_points, radius_m):
+    return _refined_circle(rim_points, 2.0 * radius_m)
+
+
+def _circle_uncentred(rim_points, radius_m):
+    return _refined_circle(rim_points, radius_m, centred=False)
+
+
+# The algebraic fit comes before the centroid. Naming (checks) takes the first prediction an
+# answer lies within 2 % of (about 21 mm on a centre 0.4 m away with its unit normal), and on
+# 20-25 mm flanges the centroid lies within that of the algebraic centre. The algebraic fit
+# is a prediction only where it fails (one problem in five), the centroid on every problem:
+# in this order about one centroid answer in ten is named the algebraic fit (on 10 x 48
+# problems: 48 of 480), in the other most algebraic answers on small flanges would be named
+# the centroid. Only naming the nearest prediction (checks) removes the overlap.
 CIRCLE_MISTAKES = (
     CodeMistake(KASA_WORDS, _circle_unrefined),
+    CodeMistake(CENTROID_WORDS, _circle_centroid),
     CodeMistake(AWAY_WORDS, _circle_normal_away),
+    CodeMistake(DIAMETER_WORDS, _circle_diameter),
+    CodeMistake(UNCENTRED_WORDS, _circle_uncentred),
 )
 
 
@@ -482,13 +561,20 @@ RT_WORDS = ("its rotation is R^T: the cross-covariance was built the other way r
             "(base_i - c_base)^T")
 
 
-def _register(cam_centres, base_T_flanges, base_first: bool = False) -> np.ndarray:
+UNCENTRED_H_WORDS = ("the cross-covariance is built from uncentred points: H = sum (cam_i - "
+                     "c_cam)(base_i - c_base)^T, with both centroids subtracted first")
+
+
+def _register(cam_centres, base_T_flanges, base_first: bool = False,
+              centred: bool = True) -> np.ndarray:
     """base_T_cam by the SVD of the centres' cross-covariance (the lab's fit); with
-    ``base_first`` the covariance built the other way round, which gives R^T (the mistake)."""
+    ``base_first`` the covariance built the other way round, which gives R^T, with
+    ``centred=False`` built from the points as they are (the mistakes)."""
     a = np.asarray(cam_centres, dtype=float)
     b = np.asarray(base_T_flanges, dtype=float)[:, :3, 3]
     ca, cb = a.mean(axis=0), b.mean(axis=0)
-    H = (b - cb).T @ (a - ca) if base_first else (a - ca).T @ (b - cb)
+    da, db = (a - ca, b - cb) if centred else (a, b)
+    H = db.T @ da if base_first else da.T @ db
     U, _, Vt = np.linalg.svd(H)
     R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
     T = np.eye(4)
@@ -504,9 +590,14 @@ def _registration_rt(cam_centres, base_T_flanges):
     return _register(cam_centres, base_T_flanges, base_first=True)
 
 
+def _registration_uncentred(cam_centres, base_T_flanges):
+    return _register(cam_centres, base_T_flanges, centred=False)
+
+
 REGISTRATION_MISTAKES = (
     CodeMistake(INVERSE_WORDS, _registration_inverse),
     CodeMistake(RT_WORDS, _registration_rt),
+    CodeMistake(UNCENTRED_H_WORDS, _registration_uncentred),
 )
 
 
@@ -684,9 +775,11 @@ SPECS = (BACKPROJECT, FIT_PLANE_RANSAC, FIT_FLANGE_CIRCLE, BASE_T_CAM_FROM_FLANG
 # student's copy.
 ANSWERS = (_true_backproject, _trial_backproject, _backproject_with, _backproject_units,
            _backproject_fixed_scale, _backproject_uv_swapped, _backproject_k_inverted,
-           _backproject_holes_at_zero, _trial_plane, _svd_plane, _ransac_plane,
-           _plane_all_points, _plane_normal_away, _trial_circle, _kasa, _refined_circle,
-           _circle_unrefined, _circle_normal_away, _trial_registration, _register,
-           _registration_inverse, _registration_rt, _trial_rectangle, _shape_pose,
+           _backproject_holes_at_zero, _backproject_ray_length, _backproject_index_uv,
+           _trial_plane, _svd_plane, _ransac_plane, _plane_all_points, _plane_normal_away,
+           _plane_uncentred, _trial_circle, _kasa, _refined_circle, _circle_unrefined,
+           _circle_normal_away, _circle_centroid, _circle_diameter, _circle_uncentred,
+           _trial_registration, _register, _registration_inverse, _registration_rt,
+           _registration_uncentred, _trial_rectangle, _shape_pose,
            _homography_pose, _rectangle_sd, _method_sd, _rectangle_swapped,
            _rectangle_k_ignored, _rectangle_not_orthogonal, _vanishing_directions)
