@@ -359,7 +359,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     if gated:
         note(f"answered right, but {gated} edge case(s) like this count only when the answer "
              "is right on at least one ordinary problem too, and it is right on none",
-             next(t.label for t in trials if t.all_or_nothing or t.raises is not None))
+             next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
+             first=True)  # first: why right answers earned nothing, past the cap of five
     results, total = [], 0.0
     weight_sum = sum(c.weight for c in spec.checks)
     for c in spec.checks:
