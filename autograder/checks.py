@@ -149,9 +149,22 @@ class CheckResult:
     median_error: float
     tolerance: float            # the full-credit threshold on the worst problem, in ``unit``
     describe: str = ""
-    # Problems this check passed but which count as failed because another check failed on
-    # an all-or-nothing edge case (so "worst error 0 mm" beside a failure is no contradiction).
+    # Problems this check passed but which count as failed because of another check: one it
+    # ``requires`` failed there, another check failed on an all-or-nothing edge case, or the
+    # edge case counts only with an ordinary problem right (so "worst error 0 mm" beside a
+    # failure is no contradiction).
     n_voided: int = 0
+
+
+def voided_sentence(c: CheckResult, more: bool = True) -> str:
+    """Why ``c`` counts as failed on problems where it was within its tolerance (its
+    ``n_voided``), in words for the feedback; never "outside the tolerance". ``more``: the
+    sentence follows a count of problems outside the tolerance."""
+    n, s = c.n_voided, "s" if c.n_voided != 1 else ""
+    head = f"{n} more problem{s} within the tolerance but" if more else f"{n} problem{s}"
+    return (f"{head} counted as failed: another check failed there (a part of the answer "
+            "counts only when the rest is right), or it is an edge case, which counts only "
+            "when the whole answer is right on it and on an ordinary problem")
 
 
 @dataclass
@@ -185,8 +198,7 @@ class FunctionResult:
             unit = f" {c.unit}" if c.unit else ""
             worst = ("none (no usable answer on some problems)" if not math.isfinite(c.worst_error)
                      else f"{c.worst_error:.3g}{unit}")
-            voided = (f"; {c.n_voided} more within it but counted as failed: another check "
-                      "failed on that edge case" if c.n_voided else "")
+            voided = f"; {voided_sentence(c)}" if c.n_voided else ""
             lines.append(f"  [{status}] {c.name}: {c.n_full}/{c.n_trials} problems within "
                          f"{c.tolerance:.3g}{unit}; worst error {worst}{voided}"
                          + (f"  ({c.describe})" if c.describe and c.credit < 1 and not voided
@@ -294,10 +306,19 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem."""
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
-    per_check = {c.name: [] for c in spec.checks}
     errors: list[str] = []
     counts: dict[str, int] = {}
-    n_failed = 0
+
+    def note(message: str, label: str, first: bool = False) -> None:
+        line = f"on a {label} problem: {message}"
+        if line not in errors:
+            errors.insert(0, line) if first else errors.append(line)
+        # capped: a submission can make every message distinct
+        if message in counts or len(counts) < 20:
+            counts[message] = counts.get(message, 0) + 1
+
+    # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
+    table = []
     for trial, outcome in zip(trials, outcomes):
         measured = None
         message = outcome.error
@@ -309,29 +330,37 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         elif outcome.error is None:
             measured, message = _measured(spec, outcome.value, trial)
         if message is not None:
-            if f"on a {trial.label} problem: {message}" not in errors:
-                errors.append(f"on a {trial.label} problem: {message}")
-            # capped: a submission can make every message distinct
-            if message in counts or len(counts) < 20:
-                counts[message] = counts.get(message, 0) + 1
-        rows = {}
-        for c in spec.checks:
-            err = math.inf if measured is None else measured[c.name]
-            rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]), False)
-        if trial.all_or_nothing and min(r[2] for r in rows.values()) < 1.0:
-            rows = {k: (r[0], r[1], 0.0, r[2] >= 1.0) for k, r in rows.items()}
+            note(message, trial.label)
+        table.append((measured, _problem_rows(spec, trial, measured)))
+    # An edge case (all-or-nothing, or a degenerate input that must raise) earns credit only
+    # when the method is right on at least one ordinary problem: the identity for a zero
+    # rotation, a one-pose chain echoed back, or a ValueError raised on every input is no
+    # method (see Trial.all_or_nothing).
+    ordinary = [rows for t, (_, rows) in zip(trials, table)
+                if not (t.all_or_nothing or t.raises is not None)]
+    method_right = any(rows and min(r[2] for r in rows.values()) >= 1.0 for rows in ordinary)
+    per_check = {c.name: [] for c in spec.checks}
+    n_failed = 0
+    gated = 0
+    for trial, outcome, (measured, rows) in zip(trials, outcomes, table):
+        edge = trial.all_or_nothing or trial.raises is not None
+        if edge and ordinary and not method_right and rows \
+                and min(r[2] for r in rows.values()) > 0.0:
+            rows = {k: (r[0], r[1], 0.0, r[3] or r[2] >= 1.0) for k, r in rows.items()}
+            gated += 1
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
         hint = _mistake_hint(spec, outcome.value, trial) if failed and measured is not None \
             and trial.raises is None else None
         if hint is not None:
-            message = f"this answer looks like a classic mistake: {hint}"
-            if f"on a {trial.label} problem: {message}" not in errors:
-                errors.insert(0, f"on a {trial.label} problem: {message}")
-            if message in counts or len(counts) < 20:
-                counts[message] = counts.get(message, 0) + 1
+            note(f"this answer looks like a classic mistake: {hint}", trial.label, first=True)
         for name, row in rows.items():
             per_check[name].append(row)
+    if gated:
+        note(f"answered right, but {gated} edge case(s) like this count only when the answer "
+             "is right on at least one ordinary problem too, and it is right on none",
+             next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
+             first=True)  # first: why right answers earned nothing, past the cap of five
     results, total = [], 0.0
     weight_sum = sum(c.weight for c in spec.checks)
     for c in spec.checks:
@@ -356,6 +385,25 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts)
 
 
+def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:
+    """{check: (error, tol, credit, voided)} of one problem: each check's band credit, then
+    a check whose ``requires`` earned nothing voided, then, on an all-or-nothing problem,
+    every check voided unless all are fully right. ``voided``: the check was within its
+    tolerance but counts as failed because of another check."""
+    rows = {}
+    for c in spec.checks:
+        err = math.inf if measured is None else measured[c.name]
+        rows[c.name] = (err, trial.tol[c.name], c.credit(err, trial.tol[c.name]), False)
+    raw = dict(rows)
+    for c in spec.checks:
+        if any(raw[name][2] <= 0.0 for name in c.requires):
+            err, tol, credit, _ = rows[c.name]
+            rows[c.name] = (err, tol, 0.0, credit >= 1.0)
+    if trial.all_or_nothing and rows and min(r[2] for r in rows.values()) < 1.0:
+        rows = {k: (r[0], r[1], 0.0, r[3] or r[2] >= 1.0) for k, r in rows.items()}
+    return rows
+
+
 def _measured(spec: FunctionSpec, value, trial: Trial) -> tuple[dict | None, str | None]:
     """({check: error as a float}, None) for the answer ``value`` to ``trial``, or (None,
     why it cannot be measured). Never raises: the value is the student's, and whatever it
@@ -373,26 +421,94 @@ def _measured(spec: FunctionSpec, value, trial: Trial) -> tuple[dict | None, str
 
 
 def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
-    """The spec's own mistakes of this problem (precomputed with practice data), then
-    :func:`autograder.mistakes.diagnose` on the answer (or on the first parts of a pair).
-    None when nothing matches, or when comparing cannot be done on a value this odd."""
+    """The name of the one classic mistake ``value`` is clearly nearest to on ``trial`` (the
+    spec's code mistakes, precomputed with practice data, and the truth's classic transforms
+    of :mod:`autograder.mistakes`), or None. None when nothing is near, when two are about as
+    near, or when comparing cannot be done on a value this odd."""
     try:
         return _matching_mistake(spec, value, trial)
     except Exception:  # noqa: BLE001 - a hint is a courtesy: no hint, never a failed grade
         return None
 
 
+def _answer_truth(trial: Trial, value):
+    """The part of ``trial.truth`` an answer is compared with: the truth itself, or its first
+    part when the truth carries what the measure needs beside it (fit_rigid's (pose, points))
+    and the answer is no pair."""
+    truth = trial.truth
+    if isinstance(truth, (tuple, list)) and truth and not isinstance(value, (tuple, list)):
+        return truth[0]
+    return truth
+
+
+def _as_truth(trial: Trial, answer):
+    """``answer`` in the form of ``trial.truth``, so the spec's measure can take it as one."""
+    truth = trial.truth
+    if isinstance(truth, (tuple, list)) and truth and not isinstance(answer, (tuple, list)):
+        return (answer, *truth[1:])
+    return answer
+
+
+def _noise_distance(spec: FunctionSpec, trial: Trial):
+    """distance(a, b): answer ``a`` measured against ``b`` taken as the truth, by the spec's
+    own measure, each check's error over its tolerance times its widest credited band (so 1
+    is the edge of "within the noise", the scale the problem's own noise sets), the largest
+    over the checks. A closed loop's measured errors (a dict), or answers the measure cannot
+    take as a truth or measure at all, are compared entry by entry relative to their size (2 %,
+    as :func:`autograder.mistakes.matches`) or to the check's tolerance, whichever is larger."""
+    reach = {c.name: c.reach * trial.tol[c.name] for c in spec.checks}
+
+    def relative(a, b) -> float:
+        if isinstance(a, dict) or isinstance(b, dict):
+            if not (isinstance(a, dict) and isinstance(b, dict)) or a.keys() != b.keys():
+                return math.inf
+            return max((relative(a[k], b[k]) if k not in reach else
+                        abs(float(a[k]) - float(b[k]))
+                        / max(reach[k], 0.02 * abs(float(b[k])), 1e-300)
+                        for k in a), default=0.0)
+        if not mistakes.matches_shape(a, b):
+            return math.inf
+        x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        holes = np.isnan(y)
+        if not np.array_equal(np.isnan(x), holes):
+            return math.inf
+        x, y = np.where(holes, 0.0, x), np.where(holes, 0.0, y)
+        return float(np.linalg.norm(x - y)) / (0.02 * float(np.linalg.norm(y)) + 1e-6)
+
+    def distance(a, b) -> float:
+        if spec.drive is not None:
+            return relative(a, b)
+        try:
+            with np.errstate(all="ignore"):
+                measured = spec.measure(a, Trial(args=trial.args, truth=_as_truth(trial, b),
+                                                 tol=trial.tol, label=trial.label))
+            d = max(float(measured[name]) / scale if scale > 0 else
+                    (0.0 if float(measured[name]) == 0 else math.inf)
+                    for name, scale in reach.items())
+        except Exception:  # noqa: BLE001 - b is no truth the measure takes: compare as arrays
+            return relative(a, b)
+        # inf: the measure has no number for ``a`` (a rotation block that is no rotation, as a
+        # frame whose y axis was copied), whatever it is compared with: compare as arrays
+        return d if math.isfinite(d) else relative(a, b)
+
+    return distance
+
+
 def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> str | None:
     predicted_mistakes = trial.mistakes if trial.mistakes is not None else \
         mistake_answers(spec, trial)
-    for words, predicted in predicted_mistakes:
-        if mistakes.matches(value, predicted):
-            return words
-    truth = trial.truth
-    hint = mistakes.diagnose(value, truth)
-    if hint is None and isinstance(value, (tuple, list)) and isinstance(truth, (tuple, list)) \
-            and value and truth:
-        hint = mistakes.diagnose(value[0], truth[0])
+    if spec.drive is not None:
+        # the closed loop's measured errors; the truth's are none at all
+        truth, others = {c.name: 0.0 for c in spec.checks}, []
+        transforms = []
+    else:
+        truth = _answer_truth(trial, value)
+        others = [(None, t) for t in mistakes.trivial_answers(truth)]
+        transforms = mistakes.candidates(truth)
+    listed = [(None, truth), *others, *predicted_mistakes, *transforms]
+    hint = mistakes.nearest(value, listed, _noise_distance(spec, trial))
+    if hint is None and spec.drive is None:
+        hint = mistakes.mirrored(value, truth)
     return hint
 
 
@@ -559,7 +675,9 @@ def _html_report(result: FunctionResult) -> str:
         unit = f" {c.unit}" if c.unit else ""
         verdict = "passed" if c.credit >= 1 else ("partly" if c.credit > 0 else "failed")
         worst = f"{c.worst_error:.3g}{unit}" if math.isfinite(c.worst_error) else "no answer"
-        hint = c.describe if c.credit < 1 else ""
+        hint = "" if c.credit >= 1 else (
+            voided_sentence(c, more=False) if c.n_voided and c.n_full + c.n_voided == c.n_trials
+            else c.describe)
         rows.append(f"<tr><td>{esc(c.name)}</td><td>{verdict}</td>"
                     f"<td>{c.n_full}/{c.n_trials}</td><td>{esc(worst)}</td>"
                     f"<td>{c.tolerance:.3g}{esc(unit)}</td><td>{esc(hint)}</td></tr>")

@@ -19,7 +19,7 @@ import math
 import re
 from collections import Counter
 
-from autograder.checks import CheckResult, FunctionResult
+from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
 
@@ -203,9 +203,17 @@ def _check_sentence(c: CheckResult) -> str:
     worst = (f"worst error {c.worst_error:.3g}{unit} against a tolerance of "
              f"{c.tolerance:.3g}{unit}" if math.isfinite(c.worst_error)
              else "no usable answer on some problems")
-    text = (f"{c.name}: {label}, outside the tolerance on {c.n_trials - c.n_full} of "
-            f"{c.n_trials} problems; {worst}"
-            + (f"; this check measures {c.describe}" if c.describe else ""))
+    outside = c.n_trials - c.n_full - c.n_voided
+    if outside > 0:
+        text = (f"{c.name}: {label}, outside the tolerance on {outside} of {c.n_trials} "
+                f"problems; {worst}" + (f"; {voided_sentence(c)}" if c.n_voided else "")
+                + (f"; this check measures {c.describe}" if c.describe else ""))
+    else:
+        # Within its tolerance everywhere: what failed is another check, so neither "outside
+        # the tolerance" nor what this check measures is the story.
+        text = (f"{c.name}: {label}, within the tolerance on every problem (worst error "
+                f"{_number(c.worst_error, c.unit)}, tolerance {_number(c.tolerance, c.unit)}), "
+                f"but {voided_sentence(c, more=False)}")
     return _esc(text, 600)
 
 

@@ -7,6 +7,14 @@ millimetres for metres, degrees for radians, a mirrored fit, a flipped sign) and
 hint for the one that matches, or None. It only ever looks at an answer that already failed,
 so a hint never changes a score.
 
+The grader names a mistake by :func:`nearest`: the answer's distance to every candidate (each
+code mistake's answer on the problem, each of :func:`candidates`' transforms of the truth),
+and to what is no mistake (the truth itself, the trivial answers of :func:`trivial_answers`),
+on the scale of the problem's own tolerance (``autograder.checks``). A mistake is named only
+when its answer is within the noise of the student's and clearly nearer than every other
+candidate; an answer between two candidates, or nearer the truth or a trivial answer, gets
+no name, and never two.
+
 Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix, metres.
 """
 
@@ -15,10 +23,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
 
-__all__ = ["diagnose", "matches"]
+__all__ = ["candidates", "diagnose", "matches", "matches_shape", "mirrored", "nearest",
+           "trivial_answers"]
 
 # An answer "is" a mistake's prediction when it lies within this fraction of the
 # prediction's own size (plus a floor for near-zero truths): loose enough for noisy
@@ -90,6 +100,32 @@ def _array_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
     return None
 
 
+def matches_shape(value, predicted) -> bool:
+    """True when both are numeric arrays of one shape with no inf (NaN allowed)."""
+    try:
+        v = np.asarray(value, dtype=float)
+        p = np.asarray(predicted, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return v.shape == p.shape and not (np.isinf(v).any() or np.isinf(p).any())
+
+
+def mirrored(value, truth) -> str | None:
+    """The mirror-image hint when ``value`` is a (4, 4) pose whose rotation block is
+    orthonormal with determinant -1 (no rotation: an SVD fit without the reflection fix),
+    the truth a pose; else None."""
+    try:
+        v, t = np.asarray(value, dtype=float), np.asarray(truth, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if v.shape != (4, 4) or not _is_pose(t) or not np.all(np.isfinite(v)):
+        return None
+    R = v[:3, :3]
+    if np.linalg.det(R) < 0 and np.allclose(R.T @ R, np.eye(3), atol=1e-3):
+        return _MIRRORED
+    return None
+
+
 def matches(value, predicted) -> bool:
     """True when ``value`` is, within a few per cent, the answer a mistake predicts.
 
@@ -130,3 +166,104 @@ def diagnose(value, truth) -> str | None:
     if t.shape == (4, 4) and np.allclose(t[3], [0, 0, 0, 1]):
         return _pose_mistake(v, t)
     return _array_mistake(v, t)
+
+
+# --------------------------------------------------------------------------- nearest candidate
+
+# "Clearly nearer": the named candidate's distance is at most this fraction of the runner-up's.
+MARGIN = 0.5
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _is_pose(t: np.ndarray) -> bool:
+    return t.shape == (4, 4) and bool(np.allclose(t[3], [0, 0, 0, 1]))
+
+
+def candidates(truth) -> list[tuple[str, np.ndarray]]:
+    """[(hint, the answer that mistake gives)] for the classic mistakes :func:`diagnose`
+    knows, made on ``truth``: for a (4, 4) pose ``a_T_b`` (metres) the inverse, the
+    transposed rotation, the translation in mm or a thousandth, the rotation angle scaled
+    by 180/pi or pi/180; for any other numeric array x1000, /1000, degrees, radians, the
+    opposite sign and (square) the transpose. [] for anything else (a pair, a dict)."""
+    try:
+        t = np.asarray(truth, dtype=float)
+    except (TypeError, ValueError):
+        return []
+    if t.size == 0 or not np.all(np.isfinite(t)):
+        return []
+    if _is_pose(t):
+        R, p = t[:3, :3], t[:3, 3]
+        out = [(_INVERSE, _pose(R.T, -R.T @ p)), (_TRANSPOSED, _pose(R.T, p)),
+               (_MILLIMETRES, _pose(R, 1000.0 * p)), (_METRES, _pose(R, p / 1000.0))]
+        # scipy, not robots.geometry: a rotation vector scaled by 180/pi is the mistake here,
+        # not a reason to warn
+        rotvec = Rotation.from_matrix(geo.project_to_so3(R)).as_rotvec()
+        for factor in (math.pi / 180.0, 180.0 / math.pi):
+            out.append((_DEGREES, _pose(Rotation.from_rotvec(rotvec * factor).as_matrix(), p)))
+        return out
+    out = [("it is 1000 times too large: millimetres where metres were asked", 1000.0 * t),
+           ("it is 1000 times too small: metres where millimetres were asked", t / 1000.0),
+           ("it is in degrees where radians were asked", t * 180.0 / math.pi),
+           ("it is in radians where degrees were asked", t * math.pi / 180.0),
+           ("it has the opposite sign of the expected answer (check the direction or the "
+            "order)", -t)]
+    if t.ndim == 2 and t.shape[0] == t.shape[1]:
+        out.append(("it is the transpose of the expected matrix", t.T))
+    return out
+
+
+def trivial_answers(truth) -> list[np.ndarray]:
+    """Answers of ``truth``'s shape that compute nothing (zeros; for a pose the identity):
+    an answer nearest one of them is given no mistake's name."""
+    try:
+        t = np.asarray(truth, dtype=float)
+    except (TypeError, ValueError):
+        return []
+    if t.size == 0:
+        return []
+    return [np.eye(4)] if _is_pose(t) else [np.zeros(t.shape)]
+
+
+# Two candidates this close (in units of the noise) are one answer: rounding apart, as the
+# inverse of a fit and the fit with src and dst swapped.
+SAME = 1e-6
+
+
+def nearest(value, candidates, distance, within: float = 1.0,
+            margin: float = MARGIN, same: float = SAME) -> str | None:
+    """The label of the one candidate ``value`` is clearly nearest to, or None.
+
+    ``candidates`` are ``[(label, answer)]`` in order of precedence, ``label`` None for an
+    answer that is no mistake (the truth, a trivial answer). ``distance(a, b)`` measures
+    answer ``a`` against ``b`` taken as the truth, in units of the noise: at most
+    ``within`` is within it. A candidate ``same`` close to an earlier one is the same answer
+    on this problem and the earlier one speaks for it (a mistake that gives the truth or
+    zeros here is never named). The nearest is named when it has a label, lies within the
+    noise and is at most ``margin`` times as far as the runner-up; otherwise, e.g. an answer
+    between two mistakes' answers or one nearer the truth, nothing is named. Never raises
+    for a ``distance`` that does: that pair is taken as far apart."""
+    def far(a, b) -> float:
+        try:
+            d = float(distance(a, b))
+        except Exception:  # noqa: BLE001 - a value a measure cannot take is far from it
+            return math.inf
+        return d if math.isfinite(d) and d >= 0 else math.inf
+
+    kept: list[tuple[str | None, object]] = []
+    for label, answer in candidates:
+        if not any(far(answer, other) <= same for _, other in kept):
+            kept.append((label, answer))
+    if not kept:
+        return None
+    ranked = sorted((far(value, answer), i) for i, (_, answer) in enumerate(kept))
+    best, index = ranked[0]
+    label = kept[index][0]
+    runner_up = ranked[1][0] if len(ranked) > 1 else math.inf
+    if label is None or best > within or best > margin * runner_up:
+        return None
+    return label

@@ -32,6 +32,16 @@ class Check:
 
     ``bands`` are ``(multiple_of_tolerance, credit)`` pairs, tightest first: an error within
     ``multiple * tol`` earns ``credit``. ``unit`` names the error's unit for feedback.
+
+    ``requires`` names other checks of the same function that must earn some credit (any
+    band) on a problem for this one to earn any there: a part of the answer that a trivial
+    rule gets right on its own (a pose's translation copied from an input while its rotation
+    is the identity, a centre without its normal) is worth nothing unless the rest of the
+    answer is right. Its credit is then voided on that problem (``CheckResult.n_voided``),
+    and the feedback says the check was within its tolerance but another one failed.
+    ``describe`` says what the check measures, in words that hold whatever the mistake was:
+    it is shown beside every failure of the check, so it must never point one way (a
+    stacking error is not "the sign of the gain").
     """
 
     name: str
@@ -39,6 +49,7 @@ class Check:
     weight: float
     bands: tuple[tuple[float, float], ...]
     describe: str = ""
+    requires: tuple[str, ...] = ()
 
     def credit(self, error: float, tol: float) -> float:
         if not math.isfinite(error):
@@ -47,6 +58,12 @@ class Check:
             if error <= multiple * tol:
                 return credit
         return 0.0
+
+    @property
+    def reach(self) -> float:
+        """The widest multiple of the tolerance that still earns credit: the scale of "within
+        the noise" when an answer is compared with a mistake's (autograder.mistakes)."""
+        return max((m for m, credit in self.bands if credit > 0), default=1.0)
 
 
 @dataclass
@@ -58,11 +75,16 @@ class Trial:
     tol: dict[str, float]
     label: str = ""
     # Edge cases earn credit only when the whole answer is right, so a trivial output (the
-    # identity for a zero rotation) cannot collect partial credit on them.
+    # identity for a zero rotation) cannot collect partial credit on them; and only when the
+    # same function is fully right on at least one ordinary problem of the run (neither
+    # all_or_nothing nor ``raises``), so the identity for a zero rotation, the one pose of a
+    # one-pose chain echoed back or a ValueError raised on every input earns nothing there
+    # unless the method itself works (autograder.checks.score_function).
     all_or_nothing: bool = False
     # A degenerate problem (collinear points, too few of them): the right answer is raising
-    # this exception (by class name, e.g. "ValueError"), which earns full credit; a returned
-    # value earns none, whatever it is.
+    # this exception (by class name, e.g. "ValueError"), which earns full credit (an edge
+    # case: only when an ordinary problem is right, as above); a returned value earns none,
+    # whatever it is.
     raises: str | None = None
     # Precomputed by the private side for practice data (autograder.practice), where the
     # spec's ``code_mistakes`` and ``substitutes`` are not shipped: this problem's
@@ -210,7 +232,8 @@ EXACT_BANDS = ((1.0, 1.0), (1e3, 0.5))
 def pose_checks(what: str) -> tuple[Check, ...]:
     return (
         Check("rotation", "deg", 0.5, EXACT_BANDS, f"the rotation block of {what}"),
-        Check("translation", "mm", 0.5, EXACT_BANDS, f"the translation column of {what}"),
+        Check("translation", "mm", 0.5, EXACT_BANDS, f"the translation column of {what}",
+              requires=("rotation",)),
     )
 
 

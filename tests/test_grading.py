@@ -82,8 +82,9 @@ def test_wrong_methods_get_partial_or_zero_with_reasons():
     assert result.fraction == 0.5 and result.failed_checks == ["translation"]
     assert checks.evaluate(lambda T: np.eye(4), "invert_pose").points == 0
     backwards = _reference("compose_chain")
-    assert checks.evaluate(lambda p: backwards(p[::-1]), "compose_chain").fraction == \
-        pytest.approx(1 / 3)
+    # reversed order is right only on one-pose chains, an edge case that counts only when a
+    # longer chain is right too
+    assert checks.evaluate(lambda p: backwards(p[::-1]), "compose_chain").points == 0
     # float32 arithmetic lands in the half-credit band, not full marks
     invert = _reference("invert_pose")
     single = checks.evaluate(lambda T: invert(T).astype(np.float32), "invert_pose")
@@ -588,7 +589,8 @@ def test_a_check_voided_by_an_edge_case_says_so_instead_of_reading_as_a_contradi
     result = checks.score_function(spec, trials, [wrong_translation(t) for t in trials])
     rotation = next(c for c in result.checks if c.name == "rotation")
     assert rotation.n_voided == len(trials) and rotation.worst_error < 1e-9
-    assert "counted as failed: another check failed on that edge case" in result.summary()
+    assert "within the tolerance but counted as failed: another check failed there" \
+        in result.summary()
 
 
 def test_check_shows_a_table_in_jupyter_and_returns_nothing():

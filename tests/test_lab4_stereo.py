@@ -153,10 +153,10 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     assert set(grades) == {"ref", "blank", "wrong"}
     assert grades["ref"]["score"] == MAX_SCORE and grades["ref"]["max_score"] == MAX_SCORE
     assert grades["blank"]["score"] == 0.0
-    # frame: translation right, rotation 180 deg off (the translation's 0.1 of 3 points:
-    # the rotation is what the function teaches); reproject 0 of 3; hand_to_eye is scored
+    # frame: translation right, rotation 180 deg off (0 of 3: the translation counts only
+    # with the rotation right, Check.requires); reproject 0 of 3; hand_to_eye is scored
     # with the true frames (2); per_axis_rmse untouched (2)
-    assert grades["wrong"]["score"] == pytest.approx(4.3)
+    assert grades["wrong"]["score"] == pytest.approx(4.0)
     assert grades["ref"]["flags"] == "", grades["ref"]
     # only nbgrader's missing cross-check (not run on them), nothing suspicious
     assert all(not f.startswith("suspicious") for s in grades for f in grades[s]["flags"].split(";"))

@@ -3,8 +3,10 @@
 Noise-free problems, scored with the float64-rounding tolerances of ``EXACT_TOL``. Each
 function gets three times the problems of one practice seed, as many as ``check()`` shows
 over its three seeds. ``pose_from_rotvec`` puts 0.9 of its credit on the rotation
-(Rodrigues' formula, what it teaches) and 0.1 on the translation (copying ``t``): an identity
-rotation with the translation copied earns a tenth, not half.
+(Rodrigues' formula, what it teaches) and 0.1 on the translation (copying ``t``), which
+counts only with the rotation right (``Check.requires``): an identity rotation with the
+translation copied earns nothing, and its right answers to the zero and tiny rotations
+(all-or-nothing edge cases) count only when some ordinary rotation is right too.
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ POSE_FROM_ROTVEC = FunctionSpec(
     checks=(
         Check("rotation", "deg", 0.9, EXACT_BANDS,
               "the rotation block: Rodrigues' formula, including a zero rotation vector"),
-        Check("translation", "mm", 0.1, EXACT_BANDS, "the translation column: t itself"),
+        Check("translation", "mm", 0.1, EXACT_BANDS, "the translation column: t itself",
+              requires=("rotation",)),
     ),
     signature="pose_from_rotvec(rvec: (3,), t: (3,)) -> (4, 4)",
     parameters="rvec, t",

@@ -181,13 +181,18 @@ IBVS_VELOCITY = FunctionSpec(
     name="ibvs_velocity", points=4.0, n_trials=6, practice_trials=2, make_trial=None,
     measure=_measure_ibvs, drive=_drive_ibvs,
     checks=(
+        # Neutral words: a law that diverges may have a flipped gain, a stacked error vector,
+        # an angular velocity in deg/s or (w, v) for (v, w); the named mistake, if one
+        # matches, is in the feedback's errors (autograder.mistakes).
         Check("position", "mm", 0.35, ((1.0, 1.0), (10.0, 0.5)),
               f"camera position error to the goal after {SERVO_ITERATIONS} periods of "
-              f"{SERVO_DT} s (does the law converge? check the sign of the gain)"),
+              f"{SERVO_DT} s: does the law converge from the start?"),
         Check("rotation", "deg", 0.35, ((1.0, 1.0), (10.0, 0.5)),
               "camera rotation error to the goal at the end of the closed loop"),
         Check("velocity", "", 0.3, ((1.0, 1.0),),
-              "relative error of the first twist against v = -gain pinv(L) (s - s*)"),
+              "relative error of the first twist against v = -gain pinv(L) (s - s*), with "
+              "(s - s*) in L's row order (x1, y1, x2, y2, ...) and the twist (vx, vy, vz, "
+              "wx, wy, wz) in m/s and rad/s"),
     ),
     signature="ibvs_velocity(s: (n, 2), s_star: (n, 2), Z: (n,), gain: float) -> v (6,)",
     parameters="s, s_star, Z, gain",
@@ -209,8 +214,9 @@ PIECE_POSITION = FunctionSpec(
     measure=_measure_piece,
     checks=(
         Check("position", "mm", 1.0, ((1.0, 1.0), (3.0, 0.5)),
-              "distance to the true surface point at the pixel (a depth hole there needs the "
-              "median of the valid neighbours; X = (u - cx) Z / fx)"),
+              "distance to the true surface point at the pixel: Z from the median of the "
+              "valid depths around depth[v, u] (holes are NaN), then X = (u - cx) Z / fx, "
+              "Y = (v - cy) Z / fy (Z is the depth, not the distance along the ray)"),
     ),
     signature="piece_position(depth: (H, W) metres, uv: (2,) px, K: (3, 3)) -> p_cam (3,)",
     parameters="depth, uv, K",

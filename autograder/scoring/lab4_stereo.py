@@ -2,7 +2,8 @@
 
 * ``frame_from_three_points``: the returned pose against the true frame, with the
   float64-rounding tolerances of lab 0; 0.9 of its credit on the rotation (the cross
-  products, what it teaches) and 0.1 on the translation (``p_origin`` copied);
+  products, what it teaches) and 0.1 on the translation (``p_origin`` copied), which counts
+  only with the rotation right (``Check.requires``: a copied origin alone earns nothing);
 * ``reproject``: distance (mm) to the true point, within a tolerance that float32 arithmetic
   (correct code) meets, per problem;
 * ``hand_to_eye_from_three_points``: the RMS distance between the returned map and the true
@@ -39,7 +40,8 @@ FRAME_FROM_THREE_POINTS = FunctionSpec(
         Check("rotation", "deg", 0.9, EXACT_BANDS,
               "x = unit(p_x - o), z = unit(x cross (p_xy - o)), y = z cross x: right-handed, "
               "with p_xy on the +y side"),
-        Check("translation", "mm", 0.1, EXACT_BANDS, "the origin: p_origin itself"),
+        Check("translation", "mm", 0.1, EXACT_BANDS, "the origin: p_origin itself",
+              requires=("rotation",)),
     ),
     signature="frame_from_three_points(p_origin (3,), p_x (3,), p_xy (3,)) -> parent_T_frame",
     parameters="p_origin, p_x, p_xy",

@@ -190,6 +190,17 @@ def _fit_transposed(src, dst):
     return T
 
 
+def _fit_uncentred(src, dst):
+    # H = sum src_i dst_i^T of the raw points: step 1 of the lab (centre both sets) left out,
+    # so H mixes the centroids' offset into the rotation; t still maps centroid to centroid
+    src, dst = np.asarray(src, dtype=float), np.asarray(dst, dtype=float)
+    if len(src) < 3:
+        raise ValueError("fewer than 3 points")
+    U, _, Vt = np.linalg.svd(src.T @ dst)
+    R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    return _pose(R, dst.mean(axis=0) - R @ src.mean(axis=0))
+
+
 def _fit_translation_mm(src, dst):
     T = _kabsch(src, dst)
     T[:3, 3] *= 1000.0
@@ -245,6 +256,9 @@ FIT_MISTAKES = (
                 "the rotation is V U^T", _fit_transposed),
     CodeMistake("its translation is in millimetres: the course works in metres (divide by "
                 "1000; the points are in metres already)", _fit_translation_mm),
+    CodeMistake("the cross-covariance is of the raw points, not the centred ones: subtract "
+                "each set's centroid before H = sum (src_i - c_src)(dst_i - c_dst)^T",
+                _fit_uncentred),
 )
 RESIDUAL_MISTAKES = (
     CodeMistake("these are squared distances: the residual is the distance |R src_i + t - "
@@ -285,6 +299,6 @@ SPECS = (FIT_RIGID, PER_POINT_RESIDUALS, PER_AXIS_RMSE)
 ANSWERS = (_true_residuals, _true_point_residuals, _true_axis_rmse, _degenerate_fit,
            _trial_fit_rigid, _trial_point_residuals, _trial_axis_rmse, _kabsch,
            _fit_no_reflection_fix, _fit_no_degenerate_check, _fit_inverse, _fit_swapped,
-           _fit_transposed, _fit_translation_mm, _residuals_squared, _residuals_inverse_pose,
+           _fit_transposed, _fit_translation_mm, _fit_uncentred, _residuals_squared, _residuals_inverse_pose,
            _residuals_transposed, _residuals_mm, _rmse_dst_axes, _rmse_r_not_transposed,
            _rmse_no_sqrt, _rmse_one_for_all_axes)

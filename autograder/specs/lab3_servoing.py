@@ -133,12 +133,16 @@ def _trial_piece(rng, index: int) -> Trial:
     n = Rotation.from_rotvec(np.radians(15) * rng.uniform(-1, 1, 3) * [1, 1, 0]).apply([0, 0, -1])
     c = np.array([0.0, 0.0, rng.uniform(0.2, 0.5)])
     # A pawn-like round top: a sphere of radius 9 mm whose centre is 25 mm above the board,
-    # somewhere in the middle of the image.
+    # its top seen 0.2 to 0.3 (normalised) off the optical axis, as a piece away from the
+    # image centre is. There the ray is 2 to 4.4 % longer than Z: a depth taken as the
+    # distance along the ray (the mistake the lab's text warns of) is off by 3.3 mm or more,
+    # beyond the tolerance; nearer the centre it hid within it on 4 draws of 30.
     r = 0.009
-    foot = c + np.array([*rng.uniform(-0.04, 0.04, 2), 0.0])
-    foot -= ((foot - c) @ n) * n
-    centre = foot + 0.025 * n
-    top = centre + r * n
+    height = 0.025 + r
+    rho, phi = rng.uniform(0.2, 0.3), rng.uniform(0.0, 2.0 * np.pi)
+    ray_top = np.array([rho * np.cos(phi), rho * np.sin(phi), 1.0])
+    top = ray_top * (height + c @ n) / (ray_top @ n)  # on that ray, `height` above the plane
+    centre = top - r * n
     uu, vv = np.meshgrid(np.arange(w), np.arange(h))
     rays = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu, float)], axis=-1)
     z_plane = (c @ n) / (rays @ n)
@@ -193,6 +197,13 @@ def _interaction_no_depth(x, y, Z):
     return _true_interaction(x, np.asarray(y, float), np.ones_like(np.asarray(Z, float)))
 
 
+def _interaction_z_for_inverse(x, y, Z):
+    # -Z and x Z, y Z where -1/Z and x/Z, y/Z belong: the translation columns multiply by
+    # the depth instead of dividing by it
+    return _true_interaction(np.asarray(x, float), np.asarray(y, float),
+                             1.0 / np.asarray(Z, float))
+
+
 def _ibvs_lstsq(s, s_star, Z, gain):
     s, s_star = np.asarray(s, float), np.asarray(s_star, float)
     L = _true_interaction(s[:, 0], s[:, 1], np.asarray(Z, float))
@@ -211,6 +222,32 @@ def _ibvs_transpose(s, s_star, Z, gain):
 
 def _ibvs_no_gain(s, s_star, Z, gain):
     return _ibvs_lstsq(s, s_star, Z, 1.0)
+
+
+def _ibvs_error_stacked(s, s_star, Z, gain):
+    # e = (x1..xn, y1..yn) against L's rows in pairs (x1, y1, x2, y2, ...)
+    s, s_star = np.asarray(s, float), np.asarray(s_star, float)
+    L = _true_interaction(s[:, 0], s[:, 1], np.asarray(Z, float))
+    return -gain * np.linalg.pinv(L) @ (s - s_star).T.reshape(-1)
+
+
+def _ibvs_desired_l(s, s_star, Z, gain):
+    # L built at the desired features s* (with the current depths), not the current ones
+    s, s_star = np.asarray(s, float), np.asarray(s_star, float)
+    L = _true_interaction(s_star[:, 0], s_star[:, 1], np.asarray(Z, float))
+    return -gain * np.linalg.pinv(L) @ (s - s_star).reshape(-1)
+
+
+def _ibvs_degrees(s, s_star, Z, gain):
+    v = _reference_ibvs(np.asarray(s, float), np.asarray(s_star, float), np.asarray(Z, float),
+                        gain)
+    return np.concatenate([v[:3], np.degrees(v[3:])])
+
+
+def _ibvs_w_first(s, s_star, Z, gain):
+    v = _reference_ibvs(np.asarray(s, float), np.asarray(s_star, float), np.asarray(Z, float),
+                        gain)
+    return np.concatenate([v[3:], v[:3]])
 
 
 def _window_median_position(depth, uv, K):
@@ -239,6 +276,23 @@ def _piece_mm(depth, uv, K):
     return _window_median_position(depth, uv, K) * 1000.0
 
 
+def _piece_ray_length(depth, uv, K):
+    # the depth taken as the distance along the ray: p = d * ray / |ray|
+    p = _window_median_position(depth, uv, K)
+    return p * p[2] / np.linalg.norm(p)
+
+
+def _piece_rows_columns(depth, uv, K):
+    # the window read at depth[u, v] (u as the row); the back-projection keeps (u, v)
+    u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
+    window = depth[max(u - 2, 0):u + 3, max(v - 2, 0):v + 3]
+    valid = window[np.isfinite(window) & (window > 0)]
+    if valid.size == 0:
+        raise ValueError(f"no depth measurement within 2 px of pixel ({v}, {u})")
+    Z = float(np.median(valid))
+    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+
+
 INTERACTION_MISTAKES = (
     CodeMistake("its rows are stacked x1..xn, then y1..yn: the rows go in pairs, point by point "
                 "(x1, y1, x2, y2, ...)", _interaction_stacked),
@@ -246,6 +300,8 @@ INTERACTION_MISTAKES = (
                 "[-1/Z, 0, x/Z, x y, -(1 + x^2), y]", _interaction_rotation_sign),
     CodeMistake("the depth is ignored (Z = 1): the translation columns divide by each point's "
                 "own depth Z", _interaction_no_depth),
+    CodeMistake("Z is used where 1/Z belongs: the translation columns are -1/Z, x/Z and y/Z "
+                "(a near point moves more), not -Z, x Z, y Z", _interaction_z_for_inverse),
 )
 IBVS_MISTAKES = (
     CodeMistake("the gain's sign is flipped: v = -gain pinv(L) (s - s*) drives the features "
@@ -253,6 +309,14 @@ IBVS_MISTAKES = (
     CodeMistake("L^T is used for pinv(L): the law is v = -gain pinv(L) (s - s*)",
                 _ibvs_transpose),
     CodeMistake("the gain is ignored: multiply the twist by -gain", _ibvs_no_gain),
+    CodeMistake("the error vector is stacked x1..xn, y1..yn: L's rows go in pairs, point by "
+                "point, so e = (s - s*).reshape(-1) = (x1, y1, x2, y2, ...)", _ibvs_error_stacked),
+    CodeMistake("the angular velocity is in degrees per second: the twist is in m/s and rad/s "
+                "(pinv(L) gives radians already)", _ibvs_degrees),
+    CodeMistake("the twist is returned as (w, v): the order is (vx, vy, vz, wx, wy, wz), the "
+                "linear velocity first, as L's columns", _ibvs_w_first),
+    CodeMistake("L is built at the desired features s*: the law uses L at the current "
+                "features s (and depths Z), recomputed every period", _ibvs_desired_l),
 )
 PIECE_MISTAKES = (
     CodeMistake("this is the depth of the one pixel: it has holes (NaN) and noise; take the "
@@ -261,6 +325,11 @@ PIECE_MISTAKES = (
                 "indexed depth[v, u]", _piece_uv_swapped),
     CodeMistake("the position is in millimetres: the depth image is in metres already, the "
                 "course's unit", _piece_mm),
+    CodeMistake("the depth was taken as the distance along the ray: it is the point's Z "
+                "coordinate, so p = Z ((u - cx) / fx, (v - cy) / fy, 1), not Z times a unit ray",
+                _piece_ray_length),
+    CodeMistake("the depth image was read at depth[u, v]: numpy indexes the row first, so the "
+                "pixel (u, v) is depth[v, u]", _piece_rows_columns),
 )
 
 INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction,
@@ -277,4 +346,7 @@ SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)
 ANSWERS = (_true_interaction, _reference_ibvs, _within_reach, _trial_interaction, _trial_ibvs,
            _trial_piece, _interaction_stacked, _interaction_rotation_sign, _interaction_no_depth,
            _ibvs_lstsq, _ibvs_gain_flipped, _ibvs_transpose, _ibvs_no_gain,
-           _window_median_position, _piece_pixel_only, _piece_uv_swapped, _piece_mm)
+           _window_median_position, _piece_pixel_only, _piece_uv_swapped, _piece_mm,
+           _interaction_z_for_inverse, _ibvs_error_stacked, _ibvs_degrees, _ibvs_w_first,
+           _ibvs_desired_l,
+           _piece_ray_length, _piece_rows_columns)
