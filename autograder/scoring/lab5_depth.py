@@ -13,9 +13,10 @@ poses.
 * ``fit_flange_circle(rim_points, radius_m)``: the centre (mm) and the normal (deg, towards
   the camera) of the flange face from points on partial arcs of its rim.
 
-The centre and the normal of these two are one answer: each check earns the band of the
-worst part (:func:`_worth_only_together`), so a right point with a constant normal, or a
-point anywhere on the plane, earns nothing;
+The centre and the normal of these two are one answer: each check ``requires`` the others
+(:class:`autograder.spec_types.Check`), so a right point with a constant normal, or a point
+anywhere on the plane, earns nothing (the median of the points with the normal (0, 0, -1)
+earned 1.42 / 2 on fit_plane_ransac before; the mean of the rim 0.49 / 2 on fit_flange_circle);
 * ``base_T_cam_from_flanges(cam_centres, base_T_flanges)``: the pose's rotation (deg) and
   translation (mm);
 * ``rectangle_pose(corners_px, width_m, height_m, K)``: the pose's rotation (deg) and
@@ -129,25 +130,11 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), float(a @ b)))
 
 
-def _worth_only_together(errors: dict[str, float], tol: dict[str, float]) -> dict[str, float]:
-    """Each error raised to the worst of ``errors`` as a multiple of its own tolerance.
-
-    A centre and a normal are one answer: a point on the plane with any normal, or the right
-    normal at any point, is no plane. Without this the trivial answers scored (the median of
-    the points with the constant normal (0, 0, -1): 1.42 / 2 on fit_plane_ransac; the mean of
-    the rim: 0.49 / 2 on fit_flange_circle, whose depth check credits any point on the
-    plane). Each check then earns the band of the worst part, in its own unit. A general
-    ``Check.requires`` (autograder/spec_types.py) would replace this function."""
-    worst = max(errors[k] / tol[k] for k in errors)   # the tolerances are all > 0
-    return {k: max(e, worst * tol[k]) for k, e in errors.items()}
-
-
 def _measure_plane(value, trial: Trial) -> dict[str, float]:
     centre, normal = _as_centre_normal(value)
     true_centre, true_normal = trial.truth
-    return _worth_only_together(
-        {"normal": _angle_deg(normal, true_normal),
-         "offset": abs(float((centre - true_centre) @ true_normal)) * 1000.0}, trial.tol)
+    return {"normal": _angle_deg(normal, true_normal),
+            "offset": abs(float((centre - true_centre) @ true_normal)) * 1000.0}
 
 
 FIT_PLANE_RANSAC = FunctionSpec(
@@ -157,11 +144,11 @@ FIT_PLANE_RANSAC = FunctionSpec(
         Check("normal", "deg", 0.5, PLANE_BANDS,
               "RANSAC over random triples, then a least-squares refit on the best inliers; "
               "the normal points towards the camera (normal @ centre < 0); counts only "
-              "with the centre on the plane too"),
+              "with the centre on the plane too", requires=("offset",)),
         Check("offset", "mm", 0.5, PLANE_BANDS,
               "the centre (mean of the inliers) lies on the plane: outliers (a surface "
               "behind, flying pixels) must not pull it; counts only with the normal right "
-              "too"),
+              "too", requires=("normal",)),
     ),
     signature="fit_plane_ransac(points (N, 3) m, inlier_m, iterations=500, seed=0) -> "
               "(centre (3,), unit normal (3,) towards the camera)",
@@ -175,10 +162,9 @@ def _measure_circle(value, trial: Trial) -> dict[str, float]:
     true_centre, true_normal = trial.truth
     d = centre - true_centre
     along = float(d @ true_normal)
-    return _worth_only_together(
-        {"centre": float(np.linalg.norm(d - along * true_normal)) * 1000.0,
-         "depth": abs(along) * 1000.0,
-         "normal": _angle_deg(normal, true_normal)}, trial.tol)
+    return {"centre": float(np.linalg.norm(d - along * true_normal)) * 1000.0,
+            "depth": abs(along) * 1000.0,
+            "normal": _angle_deg(normal, true_normal)}
 
 
 FIT_FLANGE_CIRCLE = FunctionSpec(
@@ -192,13 +178,15 @@ FIT_FLANGE_CIRCLE = FunctionSpec(
         Check("centre", "mm", 0.5, NOISY_BANDS,
               "the centre within the flange's plane: a circle of the known radius by "
               "geometric least squares (|p - c| - r); the algebraic (Kasa) fit alone errs on "
-              "a partial arc; counts only with the depth and the normal right too"),
+              "a partial arc; counts only with the depth and the normal right too",
+              requires=("depth", "normal")),
         Check("depth", "mm", 0.2, NOISY_BANDS,
               "the centre lies in the plane of the rim (SVD of the centred rim points); "
-              "counts only with the centre in the plane and the normal right too"),
+              "counts only with the centre in the plane and the normal right too",
+              requires=("centre", "normal")),
         Check("normal", "deg", 0.3, NOISY_BANDS,
               "the rim's plane normal, pointing towards the camera (normal @ centre < 0); "
-              "counts only with the centre right too"),
+              "counts only with the centre right too", requires=("centre", "depth")),
     ),
     signature="fit_flange_circle(rim_points (N, 3) m, radius_m) -> (centre (3,), unit normal "
               "(3,) towards the camera)",
