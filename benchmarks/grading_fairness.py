@@ -539,6 +539,7 @@ SHORT_NAMES = {
     "_piece_mm": "depth in mm",
     "_piece_ray_length": "depth taken as the ray length",
     "_piece_rows_columns": "depth[u, v] for depth[v, u]",
+    "_piece_window_mean": "mean of the window, not the median",
     # lab 4
     "_frame_left_handed": "left-handed (z = (p_xy - o) x x)",
     "_frame_y_copied": "p_xy - o copied as the y axis",

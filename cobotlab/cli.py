@@ -765,8 +765,14 @@ def main(argv: list[str] | None = None) -> int:
                               worst=args.worst)
         elif args.command == "course" and args.course_command == "init":
             from autograder.course import init_course
+            from cobotlab.authoring import write_gitignore
 
-            print(f"course laid out in {init_course(args.dir, exchange=args.exchange)}")
+            course = init_course(args.dir, exchange=args.exchange)
+            print(f"course laid out in {course}")
+            # the secret it just drew, and the grades to come, must never reach a repository
+            if write_gitignore(course):
+                print(f"{course / '.gitignore'} keeps the grading secret and the students' "
+                      "data out of git")
         elif args.command == "grade":
             _grade(args)
         elif args.command == "merge":

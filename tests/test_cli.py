@@ -282,6 +282,8 @@ def test_course_init_lays_out_the_course_and_grade_names_a_missing_batch(tmp_pat
     assert (course / "source" / "lab0_frames" / "lab0_frames.ipynb").is_file()
     secret = course / ".cobotlab" / "secret"
     assert secret.is_file() and (secret.stat().st_mode & 0o077) == 0
+    ignored = (course / ".gitignore").read_text().splitlines()
+    assert ".cobotlab/secret" in ignored and "grades.csv" in ignored
     capsys.readouterr()
     assert cli.main(["grade", str(course), "lab0_frames", "--no-nbgrader"]) == 2
     err = capsys.readouterr().err.strip()

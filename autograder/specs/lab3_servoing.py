@@ -156,6 +156,14 @@ def _trial_piece(rng, index: int) -> Trial:
     depth = depth + rng.normal(0.0, sigma, depth.shape)
     depth[rng.random(depth.shape) < 0.03] = np.nan  # scattered dropouts, as on a RealSense
     uv = np.array([K[0, 0] * top[0] / top[2] + K[0, 2], K[1, 1] * top[1] / top[2] + K[1, 2]])
+    # Flying pixels: two pixels on the window's rim read 0.1-0.3 m behind the board (the
+    # mixed returns a depth camera gives at a piece's edge). The text's median of the window
+    # ignores them; a mean of it is pulled by a centimetre or more, beyond the tolerance.
+    u0, v0 = np.rint(uv).astype(int)
+    rim = [(dv, du) for dv in range(-2, 3) for du in range(-2, 3) if max(abs(dv), abs(du)) == 2]
+    for k in rng.choice(len(rim), 2, replace=False):
+        dv, du = rim[k]
+        depth[v0 + dv, u0 + du] = z_plane[v0 + dv, u0 + du] + rng.uniform(0.1, 0.3)
     hole = index % 2 == 1
     if hole:
         # A shiny top: no depth in the 3x3 pixels around the requested one.
@@ -268,6 +276,13 @@ def _piece_pixel_only(depth, uv, K):
     return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
 
 
+def _piece_window_mean(depth, uv, K):
+    u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
+    window = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
+    Z = float(np.mean(window[np.isfinite(window) & (window > 0)]))
+    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+
+
 def _piece_uv_swapped(depth, uv, K):
     return _window_median_position(depth, (uv[1], uv[0]), K)
 
@@ -330,6 +345,9 @@ PIECE_MISTAKES = (
                 _piece_ray_length),
     CodeMistake("the depth image was read at depth[u, v]: numpy indexes the row first, so the "
                 "pixel (u, v) is depth[v, u]", _piece_rows_columns),
+    CodeMistake("the depth is the mean of the window: a few flying pixels (an edge's returns "
+                "from far behind) pull a mean by centimetres; take the median of the valid "
+                "depths", _piece_window_mean),
 )
 
 INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction,
