@@ -258,16 +258,22 @@ def _ibvs_w_first(s, s_star, Z, gain):
     return np.concatenate([v[3:], v[:3]])
 
 
-def _window_median_position(depth, uv, K):
-    """The lab's method: the median of the valid depths of the 5x5 window at round(uv),
-    back-projected through uv; ValueError when the window has none."""
+def _window_position(depth, uv, K, statistic=np.median, rows_are_u: bool = False):
+    """The lab's method: ``statistic`` (the median) of the valid depths of the 5x5 window at
+    round(uv), back-projected through uv; ValueError when the window has none. The mistakes
+    below change the statistic, or read the window at depth[u, v] (``rows_are_u``)."""
     u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
-    window = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
+    row, column = (u, v) if rows_are_u else (v, u)
+    window = depth[max(row - 2, 0):row + 3, max(column - 2, 0):column + 3]
     valid = window[np.isfinite(window) & (window > 0)]
     if valid.size == 0:
         raise ValueError(f"no depth measurement within 2 px of pixel ({u}, {v})")
-    Z = float(np.median(valid))
+    Z = float(statistic(valid))
     return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+
+
+def _window_median_position(depth, uv, K):
+    return _window_position(depth, uv, K)
 
 
 def _piece_pixel_only(depth, uv, K):
@@ -277,10 +283,7 @@ def _piece_pixel_only(depth, uv, K):
 
 
 def _piece_window_mean(depth, uv, K):
-    u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
-    window = depth[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]
-    Z = float(np.mean(window[np.isfinite(window) & (window > 0)]))
-    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+    return _window_position(depth, uv, K, statistic=np.mean)
 
 
 def _piece_uv_swapped(depth, uv, K):
@@ -299,13 +302,7 @@ def _piece_ray_length(depth, uv, K):
 
 def _piece_rows_columns(depth, uv, K):
     # the window read at depth[u, v] (u as the row); the back-projection keeps (u, v)
-    u, v = np.rint(np.asarray(uv, dtype=float)).astype(int)
-    window = depth[max(u - 2, 0):u + 3, max(v - 2, 0):v + 3]
-    valid = window[np.isfinite(window) & (window > 0)]
-    if valid.size == 0:
-        raise ValueError(f"no depth measurement within 2 px of pixel ({v}, {u})")
-    Z = float(np.median(valid))
-    return np.array([(uv[0] - K[0, 2]) * Z / K[0, 0], (uv[1] - K[1, 2]) * Z / K[1, 1], Z])
+    return _window_position(depth, uv, K, rows_are_u=True)
 
 
 INTERACTION_MISTAKES = (
