@@ -567,6 +567,7 @@ SHORT_NAMES = {
     "_rectangle_swapped": "width and height swapped",
     "_rectangle_k_ignored": "K not inverted (pixels used as rays)",
     "_rectangle_not_orthogonal": "edge directions not made orthogonal",
+    "_rectangle_unsigned": "vanishing directions unsigned",
     # lab 5, issue 38: the mistakes the text warns about
     "_backproject_ray_length": "depth taken as the ray's length",
     "_backproject_index_uv": "depth[u, v] for depth[v, u]",

@@ -26,6 +26,7 @@ NEW_MISTAKES = [
     ("lab3_servoing", "ibvs_velocity", lab3._ibvs_desired_l),
     ("lab3_servoing", "piece_position", lab3._piece_ray_length),
     ("lab3_servoing", "piece_position", lab3._piece_rows_columns),
+    ("lab3_servoing", "piece_position", lab3._piece_window_mean),
 ]
 
 

@@ -96,6 +96,7 @@ NEW_MISTAKES = [
     ("fit_flange_circle", spec5._circle_diameter, spec5.DIAMETER_WORDS),
     ("fit_flange_circle", spec5._circle_uncentred, spec5.UNCENTRED_WORDS),
     ("base_T_cam_from_flanges", spec5._registration_uncentred, spec5.UNCENTRED_H_WORDS),
+    ("rectangle_pose", spec5._rectangle_unsigned, spec5.UNSIGNED_WORDS),
 ]
 
 

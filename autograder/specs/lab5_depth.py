@@ -663,21 +663,23 @@ def _trial_rectangle(rng, index: int) -> Trial:
 RECTANGLE_FACTOR = 8.0
 
 
-def _vanishing_directions(corners_px, K):
+def _vanishing_directions(corners_px, K, signed: bool = True):
     """(the corners' rays (4, 3), the unit directions of the rectangle's x and y sides in
     the camera frame, from the vanishing points of its opposite sides, signed along the
-    corner order 0 -> 1 and 0 -> 3)."""
+    corner order 0 -> 1 and 0 -> 3; ``signed=False``: as the cross products give them, the
+    mistake the lab's text warns of)."""
     h = np.column_stack([corners_px, np.ones(4)]) @ np.linalg.inv(K).T
     dx = np.cross(np.cross(h[0], h[1]), np.cross(h[3], h[2]))
     dy = np.cross(np.cross(h[0], h[3]), np.cross(h[1], h[2]))
-    dx = dx * (np.sign(dx[:2] @ (h[1, :2] - h[0, :2])) or 1.0)
-    dy = dy * (np.sign(dy[:2] @ (h[3, :2] - h[0, :2])) or 1.0)
+    if signed:
+        dx = dx * (np.sign(dx[:2] @ (h[1, :2] - h[0, :2])) or 1.0)
+        dy = dy * (np.sign(dy[:2] @ (h[3, :2] - h[0, :2])) or 1.0)
     return h, dx / np.linalg.norm(dx), dy / np.linalg.norm(dy)
 
 
-def _shape_pose(corners_px, width_m, height_m, K) -> np.ndarray:
+def _shape_pose(corners_px, width_m, height_m, K, signed: bool = True) -> np.ndarray:
     """cam_T_rect by the shape constraint (vanishing points, nearest rotation, rays)."""
-    h, dx, dy = _vanishing_directions(corners_px, K)
+    h, dx, dy = _vanishing_directions(corners_px, K, signed)
     U, _, Vt = np.linalg.svd(np.column_stack([dx, dy, np.cross(dx, dy)]))
     R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     w, hh = width_m / 2, height_m / 2
@@ -733,6 +735,10 @@ NOT_ORTHOGONAL_WORDS = ("its rotation is not orthogonal: the vanishing direction
                         "used as they are; replace [dx, dy, dx x dy] by the nearest rotation "
                         "(SVD)")
 
+UNSIGNED_WORDS = ("the vanishing directions' signs were not chosen: d and -d are the same "
+                  "vanishing point, so the pose can turn 180 degrees; point dx along the top "
+                  "edge (corner 0 -> 1) and dy along the left edge (corner 0 -> 3)")
+
 
 def _rectangle_swapped(corners_px, width_m, height_m, K):
     return _shape_pose(corners_px, height_m, width_m, K)
@@ -740,6 +746,10 @@ def _rectangle_swapped(corners_px, width_m, height_m, K):
 
 def _rectangle_k_ignored(corners_px, width_m, height_m, K):
     return _shape_pose(corners_px, width_m, height_m, np.eye(3))
+
+
+def _rectangle_unsigned(corners_px, width_m, height_m, K):
+    return _shape_pose(corners_px, width_m, height_m, K, signed=False)
 
 
 def _rectangle_not_orthogonal(corners_px, width_m, height_m, K):
@@ -753,6 +763,7 @@ RECTANGLE_MISTAKES = (
     CodeMistake(SWAPPED_WORDS, _rectangle_swapped),
     CodeMistake(K_IGNORED_WORDS, _rectangle_k_ignored),
     CodeMistake(NOT_ORTHOGONAL_WORDS, _rectangle_not_orthogonal),
+    CodeMistake(UNSIGNED_WORDS, _rectangle_unsigned),
 )
 
 
