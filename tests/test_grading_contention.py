@@ -20,6 +20,7 @@ import contextlib
 import os
 
 import course_kit as kit
+import numpy as np
 import pytest
 
 from autograder import grading, sandbox
@@ -214,3 +215,39 @@ def grading_rows(course, limits) -> dict[str, dict]:
 
     return {r["student_id"]: r for r in grade_course(course, LAB, workers=2, limits=limits,
                                                        quiet=True)}
+
+
+# A reference invert_pose, the notebook's last cell.
+INVERT_POSE = """
+import numpy as np
+def invert_pose(T):
+    out = np.eye(4); out[:3, :3] = T[:3, :3].T; out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+"""
+
+
+def test_time_limits_count_cpu_seconds_so_a_busy_machine_grades_the_same():
+    """A cell needing 1.5 s of CPU under a 2 s limit, on a core it shares with a busy process
+    (so over 2 s of wall clock), runs as on a quiet laptop; a busy loop is still stopped by
+    its CPU timer, a sleeper by the wall-clock backstop. In this file with the other tests
+    that pin to the grader's core, so no two of them crowd that core at once."""
+    import time
+
+    limits = grading.Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=30,
+                            wall_factor=3)
+    cells = [BURN, "burn(1.5)", "while True:\n    pass", "time.sleep(1000)", INVERT_POSE]
+    with _one_core() as core, _busy(core, 1):
+        started = time.monotonic()
+        with grading.Worker(cells, limits, cpu_s=60) as worker:
+            report = {r["index"]: r for r in worker.load_report}
+            result = worker.call("invert_pose", (np.eye(4),), 2)
+        elapsed = time.monotonic() - started
+    assert report[1]["ok"], report[1]
+    assert report[1]["seconds"] > 2.0, "the hog did not load the core: the test proves nothing"
+    assert report[2]["error"] == "timed out" and report[3]["error"] == "timed out"
+    # the busy loop's own CPU timer stopped it (the grader then never judges it starved),
+    # the sleeper's wall clock
+    assert report[2].get("limit") == "cpu" and "limit" not in report[3], (report[2], report[3])
+    assert 5.0 < report[3]["seconds"] < 8.0, report[3]   # the 3 x 2 s wall-clock backstop
+    assert np.allclose(result.value, np.eye(4))
+    assert elapsed < 30
