@@ -466,14 +466,7 @@ def _noise_distance(spec: FunctionSpec, trial: Trial):
                         abs(float(a[k]) - float(b[k]))
                         / max(reach[k], 0.02 * abs(float(b[k])), 1e-300)
                         for k in a), default=0.0)
-        if not mistakes.matches_shape(a, b):
-            return math.inf
-        x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        holes = np.isnan(y)
-        if not np.array_equal(np.isnan(x), holes):
-            return math.inf
-        x, y = np.where(holes, 0.0, x), np.where(holes, 0.0, y)
-        return float(np.linalg.norm(x - y)) / (0.02 * float(np.linalg.norm(y)) + 1e-6)
+        return mistakes.relative_distance(a, b)
 
     def distance(a, b) -> float:
         if spec.drive is not None:

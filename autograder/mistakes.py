@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from robots import geometry as geo
 
-__all__ = ["candidates", "diagnose", "matches", "matches_shape", "mirrored", "nearest",
+__all__ = ["candidates", "diagnose", "matches", "mirrored", "nearest", "relative_distance",
            "trivial_answers"]
 
 # An answer "is" a mistake's prediction when it lies within this fraction of the
@@ -46,6 +46,7 @@ _METRES = ("its translation is 1000 times too small: metres where millimetres we
            "or a conversion applied twice")
 _DEGREES = ("its rotation angle is off by a factor of 180/pi: degrees and radians mixed up "
             "(numpy's trigonometry takes radians)")
+_TRANSPOSE = "it is the transpose of the expected matrix"
 _MIRRORED = ("its rotation has determinant -1: a mirror image, not a rotation (in an SVD fit, "
              "flip the sign of the last column of V when det(V U^T) < 0)")
 
@@ -84,30 +85,30 @@ def _pose_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
 def _array_mistake(value: np.ndarray, truth: np.ndarray) -> str | None:
     if float(np.linalg.norm(truth)) <= _FLOOR:
         return None
-    if _close(value, 1000.0 * truth):
-        return "it is 1000 times too large: millimetres where metres were asked"
-    if _close(value, truth / 1000.0):
-        return "it is 1000 times too small: metres where millimetres were asked"
-    if _close(value, truth * 180.0 / math.pi):
-        return "it is in degrees where radians were asked"
-    if _close(value, truth * math.pi / 180.0):
-        return "it is in radians where degrees were asked"
-    if _close(value, -truth):
-        return "it has the opposite sign of the expected answer (check the direction or the order)"
-    if truth.ndim == 2 and truth.shape[0] == truth.shape[1] and not _close(value, truth) \
-            and _close(value, truth.T):
-        return "it is the transpose of the expected matrix"
+    for hint, predicted in candidates(truth):
+        # a symmetric truth is its own transpose: no mistake to name
+        if _close(value, predicted) and not (hint == _TRANSPOSE and _close(value, truth)):
+            return hint
     return None
 
 
-def matches_shape(value, predicted) -> bool:
-    """True when both are numeric arrays of one shape with no inf (NaN allowed)."""
+def relative_distance(value, predicted) -> float:
+    """How far the array ``value`` is from ``predicted``, in units of "within a few per cent"
+    (at most 1: :func:`matches`): |value - predicted| over 2 % of |predicted| plus a floor.
+    NaN must sit where ``predicted`` has NaN (a depth image's holes) and is then left out;
+    other shapes, inf, or values that are no numbers are infinitely far."""
     try:
         v = np.asarray(value, dtype=float)
         p = np.asarray(predicted, dtype=float)
     except (TypeError, ValueError):
-        return False
-    return v.shape == p.shape and not (np.isinf(v).any() or np.isinf(p).any())
+        return math.inf
+    if v.shape != p.shape or np.isinf(v).any() or np.isinf(p).any():
+        return math.inf
+    holes = np.isnan(p)
+    if not np.array_equal(np.isnan(v), holes):
+        return math.inf
+    v, p = np.where(holes, 0.0, v), np.where(holes, 0.0, p)
+    return float(np.linalg.norm(v - p)) / (_RELATIVE * float(np.linalg.norm(p)) + _FLOOR)
 
 
 def mirrored(value, truth) -> str | None:
@@ -136,17 +137,7 @@ def matches(value, predicted) -> bool:
         return isinstance(value, dict) and isinstance(predicted, dict) \
             and value.keys() == predicted.keys() \
             and all(matches(value[k], predicted[k]) for k in value)
-    try:
-        v = np.asarray(value, dtype=float)
-        p = np.asarray(predicted, dtype=float)
-    except (TypeError, ValueError):
-        return False
-    if v.shape != p.shape or np.isinf(v).any() or np.isinf(p).any():
-        return False
-    holes = np.isnan(p)
-    if not np.array_equal(np.isnan(v), holes):
-        return False
-    return _close(np.where(holes, 0.0, v), np.where(holes, 0.0, p))
+    return relative_distance(value, predicted) <= 1.0
 
 
 def diagnose(value, truth) -> str | None:
@@ -213,7 +204,7 @@ def candidates(truth) -> list[tuple[str, np.ndarray]]:
            ("it has the opposite sign of the expected answer (check the direction or the "
             "order)", -t)]
     if t.ndim == 2 and t.shape[0] == t.shape[1]:
-        out.append(("it is the transpose of the expected matrix", t.T))
+        out.append((_TRANSPOSE, t.T))
     return out
 
 
