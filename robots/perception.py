@@ -94,6 +94,13 @@ class ServoTimeoutError(ServoError):
 NORMALISED_MAX = 10.0
 
 
+def _transposed_hint(arr: np.ndarray, dim: int, name: str) -> str:
+    """"; transposed? ..." when ``arr`` is (dim, N) where (N, dim) was asked, else ""."""
+    if arr.ndim == 2 and arr.shape[0] == dim:
+        return f"; transposed? pass {name}.T (shape {arr.shape[::-1]})"
+    return ""
+
+
 def check_normalised(xy, name: str) -> np.ndarray:
     """``xy`` (..., 2), normalised image coordinates ``(x, y) = (X / Z, Y / Z)``, as a float64
     array; ``ValueError`` naming ``name`` when a coordinate exceeds ``NORMALISED_MAX`` (10) in
@@ -104,10 +111,8 @@ def check_normalised(xy, name: str) -> np.ndarray:
     hint); NaN is left to the caller."""
     arr = np.asarray(xy, dtype=float)
     if arr.ndim == 0 or arr.shape[-1] != 2:
-        hint = (f"; transposed? pass {name}.T (shape {arr.shape[::-1]})"
-                if arr.ndim == 2 and arr.shape[0] == 2 else "")
         raise ValueError(f"{name} must have shape (N, 2) (normalised image coordinates x, y), "
-                         f"got shape {arr.shape}{hint}")
+                         f"got shape {arr.shape}{_transposed_hint(arr, 2, name)}")
     if arr.size <= 64:  # a servo law's few features: plain floats beat numpy's call overhead
         flat = arr.ravel().tolist()
         if flat and -NORMALISED_MAX <= min(flat) and max(flat) <= NORMALISED_MAX:
@@ -131,10 +136,8 @@ def _as_points(points, dim: int, name: str) -> np.ndarray:
     if arr.ndim == 1:
         arr = arr.reshape(1, -1)
     if arr.ndim != 2 or arr.shape[1] != dim:
-        hint = (f"; transposed? pass {name}.T (shape {arr.shape[::-1]})"
-                if arr.ndim == 2 and arr.shape[0] == dim else "")
         raise ValueError(f"{name} must have shape (N, {dim}) or ({dim},), got "
-                         f"{np.shape(points)}{hint}")
+                         f"{np.shape(points)}{_transposed_hint(arr, dim, name)}")
     bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
     if bad.size:
         raise ValueError(f"{name}[{bad[0]}] is not finite ({arr[bad[0]]}); drop it first")

@@ -146,18 +146,17 @@ class Safety:
         looks like degrees: a joint speed cap above a turn per second, a rotation step above
         a full turn."""
         seen = self.__dict__.setdefault("_warned_values", {})
-        for name, value in (("max_joint_speed", self.max_joint_speed),
-                            ("max_rotation_step", self.max_rotation_step)):
-            if seen.get(name) == value:
-                continue
-            seen[name] = value
-            if name == "max_joint_speed":
-                check_angular_speed(value, "Safety.max_joint_speed")
-            elif value > 2.0 * math.pi:
+        speed, step = self.max_joint_speed, self.max_rotation_step
+        if seen.get("max_joint_speed") != speed:
+            seen["max_joint_speed"] = speed
+            check_angular_speed(speed, "Safety.max_joint_speed")
+        if seen.get("max_rotation_step") != step:
+            seen["max_rotation_step"] = step
+            if step > 2.0 * math.pi:
                 warn_caller(
-                    f"Safety.max_rotation_step = {value:g} rad is more than a full turn "
-                    f"({math.degrees(value):.4g} deg): it looks like degrees. Angles are "
-                    f"radians: pass np.radians({value:g}) = {math.radians(value):.4g}")
+                    f"Safety.max_rotation_step = {step:g} rad is more than a full turn "
+                    f"({math.degrees(step):.4g} deg): it looks like degrees. Angles are "
+                    f"radians: pass np.radians({step:g}) = {math.radians(step):.4g}")
 
     # ----------------------------------------------------------------------- Cartesian
 
