@@ -188,8 +188,12 @@ def _failure(exc: BaseException) -> dict:
     the grader then charges it to the submission without judging starvation (the one claim
     it takes from the worker, since it can only cost the submission that makes it)."""
     reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
-    if isinstance(exc, _Timeout) and exc.by_cpu:
-        reply["limit"] = "cpu"
+    if isinstance(exc, _Timeout):
+        reply["failure"] = "timed_out"
+        if exc.by_cpu:
+            reply["limit"] = "cpu"
+    else:
+        reply["failure"], reply["exception"] = "raised", type(exc).__name__
     return reply
 
 
@@ -379,7 +383,8 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             name = str(request.get("name"))
             func = namespace.get(name)
             if not callable(func):
-                send(rep_fd, {"ok": False, "error": f"no function named {name} is defined"})
+                send(rep_fd, {"ok": False, "error": f"no function named {name} is defined",
+                              "failure": "not_found"})
                 continue
             args = request.get("args", [])
             names = [str(n) for n in request.get("forbidden", [])]
@@ -391,7 +396,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 reply = {"ok": True, "value": value}
             except _Unsendable as exc:
                 reply = {"ok": False, "error": f"returned a value that is not an array or "
-                                               f"number ({exc})"}
+                                               f"number ({exc})", "failure": "unusable"}
             except BaseException as exc:  # noqa: BLE001
                 reply = _failure(exc)
             if tripwire.hits:
@@ -403,7 +408,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 send(rep_fd, reply)
             except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
                 send(rep_fd, {"ok": False, "error": f"returned a value that is not an array "
-                                                    f"or number ({exc})"})
+                                                    f"or number ({exc})", "failure": "unusable"})
         else:
             send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
 

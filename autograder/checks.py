@@ -31,11 +31,11 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from autograder import forbidden, mistakes, practice, registry, standin
+from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
 # Re-exported where callers reach them as checks.<name> (tests, benchmarks, grading).
 from autograder.spec_types import (  # noqa: F401
@@ -54,6 +54,9 @@ __all__ = [
     "Trial",
     "FunctionSpec",
     "TrialOutcome",
+    "Failure",
+    "Failed",
+    "raised",
     "CheckResult",
     "FunctionResult",
     "SCORING",
@@ -128,17 +131,6 @@ WALL_BACKSTOP_FACTOR = 4.0
 
 
 @dataclass
-class TrialOutcome:
-    """What a call returned (``value``) or why it failed (``error``); ``seconds`` of wall
-    clock and ``cpu_seconds`` of the student's process it took."""
-
-    value: Any = None
-    error: str | None = None
-    seconds: float = 0.0
-    cpu_seconds: float = 0.0
-
-
-@dataclass
 class CheckResult:
     name: str
     unit: str
@@ -182,10 +174,18 @@ class FunctionResult:
     n_failed: int = 0
     error_counts: dict[str, int] = field(default_factory=dict)
     forbidden: tuple[str, ...] = ()
+    # The kind of failure behind each message of ``error_counts`` that is a failed call's
+    # (a time-out, a problem skipped, a raise); a message the scoring wrote has none.
+    failures: dict[str, Failure] = field(default_factory=dict)
 
     @property
     def fraction(self) -> float:
         return self.points / self.max_points if self.max_points else 0.0
+
+    @property
+    def lost_to_time(self) -> bool:
+        """Some problem was lost to a time limit (see :attr:`Failure.lost_to_time`)."""
+        return any(x.lost_to_time for x in self.failures.values())
 
     @property
     def failed_checks(self) -> list[str]:
@@ -308,29 +308,34 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     errors: list[str] = []
     counts: dict[str, int] = {}
+    failures: dict[str, Failure] = {}
 
-    def note(message: str, label: str, first: bool = False) -> None:
+    def note(message: str, label: str, first: bool = False,
+             failure: Failure | None = None) -> None:
         line = f"on a {label} problem: {message}"
         if line not in errors:
             errors.insert(0, line) if first else errors.append(line)
         # capped: a submission can make every message distinct
         if message in counts or len(counts) < 20:
             counts[message] = counts.get(message, 0) + 1
+            if failure is not None:
+                failures.setdefault(message, failure)
 
     # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
     table = []
     for trial, outcome in zip(trials, outcomes):
         measured = None
-        message = outcome.error
+        message, failure = outcome.error, outcome.failure
         if trial.raises is not None:
-            raised = message is not None and message.split(":", 1)[0] == trial.raises
+            raised = outcome.has_raised(trial.raises)
             measured = {c.name: 0.0 for c in spec.checks} if raised else None
             message = None if raised else (f"expected {trial.raises} on this degenerate input, "
                                            f"got {message or 'a return value'}")
+            failure = None   # the message is the scoring's, whatever the call did
         elif outcome.error is None:
             measured, message = _measured(spec, outcome.value, trial)
         if message is not None:
-            note(message, trial.label)
+            note(message, trial.label, failure=failure)
         table.append((measured, _problem_rows(spec, trial, measured)))
     # An edge case (all-or-nothing, or a degenerate input that must raise) earns credit only
     # when the method is right on at least one ordinary problem: the identity for a zero
@@ -382,7 +387,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         total += c.weight * credit
     points = round(spec.points * total / weight_sum, 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
-                          n_problems=len(trials), n_failed=n_failed, error_counts=counts)
+                          n_problems=len(trials), n_failed=n_failed, error_counts=counts,
+                          failures=failures)
 
 
 def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:
@@ -506,7 +512,12 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> str | None:
 
 
 class StudentCallError(Exception):
-    """A call of the student's function inside a closed-loop ``drive`` failed."""
+    """A call of the student's function inside a closed-loop ``drive`` failed (``failure``:
+    how, when the grader knows)."""
+
+    def __init__(self, message: str, failure: Failure | None = None):
+        super().__init__(message)
+        self.failure = failure
 
 
 class _CallerFailed(BaseException):
@@ -533,14 +544,15 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
         nonlocal cpu_used
         left = time_limit_s - cpu_used
         if left <= 0 or time.perf_counter() - started > wall_factor * time_limit_s:
-            raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s")
+            raise StudentCallError(f"timed out: the closed loop took over {time_limit_s:g} s",
+                                   Failure(Failed.TIMED_OUT, limit_s=time_limit_s))
         try:
             outcome = call_once(args, left)
         except Exception as exc:  # noqa: BLE001 - the caller's failure (a worker that died)
             raise _CallerFailed(exc) from None
         cpu_used += outcome.cpu_seconds
         if outcome.error is not None:
-            raise StudentCallError(outcome.error)
+            raise StudentCallError(outcome.error, outcome.failure)
         return outcome.value
 
     def done(**kwargs) -> TrialOutcome:
@@ -551,12 +563,14 @@ def run_trial(spec: FunctionSpec, trial: Trial, call_once, time_limit_s: float,
     except _CallerFailed as failed:
         raise failed.cause from None
     except StudentCallError as exc:
-        return done(error=str(exc))
+        return done(error=str(exc), failure=exc.failure or raised(""))
     except OutputError as exc:
-        return done(error=f"returned an unusable value in the loop: {exc}")
+        return done(error=f"returned an unusable value in the loop: {exc}",
+                    failure=Failure(Failed.UNUSABLE))
     except Exception as exc:  # noqa: BLE001 - the loop ran on the student's values
         return done(error=f"returned a value the closed loop cannot use "
-                          f"({type(exc).__name__}: {str(exc)[:200]})")
+                          f"({type(exc).__name__}: {str(exc)[:200]})",
+                    failure=Failure(Failed.UNUSABLE))
     return done(value=value)
 
 
@@ -578,7 +592,8 @@ def _call_in_process(func, trial: Trial, spec: FunctionSpec | None = None) -> Tr
             with standin.substituted(getattr(func, "__globals__", {}), tables):
                 value = func(*args)
         except Exception as exc:  # noqa: BLE001 - report any error as the student's
-            return outcome(error=f"{type(exc).__name__}: {exc}")
+            return outcome(error=f"{type(exc).__name__}: {exc}",
+                           failure=raised(type(exc).__name__))
         return outcome(value=value)
 
     if spec is None:

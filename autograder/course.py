@@ -24,10 +24,21 @@ import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from autograder import checks, feedback, freeze, grading, record, registry, sandbox, scratch
+from autograder import (
+    checks,
+    executions,
+    feedback,
+    freeze,
+    grading,
+    record,
+    registry,
+    sandbox,
+    scratch,
+)
 from autograder.feedback_release import (
     config_problem,
     unreleasable_note,
@@ -288,29 +299,39 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
                  caps: freeze.Caps = freeze.Caps(),
                  fresh: bool = False, nonce: str | None = None, quiet: bool = False,
                  students=None, progress=None, cluster=None,
-                 template: bool = True) -> list[dict]:
+                 template: bool = True, rescore: bool = False) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
-    Three stages, so that no submission can damage or fool the grade:
+    One straight line of stages, each a function of the one before, so that no submission
+    can damage or fool the grade (docs/architecture.md):
 
-    1. **freeze**: every submission is copied, as data (regular files only, capped), into
+    1. **begin**: the course, its secret, the run's problems (fixed, fresh or replayed);
+       refuse a concurrent run, back up the gradebook;
+    2. **freeze**: every submission is copied, as data (regular files only, capped), into
        grader-private storage before any student code runs (:mod:`autograder.freeze`);
-    2. **execute untrusted**: per student, one sandboxed worker runs the notebook once and
-       answers the hidden problems (:mod:`autograder.grading`); it sees neither the course,
-       the secret nor the answer key. With ``run_nbgrader``, nbgrader's own autograde
-       converter (sanitize, restore the locked and test cells, score, late penalty) runs
-       here on a throwaway course and takes its cell outcomes from that same run
-       (:func:`autograder.scratch.autograde_in_worker`), so the cross-check costs no second
-       execution; an assignment of several notebooks gets nbgrader's own kernel, sandboxed;
-    3. **record**, from this trusted process: validated numbers into ``gradebook.db``
-       (backed up first, integrity-checked after, restored if damaged), then ``grades.csv``
-       and the feedback pages, written atomically without following links.
+    3. **draw**: each submission's hidden problems, from the secret, in this process
+       (:class:`autograder.grading.HiddenProblems`); the truth never leaves it;
+    4. **execute**: per student, one sandboxed worker runs the notebook once and calls the
+       graded functions on the problems' inputs (:func:`autograder.grading.execute_notebook`),
+       an :class:`~autograder.grading.Execution`: what each call came to, nothing scored; it
+       sees neither the course, the secret nor the answer key. With ``run_nbgrader``,
+       nbgrader's own autograde converter (sanitize, restore the locked and test cells,
+       score, late penalty) runs here on a throwaway course and takes its cell outcomes from
+       that same run (:func:`autograder.scratch.autograde_in_worker`), so the cross-check
+       costs no second execution; an assignment of several notebooks gets nbgrader's own
+       kernel, sandboxed;
+    5. **score**: a pure function of the problems and the execution
+       (:func:`autograder.grading.score_execution`): no I/O, no student code;
+    6. **record**, from this trusted process: validated numbers into ``gradebook.db``
+       (backed up first, integrity-checked after, restored if damaged), then ``grades.csv``,
+       the feedback pages, the executions (kept for ``rescore``) and the run log, written
+       atomically without following links.
 
     Args:
         course_dir: an nbgrader course made by :func:`init_course`.
         assignment: e.g. ``"lab0_frames"``.
         workers: submissions graded in parallel (each in its own sandbox).
-        run_nbgrader: run nbgrader's autograde (stage 2) for its cell results; otherwise use
+        run_nbgrader: run nbgrader's autograde (stage 4) for its cell results; otherwise use
             whatever nbgrader results ``gradebook.db`` already holds, if any.
         nbgrader_kernel: run nbgrader's autograde with its own kernel, sandboxed, a second
             run of each notebook (slower; the autograded notebooks then hold rich output such
@@ -330,6 +351,11 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
             before any student code runs and after each submission is graded (e.g. a tqdm
             bar; the CLI's). Ctrl-C (KeyboardInterrupt) at any point stops every sandbox
             (nbgrader, its kernels, the workers) before it propagates.
+        rescore: run no student code: score each submission again from the execution the
+            last grade run kept (after a change to a lab's tolerances, points, bands or
+            mistakes) and record as a grade run does. Refused, naming them, when a
+            submission changed since it was graded, has no kept execution, or when the
+            lab's change altered the problems' inputs.
 
     Returns the gradebook rows (dicts with :data:`GRADE_COLUMNS` keys, ``flags`` a
     ``;``-separated string), also written to ``course_dir/grades.csv``, one per submission
@@ -337,16 +363,59 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     ``course_dir/feedback_cobotlab/<student>/<assignment>/feedback.html`` (and, for nbgrader's
     generate_feedback and release_feedback, :mod:`autograder.feedback_release`'s files).
 
-    ``cluster``: an :class:`autograder.cluster.ClusterGrader`: stage 2 grades each
+    ``cluster``: an :class:`autograder.cluster.ClusterGrader`: stage 4 runs each
     submission on a worker of its Dask cluster, in the same sandbox, instead of here
-    (``workers`` submissions in flight at once); freezing, nbgrader's converter and
-    recording stay in this process, which validates what each worker returns.
+    (``workers`` submissions in flight at once); the other stages stay in this process,
+    which draws the problems, sends their inputs, and scores what each worker returns.
 
     ``template``: each of the ``workers`` grading threads loads the interpreter, the lab's
     imports and the released notebook's leading read-only cells once, and forks every
     submission's worker from it into a sandbox of its own (:mod:`autograder.template`);
     False starts a new interpreter per submission (the results are the same, slower).
     """
+    run = _begin(course_dir, assignment, workers, limits, fresh, nonce, quiet, cluster, rescore)
+    with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
+        frozen = _freeze(run.root, assignment, Path(store), caps, students)
+        problems = grading.HiddenProblems(assignment, run.secret, run.nonce)
+        if rescore:
+            executed = _kept_executions(run, frozen, problems, progress)
+        else:
+            executed = _execute(run, frozen, problems, Path(store), workers, run_nbgrader,
+                                nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
+                                progress, cluster, template and cluster is None)
+    grades = [_score(run, sub, problems, executed[sub.student_id]) for sub in frozen]
+    rows = _record(run, frozen, problems, executed, grades, run_nbgrader)
+    _end_run(run, rows, grades, executed)
+    if not quiet:
+        _print_summary(grades, assignment, time.monotonic() - run.started, workers, run.notes,
+                       executed, rescore)
+    return rows
+
+
+# ----------------------------------------------------------------- stage 1: begin
+
+
+@dataclass
+class GradeRun:
+    """What every stage of one grade run shares: the course, the assignment, the secret
+    and the run's nonce (None: the course's fixed problems), the limits, and the notes for
+    the run's log."""
+
+    root: Path
+    private: Path
+    assignment: str
+    secret: str
+    nonce: str | None
+    problems: str              # "fixed", "fresh", "replay" or "rescore" (runs.jsonl)
+    limits: grading.Limits
+    notes: list[str]
+    started: float
+
+
+def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce,
+           quiet: bool, cluster, rescore: bool) -> GradeRun:
+    """Check the request, recover from an interrupted run, refuse a concurrent one, back up
+    the gradebook; the run's shared values."""
     root = Path(course_dir).resolve()
     registry.use_course(root)
     if workers < 1:
@@ -358,53 +427,36 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     if fresh and nonce:
         raise ValueError("fresh=True draws new problems; nonce= replays a fresh run's: pass "
                          "one of them")
+    if rescore and (fresh or nonce or cluster is not None):
+        raise ValueError("rescore scores the executions the last grade run kept, on that "
+                         "run's problems: it takes no fresh, replay or cluster")
     if nonce is not None and not re.fullmatch(r"[0-9a-f]{16,64}", nonce):
         raise ValueError(f"nonce {printable(nonce, 80)!r} is not one `cobotlab grade --fresh` "
                          "draws (16-64 hex digits): copy it from .cobotlab/runs.jsonl")
-    problems = "fresh" if fresh else ("replay" if nonce else "fixed")
+    problems = "rescore" if rescore else "fresh" if fresh else ("replay" if nonce else "fixed")
     nonce = secrets.token_hex(16) if fresh else nonce
     private = _private_dir(root)
     started = time.monotonic()
-    # a cluster whose workers would grade differently (secret, lab version) is refused here
-    cluster_note = cluster.check(assignment, secret) if cluster is not None else None
-    run_notes = _begin_run(root, private)
+    # a cluster whose workers would grade differently (lab version) is refused here
+    cluster_note = cluster.check(assignment) if cluster is not None else None
+    run = GradeRun(root, private, assignment, secret, nonce, problems, limits,
+                   _begin_run(root, private), started)
     unverified = registry.verification_note(assignment)
     if unverified:
-        run_notes.append(f"warning: {unverified}")
+        run.notes.append(f"warning: {unverified}")
         if not quiet:
             print(f"warning: {unverified}", file=sys.stderr)
     if cluster_note:
-        run_notes.append(cluster_note)
+        run.notes.append(cluster_note)
     old_config = config_problem(root)   # students' feedback would lack cobotlab's, or worse
     if old_config:
-        run_notes.append(f"warning: {old_config}")
+        run.notes.append(f"warning: {old_config}")
         if not quiet:
             print(f"warning: {old_config}", file=sys.stderr)
-    with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        # 1. freeze
-        frozen = _freeze(root, assignment, Path(store), caps, students)
-        # 2. execute untrusted code, each submission in its own throwaway world
-        nb_runs, grades = _execute(root, assignment, frozen, Path(store), workers, secret,
-                                   nonce, limits, run_nbgrader, nbgrader_kernel,
-                                   nbgrader_timeout_s, nbgrader_cell_timeout_s, run_notes,
-                                   progress, cluster, template and cluster is None)
-    unreleasable = unreleasable_note(assignment, frozen)
-    if unreleasable and run_nbgrader:
-        run_notes.append(unreleasable)
-    ungraded = [g.student_id for g in grades if not g.graded]
-    if ungraded:
-        run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
-                         f"the next run grades them again): {', '.join(ungraded)}")
-    # 3. record from the trusted side
-    rows = _record(root, assignment, frozen, nb_runs, grades, private, run_notes)
-    _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs, run_notes)
-    if not quiet:
-        _print_summary(grades, assignment, time.monotonic() - started, workers, run_notes,
-                       nb_runs)
-    return rows
+    return run
 
 
-# ----------------------------------------------------------------- stage 1: freeze
+# ----------------------------------------------------------------- stage 2: freeze
 
 
 def _private_dir(root: Path) -> Path:
@@ -435,25 +487,39 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
     return frozen
 
 
-# ----------------------------------------------------------------- stage 2: execute
+# ----------------------------------------------------------------- stage 4: execute
 
 
-def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limits,
+@dataclass
+class Executed:
+    """Stage 4's value for one submission: what its code did (``execution``; None when it
+    was not run: refused, no notebook, or the grader failed on every attempt), nbgrader's
+    own run of it, the grader's failed attempts, and the frozen submission's digest (a kept
+    execution belongs to that submission only)."""
+
+    execution: grading.Execution | None = None
+    nbgrader: scratch.ScratchResult | None = None
+    grader_errors: list[str] = field(default_factory=list)
+    submission: str = ""
+
+
+def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Path, workers,
              run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-             run_notes, progress=None, cluster=None, use_template=False):
-    """({student: scratch.ScratchResult}, [SubmissionGrade]) for the accepted submissions;
-    a refused one gets an empty grade here (zero, with its flags). With ``cluster``, each
-    grading runs on a worker of that Dask cluster (:mod:`autograder.cluster`); with
+             progress=None, cluster=None, use_template=False) -> dict[str, Executed]:
+    """{student: :class:`Executed`} for every frozen submission. With ``cluster``, each
+    runs on a worker of that Dask cluster (:mod:`autograder.cluster`); with
     ``use_template``, each grading thread forks its workers from a template of its own."""
+    root, assignment, limits = run.root, run.assignment, run.limits
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
-    templates = _Templates(root, assignment, limits, run_notes) if use_template else None
+    templates = _Templates(root, assignment, limits, run.notes) if use_template else None
     if cluster is not None:
-        grade_notebook = cluster.grade_notebook
+        execute_notebook = cluster.execute_notebook
     else:
-        def grade_notebook(*args, **kwargs):
+        def execute_notebook(paths, problems_of_one, limits, run_tests=False):
             mine = templates.mine() if templates is not None else None
-            return grading.grade_notebook(*args, **kwargs, template=mine)
+            return grading.execute_notebook(paths, problems_of_one, limits, run_tests,
+                                            template=mine)
     template = known = None
     if run_nbgrader:
         try:
@@ -461,65 +527,59 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
                                              _duedate(root, assignment))
             known = scratch.template_cells(template, assignment)
         except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
-            run_notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
+            run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
 
     in_worker = (not nbgrader_kernel and known is not None
                  and len({name for name, _ in known}) == 1)
 
-    def attempts(grade_once):
-        """(grade_once()'s result or None, the errors of the attempts that failed): up to
-        GRADER_ATTEMPTS tries, each a fresh sandbox, worker and cgroup."""
-        errors = []
+    def attempts(execute_once, errors: list[str]):
+        """execute_once()'s execution, or None: up to GRADER_ATTEMPTS tries, each a fresh
+        sandbox, worker and cgroup; the failed attempts' errors go to ``errors``."""
         for _ in range(GRADER_ATTEMPTS):
             try:
-                return grade_once(), errors
+                return execute_once()
             except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
                 errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
-        return None, errors
+        return None
 
-    def one(sub: freeze.Frozen):
-        nb = grade = None
-        errors: list[str] = []
-        if templates is not None and sub.accepted and sub.notebooks:
+    def one(sub: freeze.Frozen) -> Executed:
+        done = Executed(submission=_submission_digest(sub))
+        if sub.accepted and sub.notebooks:
+            done.execution, done.nbgrader = execute_one(sub, done.grader_errors)
+        if progress is not None:
+            with lock:
+                finished.append(sub.student_id)
+                progress(len(finished), len(frozen), sub.student_id)
+        return done
+
+    def execute_one(sub: freeze.Frozen, errors: list[str]):
+        """(execution or None, nbgrader's result or None) of one usable submission."""
+        if templates is not None:
             templates.mine()   # this thread's, built before nbgrader's share is timed
-        if sub.accepted and sub.notebooks and template is not None:
-            def in_worker_grade(paths):
-                got, failed = attempts(lambda: grade_notebook(
-                    paths, assignment, sub.student_id, secret, nonce, limits, run_tests=True))
-                errors.extend(failed)
-                if got is None:
+        mine = problems.of(sub.student_id)
+        nb = execution = None
+        if template is not None:
+            def run_tests(paths):
+                ran = attempts(lambda: execute_notebook(paths, mine, limits, run_tests=True),
+                               errors)
+                if ran is None:
                     raise grading.GraderError("the grader failed on every attempt")
-                return got
+                return ran, grading.kernel_verdicts(mine, ran)
 
             try:
                 if in_worker:   # one run of the cells for both nbgrader and the grader
-                    nb, grade = scratch.autograde_in_worker(sub, assignment, root, template,
-                                                            known, in_worker_grade)
+                    nb, execution = scratch.autograde_in_worker(sub, assignment, root, template,
+                                                                known, run_tests)
                 else:   # the in-worker run takes one notebook: nbgrader's own kernel
                     nb = scratch.autograde_one(sub, assignment, root, template, known,
                                                timeout_s=nbgrader_timeout_s,
                                                cell_timeout_s=nbgrader_cell_timeout_s)
             except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
                 nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
-        if not sub.accepted or not sub.notebooks:
-            grade = _zero_grade(sub, assignment)
-        elif grade is None:
-            if len(errors) < GRADER_ATTEMPTS:   # not already tried in nbgrader's run
-                grade, failed = attempts(lambda: grade_notebook(
-                    sub.notebooks, assignment, sub.student_id, secret, nonce, limits))
-                errors += failed
-            if grade is None:
-                grade, nb = _ungraded(sub, assignment, errors), None
-        if errors and grade.graded:
-            grade.notes.append(f"graded after {len(errors)} grader error(s), each retried in a "
-                               f"fresh sandbox: {'; '.join(errors)}")
-        grade.flags[:0] = sub.flags
-        grade.notes[:0] = sub.notes
-        if progress is not None:
-            with lock:
-                finished.append(sub.student_id)
-                progress(len(finished), len(frozen), sub.student_id)
-        return sub.student_id, nb, grade
+        if execution is None and len(errors) < GRADER_ATTEMPTS:
+            # not run in nbgrader's run (no cross-check, or nbgrader refused the notebook)
+            execution = attempts(lambda: execute_notebook(sub.notebooks, mine, limits), errors)
+        return execution, (nb if execution is not None else None)
 
     lock, finished = threading.Lock(), []
     if progress is not None:
@@ -538,7 +598,16 @@ def _execute(root, assignment, frozen, store: Path, workers, secret, nonce, limi
         if templates is not None:
             templates.close()
     pool.shutdown()
-    return {sid: nb for sid, nb, _ in done if nb is not None}, [g for _, _, g in done]
+    return {sub.student_id: d for sub, d in zip(frozen, done)}
+
+
+def _submission_digest(sub: freeze.Frozen) -> str:
+    """SHA-256 of a frozen submission: its notebooks (names and bytes) and its timestamp."""
+    h = hashlib.sha256(printable(sub.timestamp, 200).encode("utf-8", "backslashreplace"))
+    for path in sorted(sub.notebooks, key=lambda p: Path(p).name):
+        h.update(b"\0" + Path(path).name.encode("utf-8", "backslashreplace") + b"\0")
+        h.update(Path(path).read_bytes())
+    return h.hexdigest()
 
 
 class _Templates:
@@ -601,6 +670,132 @@ class _Templates:
 GRADER_ATTEMPTS = 2
 
 
+# ----------------------------------------------------------------- stage 4': kept executions
+
+_KEPT = "executions"
+
+
+def kept_path(assignment: str, student_id: str) -> str:
+    """Where, below the course's private folder, a student's kept execution is."""
+    key = hashlib.sha256(student_id.encode("utf-8", "backslashreplace")).hexdigest()[:40]
+    return f"{_KEPT}/{assignment}/{key}.json"
+
+
+def _keep(run: GradeRun, problems: grading.HiddenProblems, student_id: str,
+          done: Executed) -> None:
+    """Keep what a submission's code did, for ``rescore``: its execution, the problems'
+    inputs digest and nonce it ran on, nbgrader's flags and notes of that run, and the
+    digest of the frozen submission it belongs to."""
+    ex = done.execution
+    kept = {"format": executions.FORMAT, "student_id": student_id,
+            "assignment": run.assignment, "nonce": run.nonce, "submission": done.submission,
+            "inputs": executions.inputs_digest(problems.of(student_id), ex.kernel_runs),
+            "execution": executions.to_wire(ex), "grader_errors": done.grader_errors,
+            "nbgrader": None if done.nbgrader is None else {
+                "flags": list(done.nbgrader.flags), "notes": list(done.nbgrader.notes)}}
+    record.write_file(run.private, kept_path(run.assignment, student_id),
+                      json.dumps(kept).encode("utf-8"))
+
+
+def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
+                     progress=None) -> dict[str, Executed]:
+    """Stage 4 without running anything: each usable submission's execution as the last
+    grade run kept it, checked to be this submission's and to have run on the problems'
+    inputs as the lab draws them now. Refuses (ValueError), naming every submission that
+    cannot be rescored and why."""
+    out: dict[str, Executed] = {}
+    refused: list[str] = []
+    if progress is not None:
+        progress(0, len(frozen), "")
+    for i, sub in enumerate(frozen, 1):
+        done = Executed(submission=_submission_digest(sub))
+        out[sub.student_id] = done
+        if sub.accepted and sub.notebooks:
+            why = _load_kept(run, problems, sub, done)
+            if why:
+                refused.append(f"{printable(sub.student_id, 80)} ({why})")
+        if progress is not None:
+            progress(i, len(frozen), sub.student_id)
+    if refused:
+        raise ValueError(
+            f"cannot rescore {run.assignment} without running student code: "
+            + "; ".join(refused[:20]) + (f"; and {len(refused) - 20} more" if len(refused) > 20
+                                         else "")
+            + ". Grade them with `cobotlab grade` (`--students` picks them), or grade the "
+            "whole class again")
+    return out
+
+
+def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+               done: Executed) -> str | None:
+    """Fill ``done`` from the kept execution of ``sub``; None, or why it cannot be used."""
+    data = _read_private(run.private, kept_path(run.assignment, sub.student_id))
+    if data is None:
+        return "no execution kept: never graded by this version of cobotlab, or not graded"
+    try:
+        kept = json.loads(data)
+        if not isinstance(kept, dict) or kept.get("format") != executions.FORMAT:
+            return "its kept execution is of another format"
+        if kept.get("submission") != done.submission:
+            return "submitted again since it was graded"
+        nonce = kept.get("nonce")
+        if nonce is not None and not (isinstance(nonce, str)
+                                      and re.fullmatch(r"[0-9a-f]{16,64}", nonce)):
+            return "its kept execution names no valid nonce"
+        execution = executions.from_wire(kept.get("execution"), run.assignment,
+                                         sub.student_id, {Path(p).name for p in sub.notebooks})
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        return f"its kept execution is unreadable: {printable(exc, 200)}"
+    mine = problems.of(sub.student_id) if nonce == run.nonce else grading.draw_problems(
+        run.assignment, sub.student_id, run.secret, nonce, problems.kernel)
+    problems.keep(mine)
+    now = executions.inputs_digest(mine, execution.kernel_runs)
+    before = kept.get("inputs") if isinstance(kept.get("inputs"), dict) else {}
+    changed = sorted({name.removeprefix("kernel:") for name, digest in now.items()
+                      if before.get(name) != digest})
+    if changed:
+        return ("the lab's change altered the problems' inputs of " + ", ".join(changed)
+                + ": the code must run on the new ones")
+    done.execution = execution
+    errors = kept.get("grader_errors")
+    done.grader_errors = [printable(e, 400) for e in errors[:8]] if isinstance(errors, list) \
+        else []
+    nb = kept.get("nbgrader")
+    if isinstance(nb, dict):
+        done.nbgrader = scratch.ScratchResult(
+            flags=[printable(f, 200) for f in nb.get("flags", [])[:64]],
+            notes=[printable(n, 1000) for n in nb.get("notes", [])[:64]])
+    return None
+
+
+# ----------------------------------------------------------------- stage 5: score
+
+
+def _score(run: GradeRun, sub: freeze.Frozen, problems: grading.HiddenProblems,
+           done: Executed) -> grading.SubmissionGrade:
+    """The grade of one submission from its execution (:func:`grading.score_execution`),
+    with the freeze's flags and notes first and nbgrader's and the time-outs' after; a
+    refused submission, or one without a notebook, scores zero; one the grader failed on
+    every time is not graded."""
+    if not sub.accepted or not sub.notebooks:
+        grade = _zero_grade(sub, run.assignment)
+    elif done.execution is None:
+        grade = _ungraded(sub, run.assignment, done.grader_errors)
+    else:
+        grade = grading.score_execution(problems.of(sub.student_id), done.execution)
+        if done.grader_errors:
+            grade.notes.append(f"graded after {len(done.grader_errors)} grader error(s), each "
+                               f"retried in a fresh sandbox: {'; '.join(done.grader_errors)}")
+    grade.flags[:0] = sub.flags
+    grade.notes[:0] = sub.notes
+    if sub.accepted and grade.graded:
+        if done.nbgrader is not None:
+            grade.notes += done.nbgrader.notes
+            grade.flags += done.nbgrader.flags
+        grade.flags += _timeout_flags(grade)
+    return grade
+
+
 def _ungraded(sub: freeze.Frozen, assignment: str, errors: list[str]):
     grade = _zero_grade(sub, assignment, ["grader_error"], [
         f"not graded: the grader failed on each of {len(errors)} attempts ("
@@ -617,7 +812,13 @@ def _zero_grade(sub: freeze.Frozen, assignment: str, flags=(), notes=()):
     return grade
 
 
-# ----------------------------------------------------------------- stage 3: record
+def _timeout_flags(grade: grading.SubmissionGrade) -> list[str]:
+    """``timed_out:<function>`` for each function that lost problems to a time limit (a hang
+    would otherwise show only as failed checks)."""
+    return [f"timed_out:{f.name}" for f in grade.functions if f.lost_to_time]
+
+
+# ----------------------------------------------------------------- stage 6: record
 
 
 def _duedate(root: Path, assignment: str):
@@ -646,7 +847,19 @@ def _record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
         write_exchange_files(root, assignment, sub)
 
 
-def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> list[dict]:
+def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
+            executed: dict[str, Executed], grades, run_nbgrader: bool) -> list[dict]:
+    root, assignment, private, run_notes = run.root, run.assignment, run.private, run.notes
+    unreleasable = unreleasable_note(assignment, frozen)
+    if unreleasable and run_nbgrader:
+        run_notes.append(unreleasable)
+    ungraded = [g.student_id for g in grades if not g.graded]
+    if ungraded:
+        run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
+                         f"the next run grades them again): {', '.join(ungraded)}")
+    by_student = {g.student_id: g for g in grades}
+    nb_runs = {sid: d.nbgrader for sid, d in executed.items()
+               if d.nbgrader is not None and run.problems != "rescore"}
     for sub in frozen:
         result = nb_runs.get(sub.student_id)
         if result is None:
@@ -654,7 +867,8 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
         try:
             _record_nbgrader(root, assignment, sub, result)
         except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
-            result.notes.append(f"could not record nbgrader's result: {printable(exc)}")
+            by_student[sub.student_id].notes.append(
+                f"could not record nbgrader's result: {printable(exc)}")
     damaged = _check_gradebook(root, private, run_notes)
 
     # A submission the grader could not grade gets nothing in the gradebook, not a zero.
@@ -666,10 +880,6 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
         set(nb_runs))
     cell_map = _cell_to_function(root, assignment)
     for grade, sub in accepted:
-        if nb_runs.get(grade.student_id) is not None:
-            grade.notes += nb_runs[grade.student_id].notes
-            grade.flags += nb_runs[grade.student_id].flags
-        grade.flags += _timeout_flags(grade)
         if sub.notebooks:
             _cross_check(grade, nb_own.get(grade.student_id, {}), cell_map)
     if not damaged:
@@ -699,6 +909,17 @@ def _record(root, assignment, frozen, nb_runs, grades, private, run_notes) -> li
                 grade.notes.append(f"feedback not written: {printable(exc)}")
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
+    if run.problems != "rescore":   # a rescore's executions are those it read
+        for sub in frozen:
+            done = executed[sub.student_id]
+            if done.execution is None:
+                continue
+            try:
+                _keep(run, problems, sub.student_id, done)
+            except (OSError, ValueError) as exc:
+                note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
+                if note not in run_notes:
+                    run_notes.append(note)
     return rows
 
 
@@ -758,23 +979,6 @@ def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | N
     return damaged
 
 
-# What the isolated grader's messages start with when time ran out: a call or closed loop
-# past its CPU limit, the problems skipped after it, the worker's own CPU limit, a notebook
-# that never finished loading, and the submission's wall-clock deadline.
-_TIMEOUT_MESSAGES = ("timed out", "skipped: an earlier problem timed out",
-                     "the worker process stopped (CPU time limit", "the notebook did not load",
-                     "not run: the submission's")
-
-
-def _timeout_flags(grade: grading.SubmissionGrade) -> list[str]:
-    """``timed_out:<function>`` for each function that lost problems to a time limit (a hang
-    would otherwise show only as failed checks)."""
-    flags = []
-    for f in grade.functions:
-        messages = list(f.error_counts) + [e.split(": ", 1)[-1] for e in f.errors]
-        if any(m.startswith(_TIMEOUT_MESSAGES) for m in messages):
-            flags.append(f"timed_out:{f.name}")
-    return flags
 
 
 # ----------------------------------------------------------------- cobotlab's score in nbgrader
@@ -924,22 +1128,24 @@ def _begin_run(root: Path, private: Path) -> list[str]:
     return notes
 
 
-def _end_run(root, private, assignment, nonce, problems, rows, grades, nb_runs,
-             run_notes) -> None:
+def _end_run(run: GradeRun, rows, grades, executed: dict[str, Executed]) -> None:
+    """The run's line in runs.jsonl and its log (last_run.log); the run is over."""
+    private = run.private
     # A fresh run's nonce reaches the disk only now that every worker is gone (replays use it).
     previous = _read_private(private, "runs.jsonl") or b""
-    entry = {"assignment": assignment, "problems": problems, "nonce": nonce, "when":
-             datetime.now(timezone.utc).isoformat(), "students": len(rows),
-             "spec_hash": registry.spec_hash(assignment),
-             "sandbox": sandbox.mode(), "notes": run_notes}
+    entry = {"assignment": run.assignment, "problems": run.problems, "nonce": run.nonce,
+             "when": datetime.now(timezone.utc).isoformat(), "students": len(rows),
+             "spec_hash": registry.spec_hash(run.assignment),
+             "sandbox": sandbox.mode(), "notes": run.notes}
     record.write_file(private, "runs.jsonl", previous + (json.dumps(entry) + "\n").encode())
     log = ["sandbox: " + sandbox.mode(), *("  " + e for e in sandbox.capabilities().evidence),
-           *run_notes, ""]
+           *run.notes, ""]
     for g in grades:
         log.append(f"{printable(g.student_id, 2000)}: "
                    + " | ".join(printable(n) for n in g.notes))
-        if g.student_id in nb_runs:
-            log.append("  nbgrader: " + nb_runs[g.student_id].log[-1500:])
+        nb = executed[g.student_id].nbgrader if g.student_id in executed else None
+        if nb is not None and nb.log:
+            log.append("  nbgrader: " + nb.log[-1500:])
     record.write_file(private, "last_run.log", "\n".join(log).encode("utf-8"))
     (private / record.RUN_MARKER).unlink(missing_ok=True)
 
@@ -953,17 +1159,21 @@ def _announce_fallback() -> None:
 
 
 def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes,
-                   nb_runs=None) -> None:
-    mode = sandbox.mode()
-    warn = "   WARNING: no sandbox, student code ran with rlimits only" \
-        if mode == "rlimits only" else ""
-    # elapsed is the whole run (freeze, nbgrader's template and autograde, the grader,
-    # recording); the shares are summed over submissions, so with workers they overlap.
-    nb_s = sum(r.seconds for r in (nb_runs or {}).values())
-    ours = sum(getattr(g, "seconds", 0.0) for g in grades)
-    print(f"{assignment}: graded {len(grades)} submissions in {elapsed:.1f} s wall clock with "
-          f"{workers} worker(s) (nbgrader's autograde {nb_s:.1f} s + isolated grader "
-          f"{ours:.1f} s, summed over submissions); sandbox: {mode}{warn}")
+                   executed: dict[str, Executed], rescore: bool = False) -> None:
+    if rescore:
+        print(f"{assignment}: rescored {len(grades)} submissions in {elapsed:.1f} s from the "
+              "executions the last grade run kept (no student code ran)")
+    else:
+        mode = sandbox.mode()
+        warn = "   WARNING: no sandbox, student code ran with rlimits only" \
+            if mode == "rlimits only" else ""
+        # elapsed is the whole run (freeze, nbgrader's template and autograde, the grader,
+        # recording); the shares are summed over submissions, so with workers they overlap.
+        nb_s = sum(d.nbgrader.seconds for d in executed.values() if d.nbgrader is not None)
+        ours = sum(getattr(g, "seconds", 0.0) for g in grades)
+        print(f"{assignment}: graded {len(grades)} submissions in {elapsed:.1f} s wall clock "
+              f"with {workers} worker(s) (nbgrader's autograde {nb_s:.1f} s + isolated grader "
+              f"{ours:.1f} s, summed over submissions); sandbox: {mode}{warn}")
     for note in run_notes:
         print(f"  note: {printable(note)}")
     # a long id is cut to fit the column, with a short hash of the whole so that two ids

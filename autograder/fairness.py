@@ -29,6 +29,7 @@ import numpy as np
 
 from autograder import checks
 from autograder.checks import TrialOutcome
+from autograder.outcomes import raised
 from autograder.spec_types import FunctionSpec, OutputError, Trial
 
 __all__ = ["Caller", "DrawStats", "Loss", "TrivialGate", "TrivialScore", "TRIVIAL_LIMIT",
@@ -109,7 +110,7 @@ class _Worst:
 
 def _worst_check(spec: FunctionSpec, trial: Trial, outcome: TrialOutcome) -> _Worst:
     if trial.raises is not None:
-        if outcome.error is not None and outcome.error.split(":", 1)[0] == trial.raises:
+        if outcome.has_raised(trial.raises):
             return _Worst(0.0)
         return _Worst(math.inf, reason=f"expected {trial.raises}, got "
                                        f"{outcome.error or 'a return value'}")
@@ -358,7 +359,8 @@ class TrivialGate:
         if answer is None:
             return TrialOutcome(error="the trivial answer does not apply to this problem")
         if answer.raises is not None:
-            return TrialOutcome(error=f"{answer.raises}: raised on every problem")
+            return TrialOutcome(error=f"{answer.raises}: raised on every problem",
+                                failure=raised(answer.raises))
         if self.spec.drive is not None:
             # A trivial law calls no other graded function: no stand-in tables to build.
             return checks._call_in_process(answer.value, trial, self._loop_spec)

@@ -22,6 +22,7 @@ from collections import Counter
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
+from autograder.outcomes import Failed
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
 
@@ -60,10 +61,6 @@ _VERDICTS = {
     "not_graded": ("missing", "not graded"),
 }
 
-_NOT_FOUND = re.compile(r"^no function named \S+ is defined")
-_TIMEOUT = re.compile(r"^(timed out|skipped: an earlier problem timed out)")
-_CPU_LIMIT = re.compile(r"(?:earlier problem timed out after|closed loop took over) "
-                        r"([0-9.]+(?:e[+-]?\d+)?) s")
 _WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
 _HUNG_CELL = re.compile(r"^cell (\d+): ")
 
@@ -98,10 +95,6 @@ def _problem_label(error: str, message: str) -> str:
     return ""
 
 
-def _is_not_implemented(message: str) -> bool:
-    return message.startswith("NotImplementedError")
-
-
 def _problem_counts(f: FunctionResult) -> Counter:
     """{error message: problems it happened on}; from ``errors`` (uncounted, label prefix
     dropped) when the result carries no counts."""
@@ -116,14 +109,18 @@ def function_verdict(f: FunctionResult) -> str:
     if f.forbidden:
         return "forbidden"
     counts = _problem_counts(f)
+    failures = {m: f.failures.get(m) for m in counts}
     if f.n_problems and counts:
-        if sum(n for m, n in counts.items() if _is_not_implemented(m)) >= f.n_problems:
+        if sum(n for m, n in counts.items() if failures[m] is not None
+               and failures[m].kind is Failed.RAISED
+               and failures[m].exception == "NotImplementedError") >= f.n_problems:
             return "not_implemented"
-        if sum(n for m, n in counts.items() if _NOT_FOUND.match(m)) >= f.n_problems:
+        if sum(n for m, n in counts.items() if failures[m] is not None
+               and failures[m].kind is Failed.NOT_FOUND) >= f.n_problems:
             return "not_found"
     if f.max_points and f.points >= f.max_points:
         return "passed"
-    if any(_TIMEOUT.match(m) for m in counts):
+    if any(x is not None and x.is_time_out for x in failures.values()):
         return "timed_out"
     if not f.n_problems and not any(c.n_trials for c in f.checks):
         return "not_graded"
@@ -135,15 +132,16 @@ def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
     happened on; a time-out is said in words (what stopped, and what was therefore not run).
     Text from student code is capped but not yet HTML-escaped."""
     counts = _problem_counts(f)
+    failures = {m: x for m in counts if (x := f.failures.get(m)) is not None}
     of = f" of {f.n_problems}" if f.n_problems else ""
     lines = []
-    timed = sum(n for m, n in counts.items() if m.startswith("timed out"))
-    skipped = sum(n for m, n in counts.items() if m.startswith("skipped: an earlier problem"))
+    timed = sum(counts[m] for m, x in failures.items() if x.kind is Failed.TIMED_OUT)
+    skipped = sum(counts[m] for m, x in failures.items() if x.skipped_after_earlier)
     if timed or skipped:
-        limits = {m2[1] for m in counts if (m2 := _CPU_LIMIT.search(m))}
-        limit = f" of {min(limits, key=float)} s of CPU time" if limits else ""
-        stopped = next((w[0] for m in counts if m.startswith("timed out")
-                        and (w := _WHERE.search(m))), "")
+        limits = [x.limit_s for x in failures.values() if x.limit_s is not None]
+        limit = f" of {min(limits):g} s of CPU time" if limits else ""
+        stopped = next((w[0] for x in failures.values() if x.kind is Failed.TIMED_OUT
+                        and (w := _WHERE.search(f"({x.where})"))), "")
         line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
                 f"{timed or 1}{of} problem(s)"
                 + (f" (stopped at {student_location(stopped, origins)[1:-1]})" if stopped else ""))
@@ -154,7 +152,7 @@ def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
     merged: Counter = Counter()
     kinds: dict[str, list[str]] = {}
     for message, n in counts.items():
-        if _TIMEOUT.match(message):
+        if message in failures and failures[message].is_time_out:
             continue
         shown = student_location(printable(message, MAX_TEXT), origins)
         merged[shown] += n

@@ -47,6 +47,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +57,7 @@ import numpy as np
 from autograder import checks, sandbox, wire
 from autograder._worker import WALL_STRETCH
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
+from autograder.outcomes import Cause, Failed, Failure
 
 __all__ = [
     "SECRET_ENV",
@@ -117,7 +119,7 @@ class Limits:
 @dataclass(frozen=True)
 class CellRun:
     """One notebook cell as the worker first ran it: ``origin`` says where it sits; ``error``
-    is empty when it ran through ("timed out" when its limit stopped it); ``stdout`` and
+    is empty when it ran through; ``timed_out`` when its limit stopped it; ``stdout`` and
     ``stderr`` are the first few KB it wrote to each."""
 
     origin: CellOrigin
@@ -125,6 +127,7 @@ class CellRun:
     where: str = ""
     stdout: str = ""
     stderr: str = ""
+    timed_out: bool = False
 
 
 @dataclass
@@ -346,7 +349,12 @@ def worker_jail(limits: Limits) -> sandbox.Jail:
 
 
 class WorkerFailure(Exception):
-    """The worker timed out, died or broke the protocol; it has been killed."""
+    """The worker timed out, died or broke the protocol; it has been killed. ``failure``:
+    what that was, for the problem it happened on."""
+
+    def __init__(self, message: str, failure: Failure | None = None):
+        super().__init__(message)
+        self.failure = failure or Failure(Failed.WORKER_STOPPED, cause=Cause.OTHER)
 
 
 class GraderError(RuntimeError):
@@ -459,6 +467,21 @@ def _reported_cpu(reply: dict, wall_s: float) -> float:
     return min(max(float(cpu), 0.0), wall_s * (os.cpu_count() or 1))
 
 
+# The kinds of failure a worker may report for a call; anything else is taken as a raise.
+_REPORTED = {"raised": Failed.RAISED, "timed_out": Failed.TIMED_OUT,
+             "not_found": Failed.NOT_FOUND, "unusable": Failed.UNUSABLE}
+
+
+def _reported_failure(reply: dict, where: str) -> Failure:
+    """The typed failure a call's reply reports. The worker is untrusted: the kinds it may
+    claim are those that only cost the submission (a raise, a time-out, no such function,
+    an unusable value); an exception's type name is what the code raised, capped."""
+    kind = _REPORTED.get(reply.get("failure"), Failed.RAISED)
+    exception = reply.get("exception")
+    exception = exception[:80] if kind is Failed.RAISED and isinstance(exception, str) else ""
+    return Failure(kind, exception=exception, where=where)
+
+
 class Worker:
     """A student-code worker process, spoken to over two private pipes.
 
@@ -529,11 +552,11 @@ class Worker:
             if index < self.shared:
                 continue
             if index in skip:
-                self.load_report.append({"index": index, "ok": False, "error": "skipped"})
+                self.load_report.append({"index": index, "ok": False, "error": "skipped",
+                                         "skipped": True})
                 continue
             if budget.exhausted:
-                raise WorkerFailure(f"the notebook did not load within "
-                                    f"{limits.load_timeout_s:g} s of CPU time")
+                raise _not_loaded(limits)
             cpu = min(limits.cell_timeout_s, budget.cpu_s)
             wall = min(limits.wall_factor * cpu, budget.wall_s)
             cell_started = time.monotonic()
@@ -547,7 +570,7 @@ class Worker:
                 raise CellHang(index, f"cell {index}: {exc}") from None
             elapsed = time.monotonic() - cell_started
             budget.spend(_reported_cpu(reply, elapsed), elapsed)
-            self.load_report.append(dict(reply, index=index))
+            self.load_report.append(dict(reply, index=index, skipped=False))
         self.cells_s = time.monotonic() - started
 
     def _spawn(self, limits: Limits, cgroup, cpu_s: int, control_fd: int | None) -> None:
@@ -645,7 +668,8 @@ class Worker:
             self.close()
             code = self.proc.returncode
             if isinstance(exc, wire.WireTimeout):
-                raise WorkerFailure(f"timed out after {timeout_s:g} s") from None
+                raise WorkerFailure(f"timed out after {timeout_s:g} s",
+                                    Failure(Failed.TIMED_OUT)) from None
             if isinstance(exc, wire.WireTooLarge):
                 raise WorkerFailure(f"the reply was too large ({exc}; the cap is "
                                     f"{max_bytes // 1024} KB)") from None
@@ -656,7 +680,9 @@ class Worker:
             reason = {-signal.SIGXCPU: "CPU time limit", -signal.SIGKILL: "killed",
                       -signal.SIGSEGV: "crashed (segmentation fault)"}.get(code, f"exit code {code}")
             raise WorkerFailure(f"the worker process stopped ({reason}; memory or CPU limits "
-                                "are enforced)") from None
+                                "are enforced)", Failure(Failed.WORKER_STOPPED, cause=(
+                                    Cause.CPU_LIMIT if code == -signal.SIGXCPU
+                                    else Cause.OTHER))) from None
         # Stopped by its CPU timer, it had its CPU: the cgroup's count, read a moment apart
         # and kept by other bookkeeping, can fall a hair short and must not overrule that.
         if limits is not None and reply.get("ok") is not True and reply.get("limit") != "cpu":
@@ -726,10 +752,12 @@ class Worker:
             return checks.TrialOutcome(value=reply["value"], **timing)
         error = reply.get("error")
         where = reply.get("where")
+        where = where[:60] if isinstance(where, str) else ""
         text = str(error)[:400] if error else "the call failed"
-        if isinstance(where, str) and where:
-            text += f" ({where[:60]})"
-        return checks.TrialOutcome(error=text, **timing)
+        if where:
+            text += f" ({where})"
+        return checks.TrialOutcome(error=text, failure=_reported_failure(reply, where),
+                                   **timing)
 
     @property
     def alive(self) -> bool:
@@ -754,44 +782,162 @@ class Worker:
 
 
 # --------------------------------------------------------------------------- one submission
+#
+# Three steps, each a function of the one before: draw the problems (from the secret, in
+# this process: the truth never leaves it), execute the notebook on them in a sandboxed
+# worker (an Execution: what each call came to, nothing scored), and score (a pure function
+# of the problems and the execution, which a test can call without a sandbox).
 
 
-def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str,
-                   nonce: str | None, limits: Limits = Limits(),
-                   run_tests: bool = False, template=None) -> SubmissionGrade:
-    """Grade one submission (its frozen notebook file or files) on its own hidden problems.
+@dataclass(frozen=True)
+class Problems:
+    """One submission's hidden problems: ``trials[function]`` in the lab's order, truth
+    included, and the public trials ``hidden_test(function)`` scores on (the kernel seeds);
+    drawn on the trusted side (:class:`HiddenProblems`)."""
 
-    The code runs in the sandboxed worker, all of its processes in one cgroup when the
-    machine has one; a function whose code reaches one of its spec's forbidden routines
-    (static scan here, tripwire in the worker) scores zero with a ``forbidden:<name>`` flag.
-    Never raises because of anything in the submission: every failure becomes a zero on the
-    problems it touched and a note; past ``limits.deadline_s`` the rest scores zero.
+    assignment: str
+    student_id: str
+    trials: dict[str, list[checks.Trial]]
+    kernel: KernelTrials
 
-    ``run_tests`` is nbgrader's run of the same notebook, for a notebook nbgrader has
-    sanitized (see :func:`extract_code`): its test cells run too, in order, on the first load
-    only (a restart skips them), each cell's outcome goes to ``cell_runs``, and every
-    ``hidden_test(f)`` of a test cell is scored here on the kernel seeds, the rule of
-    :func:`autograder.checks.hidden_test`, into ``kernel_checks``.
+    def kernel_trials(self, name: str) -> list[checks.Trial]:
+        return self.kernel.of(name)
 
-    ``template``: an :class:`autograder.template.Template` of this assignment; when the
-    submission's first cells are its shared ones, each worker is a fork of it (a sandbox of
-    its own, the shared cells not run again), else, or when it cannot fork, a cold one.
-    ``grade.profile`` says where the wall-clock time went.
-    """
-    started = time.monotonic()
+
+class KernelTrials:
+    """The public problems of :data:`checks.KERNEL_SEEDS` per function, drawn once for the
+    class (they are the same for everyone) and when first asked for."""
+
+    def __init__(self, assignment: str):
+        self.specs = {s.name: s for s in _specs(assignment)}
+        self._drawn: dict[str, list[checks.Trial]] = {}
+        self._lock = threading.Lock()
+
+    def of(self, name: str) -> list[checks.Trial]:
+        with self._lock:
+            if name not in self._drawn:
+                spec = self.specs[name]
+                self._drawn[name] = [t for seed in checks.KERNEL_SEEDS
+                                     for t in checks.public_trials(spec, seed)]
+            return self._drawn[name]
+
+
+class HiddenProblems:
+    """Every submission's hidden problems of one run: drawn from the secret, the run's nonce
+    (None: the course's fixed problems), the assignment, the student id and the function
+    name (:func:`problem_rng`), each set when first asked for (by the thread that grades
+    that submission, so draws overlap other submissions' work) and kept for scoring."""
+
+    def __init__(self, assignment: str, secret: str, nonce: str | None):
+        self.assignment, self._secret, self._nonce = assignment, secret, nonce
+        self.kernel = KernelTrials(assignment)
+        self._drawn: dict[str, Problems] = {}
+        self._lock = threading.Lock()
+
+    def of(self, student_id: str) -> Problems:
+        with self._lock:
+            known = self._drawn.get(student_id)
+        if known is not None:
+            return known
+        problems = draw_problems(self.assignment, student_id, self._secret, self._nonce,
+                                 self.kernel)
+        with self._lock:
+            return self._drawn.setdefault(student_id, problems)
+
+    def keep(self, problems: Problems) -> None:
+        """Use ``problems`` for their student (a rescore's, drawn with the nonce of the run
+        that the student's kept execution came from)."""
+        with self._lock:
+            self._drawn[problems.student_id] = problems
+
+
+def draw_problems(assignment: str, student_id: str, secret: str, nonce: str | None,
+                  kernel: KernelTrials | None = None) -> Problems:
+    """One student's hidden problems of ``assignment`` (see :func:`problem_rng`)."""
+    trials = {spec.name: checks.make_trials(spec, problem_rng(secret, nonce, assignment,
+                                                              student_id, spec.name))
+              for spec in _specs(assignment)}
+    return Problems(assignment, student_id, trials, kernel or KernelTrials(assignment))
+
+
+def _specs(assignment: str):
     specs = checks.SPECS.get(assignment)
     if specs is None:
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
                          f"known assignments: {sorted(checks.SPECS)}")
-    grade = SubmissionGrade(student_id=student_id, assignment=assignment)
+    return specs
+
+
+@dataclass
+class FunctionRun:
+    """What one graded function did on its problems: an outcome per problem (a value, or a
+    typed failure), in order; ``forbidden``: the forbidden routines it reached (the static
+    scan's, then no problem was run, or the tripwire's), which make it score zero."""
+
+    name: str
+    outcomes: list[checks.TrialOutcome] = field(default_factory=list)
+    forbidden: tuple[str, ...] = ()
+
+
+@dataclass
+class Execution:
+    """What one submission's code did, and nothing scored: per graded function a
+    :class:`FunctionRun` on its hidden problems; per ``hidden_test(f)`` of nbgrader's test
+    cells (``run_tests``: ``kernel_tests`` names them in order), one on the kernel seeds'
+    public problems (none for a function forbidden or unknown); what each cell did on
+    the first load; the flags of the static scan and of the sandbox; the notes for the
+    instructor; the time it took (``profile``: see :class:`SubmissionGrade`)."""
+
+    student_id: str
+    assignment: str
+    functions: list[FunctionRun] = field(default_factory=list)
+    kernel_tests: list[str] = field(default_factory=list)
+    kernel_runs: dict[str, FunctionRun] = field(default_factory=dict)
+    suspicious: list[str] = field(default_factory=list)
+    sandbox_flags: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    cell_origins: list[CellOrigin] = field(default_factory=list)
+    cell_runs: list[CellRun] = field(default_factory=list)
+    seconds: float = 0.0
+    profile: dict = field(default_factory=lambda: {
+        "start_s": 0.0, "shared_s": 0.0, "cells_s": 0.0, "hidden_s": 0.0, "peak_mb": None})
+
+
+def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits(),
+                     run_tests: bool = False, template=None) -> Execution:
+    """Run one submission (its frozen notebook file or files) on its hidden problems and
+    say what each call came to (:class:`Execution`); nothing is scored here.
+
+    The code runs in the sandboxed worker, all of its processes in one cgroup when the
+    machine has one. A function whose code reaches one of its spec's forbidden routines
+    (static scan here, tripwire in the worker) is stopped there (``FunctionRun.forbidden``).
+    Never raises because of anything in the submission: every failure becomes the outcome
+    of the problems it touched, or a note; past ``limits.deadline_s`` the rest are skipped.
+    Raises :class:`GraderError` when the grader could not run it (its sandbox did not start,
+    or the machine starved it): the caller tries again in a fresh sandbox.
+
+    ``run_tests`` is nbgrader's run of the same notebook, for a notebook nbgrader has
+    sanitized (see :func:`extract_code`): its test cells run too, in order, on the first load
+    only (a restart skips them), each cell's outcome goes to ``cell_runs``, and each
+    ``hidden_test(f)`` of a test cell is run here on the kernel seeds' problems, into
+    ``kernel_runs``.
+
+    ``template``: an :class:`autograder.template.Template` of this assignment; when the
+    submission's first cells are its shared ones, each worker is a fork of it (a sandbox of
+    its own, the shared cells not run again), else, or when it cannot fork, a cold one.
+    ``execution.profile`` says where the wall-clock time went.
+    """
+    started = time.monotonic()
+    specs = _specs(problems.assignment)
+    run = Execution(student_id=problems.student_id, assignment=problems.assignment)
     tests: set[int] | None = set() if run_tests else None
-    cells, grade.cell_origins, grade.notes = extract_code(notebook_paths, with_origins=True,
-                                                          tests=tests)
+    cells, run.cell_origins, run.notes = extract_code(notebook_paths, with_origins=True,
+                                                      tests=tests)
     tests = tests or set()
     own = [c for i, c in enumerate(cells) if i not in tests]   # the student's code
-    grade.flags += scan_for_tampering(own)
+    run.suspicious = scan_for_tampering(own)
     if not cells:
-        grade.notes.append("no code cells found")
+        run.notes.append("no code cells found")
     banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
     routines = sorted({name for spec in specs for name in spec.forbidden})
 
@@ -802,61 +948,121 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
             cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes)
         except (OSError, RuntimeError) as exc:
             # The run's header promised a cgroup: this row says it did not get one.
-            grade.flags.append("sandbox:no_cgroup")
-            grade.notes.append(f"no cgroup for this submission ({exc}): per-process limits "
-                               "only")
-    worker: Worker | None = None
-    skip: set[int] = set()
-    load_budget = LoadBudget.of(limits)   # over every restart, not since the start: a worker
-    worker_cpu_s = limits.worker_cpu_s(specs)  # that dies late must still be able to reload
-    deadline = started + limits.deadline_s
-
-    starts = 0
+            run.sandbox_flags.append("sandbox:no_cgroup")
+            run.notes.append(f"no cgroup for this submission ({exc}): per-process limits "
+                             "only")
     if template is not None and not template.matches(cells):
-        grade.notes.append("started cold: the notebook's first cells are not the released "
-                           "notebook's read-only ones")
+        run.notes.append("started cold: the notebook's first cells are not the released "
+                         "notebook's read-only ones")
         template = None
-    profile = grade.profile
-
-    def loaded() -> Worker:
-        nonlocal worker, starts, template
-        if worker is None or not worker.alive:
-            if worker is not None:
-                worker.close()
-            starts += 1
+    worker = _SubmissionWorker(cells, limits, run, tests, cgroup, template, routines,
+                               limits.worker_cpu_s(specs), run_tests)
+    deadline = started + limits.deadline_s
+    profile = run.profile
+    try:
+        if run_tests:   # every cell runs once even if no function gets called
             try:
-                worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1, template=template,
-                                       forbidden=routines)
-            except TemplateUnavailable as exc:
-                grade.notes.append(f"started without the template ({exc})")
-                template = None
-                worker = _start_worker(cells, limits, skip, grade, load_budget, cgroup,
-                                       worker_cpu_s, first=starts == 1, forbidden=routines)
-            profile["start_s"] += worker.start_s
-            profile["cells_s"] += worker.cells_s
-            if worker.shared:
-                profile["shared_s"] = template.shared_s
-            _note_load(grade, worker.load_report, tests)
-            if run_tests and not grade.cell_runs:
-                grade.cell_runs = _cell_runs(worker.load_report, grade.cell_origins, skip)
-            skip.update(tests)   # they ran once, as in nbgrader; a restart needs only the code
+                worker.loaded()
+            except WorkerFailure as exc:
+                run.notes.append(f"the notebook did not load: {exc}")
+        hidden_started, loading_before = time.monotonic(), profile["start_s"] + profile["cells_s"]
+        for spec in specs:
+            if banned[spec.name]:
+                run.functions.append(FunctionRun(spec.name, forbidden=tuple(banned[spec.name])))
+                continue
+            outcomes, tripped = worker.run(spec, problems.trials[spec.name], deadline)
+            banned[spec.name] = sorted(tripped)
+            run.functions.append(FunctionRun(spec.name, outcomes, tuple(sorted(tripped))))
+        run.kernel_tests = hidden_tests_called(cells[i] for i in sorted(tests))
+        for name in run.kernel_tests:
+            spec = next((s for s in specs if s.name == name), None)
+            if spec is None or banned.get(name):
+                continue   # scored as such: no graded function of that name, or forbidden
+            outcomes, tripped = worker.run(spec, problems.kernel_trials(name), deadline)
+            run.kernel_runs[name] = FunctionRun(name, outcomes, tuple(sorted(tripped)))
+        # restarts while calling count as loading, not as the hidden problems
+        profile["hidden_s"] = (time.monotonic() - hidden_started
+                               - (profile["start_s"] + profile["cells_s"] - loading_before))
+    finally:
+        worker.close()
+        if cgroup is not None:
+            profile["peak_mb"] = cgroup.peak_memory_mb()
+            if cgroup.oom_kills():
+                run.notes.append(f"the memory limit ({limits.memory_mb} MB for all the "
+                                 f"submission's processes) stopped it {cgroup.oom_kills()} "
+                                 "time(s)")
+            cgroup.remove()
+    if not caps.bwrap:
+        run.sandbox_flags.append("sandbox:rlimits_only")
+    elif not caps.syscall_filter:   # a machine the keyring filter does not know
+        run.sandbox_flags.append("sandbox:no_keyring_filter")
+    run.seconds = time.monotonic() - started
+    return run
+
+
+class _SubmissionWorker:
+    """The worker of one submission, started when first needed and again after it dies
+    (cells that hung skipped from then on, the load budget shared by every start)."""
+
+    def __init__(self, cells, limits: Limits, run: Execution, tests: set[int], cgroup,
+                 template, routines, cpu_s: int, run_tests: bool):
+        self.cells, self.limits, self.execution, self.tests = cells, limits, run, tests
+        self.cgroup, self.template, self.routines, self.cpu_s = cgroup, template, routines, cpu_s
+        self.run_tests = run_tests
+        self.worker: Worker | None = None
+        self.skip: set[int] = set()
+        # over every restart, not since the start: a worker that dies late must still be
+        # able to reload
+        self.budget = LoadBudget.of(limits)
+        self.starts = 0
+        self.noted_load = False
+
+    def loaded(self) -> Worker:
+        if self.worker is not None and self.worker.alive:
+            return self.worker
+        if self.worker is not None:
+            self.worker.close()
+        self.starts += 1
+        run, profile = self.execution, self.execution.profile
+        start = dict(cells=self.cells, limits=self.limits, skip=self.skip, run=run,
+                     budget=self.budget, cgroup=self.cgroup, cpu_s=self.cpu_s,
+                     first=self.starts == 1, forbidden=self.routines)
+        try:
+            self.worker = _start_worker(**start, template=self.template)
+        except TemplateUnavailable as exc:
+            run.notes.append(f"started without the template ({exc})")
+            self.template = None
+            self.worker = _start_worker(**start)
+        worker = self.worker
+        profile["start_s"] += worker.start_s
+        profile["cells_s"] += worker.cells_s
+        if worker.shared:
+            profile["shared_s"] = self.template.shared_s
+        if not self.noted_load:   # a restart repeats the same load
+            _note_load(run, worker.load_report, self.tests)
+            self.noted_load = True
+        if self.run_tests and not run.cell_runs:
+            run.cell_runs = _cell_runs(worker.load_report, run.cell_origins, self.skip)
+        self.skip.update(self.tests)   # they ran once, as in nbgrader; a restart needs the code
         return worker
 
-    def run(spec: checks.FunctionSpec, trials: list[checks.Trial]):
+    def run(self, spec: checks.FunctionSpec, trials: list[checks.Trial], deadline: float):
         """(outcomes, forbidden routines tripped) of ``spec``'s function on ``trials``."""
-        nonlocal worker
         outcomes: list[checks.TrialOutcome] = []
-        failure = None
+        failure: checks.TrialOutcome | None = None   # what every later problem gets
         tripped: set[str] = set()
+        limits = self.limits
         for trial in trials:
             if failure is None and time.monotonic() > deadline:
-                failure = f"not run: the submission's {limits.deadline_s:g} s were used up"
+                failure = checks.TrialOutcome(
+                    error=f"not run: the submission's {limits.deadline_s:g} s were used up",
+                    failure=Failure(Failed.SKIPPED, cause=Cause.DEADLINE))
             if failure is not None:  # one hang is enough: do not wait on every problem
-                outcomes.append(checks.TrialOutcome(error=failure))
+                outcomes.append(checks.TrialOutcome(error=failure.error,
+                                                    failure=failure.failure))
                 continue
             try:
-                w = loaded()
+                w = self.loaded()
                 timeout = limits.call_limit_s(spec)
                 timeout = max(0.1, min(timeout, (deadline - time.monotonic())
                                        / limits.wall_factor))
@@ -868,60 +1074,84 @@ def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str
                 tripped |= w.tripped
                 w.tripped.clear()
                 outcomes.append(outcome)
-                if outcome.error and outcome.error.startswith("timed out"):
-                    failure = f"skipped: an earlier problem timed out after {timeout:g} s"
+                if outcome.failure is not None and outcome.failure.kind is Failed.TIMED_OUT:
+                    failure = checks.TrialOutcome(
+                        error=f"skipped: an earlier problem timed out after {timeout:g} s",
+                        failure=Failure(Failed.SKIPPED, cause=Cause.TIMED_OUT,
+                                        limit_s=timeout))
             except WorkerFailure as exc:
                 # The problem that stopped the worker says why; the rest say they were
                 # not run (so feedback counts one time-out, not one per problem).
-                outcomes.append(checks.TrialOutcome(error=str(exc)))
-                failure = f"skipped: an earlier problem stopped the worker ({exc})"
-                if worker is not None:
-                    worker.close()
-                worker = None
+                outcomes.append(checks.TrialOutcome(error=str(exc), failure=exc.failure))
+                failure = checks.TrialOutcome(
+                    error=f"skipped: an earlier problem stopped the worker ({exc})",
+                    failure=Failure(Failed.SKIPPED, cause=Cause.WORKER_STOPPED))
+                self.close()
         return outcomes, tripped
 
-    try:
-        if run_tests:   # every cell runs once even if no function gets called
-            try:
-                loaded()
-            except WorkerFailure as exc:
-                grade.notes.append(f"the notebook did not load: {exc}")
-        hidden_started, loading_before = time.monotonic(), profile["start_s"] + profile["cells_s"]
-        for spec in specs:
-            if banned[spec.name]:
-                grade.functions.append(checks.forbidden_result(spec, banned[spec.name]))
-                continue
-            trials = checks.make_trials(spec, problem_rng(secret, nonce, assignment,
-                                                          student_id, spec.name))
-            outcomes, tripped = run(spec, trials)
-            if tripped:
-                banned[spec.name] = sorted(tripped)
-                grade.functions.append(checks.forbidden_result(spec, tripped))
-            else:
-                grade.functions.append(checks.score_function(spec, trials, outcomes))
-        for name in hidden_tests_called(cells[i] for i in sorted(tests)):
-            grade.kernel_checks[name] = _kernel_check(name, specs, banned, run)
-        # restarts while calling count as loading, not as the hidden problems
-        profile["hidden_s"] = (time.monotonic() - hidden_started
-                               - (profile["start_s"] + profile["cells_s"] - loading_before))
-    finally:
-        if worker is not None:
-            worker.close()
-        if cgroup is not None:
-            profile["peak_mb"] = cgroup.peak_memory_mb()
-            if cgroup.oom_kills():
-                grade.notes.append(f"the memory limit ({limits.memory_mb} MB for all the "
-                                   f"submission's processes) stopped it {cgroup.oom_kills()} "
-                                   "time(s)")
-            cgroup.remove()
-    grade.flags += [f"forbidden:{name}" for name in
-                    sorted({n for names in banned.values() for n in names})]
-    if not caps.bwrap:
-        grade.flags.append("sandbox:rlimits_only")
-    elif not caps.syscall_filter:   # a machine the keyring filter does not know
-        grade.flags.append("sandbox:no_keyring_filter")
-    grade.seconds = time.monotonic() - started
+    def close(self) -> None:
+        if self.worker is not None:
+            self.worker.close()
+        self.worker = None
+
+
+def score_execution(problems: Problems, execution: Execution) -> SubmissionGrade:
+    """The grade of one submission: a pure function of its problems and of what its code
+    did on them (no sandbox, no I/O, no student code). A function that reached a forbidden
+    routine scores zero, flagged ``forbidden:<routine>``; each ``hidden_test(f)`` of the
+    test cells gets its verdict in ``kernel_checks`` (None: passed), scored as the in-kernel
+    hidden test scores it (:data:`checks.KERNEL_SEEDS`) but here."""
+    specs = {s.name: s for s in _specs(problems.assignment)}
+    grade = SubmissionGrade(student_id=execution.student_id, assignment=execution.assignment,
+                            notes=list(execution.notes), seconds=execution.seconds,
+                            cell_origins=list(execution.cell_origins),
+                            cell_runs=list(execution.cell_runs),
+                            profile=dict(execution.profile))
+    for run in execution.functions:
+        spec = specs[run.name]
+        grade.functions.append(
+            checks.forbidden_result(spec, run.forbidden) if run.forbidden
+            else checks.score_function(spec, problems.trials[run.name], run.outcomes))
+    grade.flags = [*execution.suspicious, *(
+        f"forbidden:{name}" for name in sorted({n for r in execution.functions
+                                                for n in r.forbidden})),
+        *execution.sandbox_flags]
+    grade.kernel_checks = kernel_verdicts(problems, execution)
     return grade
+
+
+def kernel_verdicts(problems: Problems, execution: Execution) -> dict[str, str | None]:
+    """The verdict of each ``hidden_test(f)`` of the test cells, in order (None: passed,
+    else why not), scored as the in-kernel hidden test scores it but here."""
+    specs = {s.name: s for s in _specs(problems.assignment)}
+    banned = {r.name: r.forbidden for r in execution.functions if r.forbidden}
+    return {name: _kernel_verdict(name, specs, banned, problems, execution)
+            for name in execution.kernel_tests}
+
+
+def _kernel_verdict(name: str, specs: dict, banned: dict, problems: Problems,
+                    execution: Execution) -> str | None:
+    """The verdict of ``hidden_test(name)`` (None: passed, else why not)."""
+    spec = specs.get(name)
+    if spec is None:
+        return f"no graded function is named {name!r}"
+    if name in banned:
+        return checks.forbidden_result(spec, banned[name]).summary()
+    run = execution.kernel_runs[name]
+    result = (checks.forbidden_result(spec, run.forbidden) if run.forbidden else
+              checks.score_function(spec, problems.kernel_trials(name), run.outcomes))
+    return None if result.fraction >= 1.0 else result.summary()
+
+
+def grade_notebook(notebook_paths, assignment: str, student_id: str, secret: str,
+                   nonce: str | None, limits: Limits = Limits(),
+                   run_tests: bool = False, template=None) -> SubmissionGrade:
+    """Grade one submission on its own hidden problems: :func:`draw_problems`, then
+    :func:`execute_notebook` (see it for ``run_tests`` and ``template``), then
+    :func:`score_execution`. Never raises because of anything in the submission."""
+    problems = draw_problems(assignment, student_id, secret, nonce)
+    return score_execution(problems, execute_notebook(notebook_paths, problems, limits,
+                                                      run_tests, template))
 
 
 _HIDDEN_TEST_CALL = re.compile(r"\bhidden_test\(\s*([A-Za-z_]\w*)")
@@ -940,19 +1170,10 @@ def hidden_tests_called(test_sources) -> list[str]:
     return names
 
 
-def _kernel_check(name: str, specs, banned: dict, run) -> str | None:
-    """The verdict of ``hidden_test(name)`` (None: passed, else why not), scored as the
-    in-kernel hidden test scores it (:data:`checks.KERNEL_SEEDS`), but on the grader's side."""
-    spec = next((s for s in specs if s.name == name), None)
-    if spec is None:
-        return f"no graded function is named {name!r}"
-    if banned.get(name):
-        return checks.forbidden_result(spec, banned[name]).summary()
-    trials = [t for seed in checks.KERNEL_SEEDS for t in checks.public_trials(spec, seed)]
-    outcomes, tripped = run(spec, trials)
-    result = (checks.forbidden_result(spec, tripped) if tripped
-              else checks.score_function(spec, trials, outcomes))
-    return None if result.fraction >= 1.0 else result.summary()
+def _timed_out(reply: dict) -> bool:
+    """A cell's reply (or the grader's own entry for a skipped cell) says its time limit
+    stopped it."""
+    return reply.get("failure") == "timed_out"
 
 
 def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) -> list[CellRun]:
@@ -961,15 +1182,16 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
     runs = []
     for entry, origin in zip(report, origins):
         error = "" if entry.get("ok") is True else str(entry.get("error") or "failed")[:400]
-        if error == "skipped" and entry.get("index") in skip:
-            error = "timed out"
+        timed_out = entry.get("ok") is not True and _timed_out(entry)
+        if entry.get("skipped") and entry.get("index") in skip:
+            error, timed_out = "timed out", True
         runs.append(CellRun(origin, error, str(entry.get("where") or "")[:80],
                             str(entry.get("stdout") or "")[:4096],
-                            str(entry.get("stderr") or "")[:4096]))
+                            str(entry.get("stderr") or "")[:4096], timed_out))
     return runs
 
 
-def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
+def _start_worker(cells, limits: Limits, skip: set[int], run: Execution,
                   budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
                   first: bool, template=None, forbidden=()) -> Worker:
     """A loaded worker (a fork of ``template`` when given); cells that hang or time out are
@@ -977,32 +1199,35 @@ def _start_worker(cells, limits: Limits, skip: set[int], grade: SubmissionGrade,
     yet (see :class:`GraderError`)."""
     while True:
         if budget.exhausted:
-            raise WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s "
-                                "of CPU time")
+            raise _not_loaded(limits)
         try:
             worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first,
                             template=template, forbidden=forbidden)
         except CellHang as exc:
             first = False
             skip.add(exc.index)
-            grade.notes.append(f"  cell error: {exc} (skipped from then on)")
+            run.notes.append(f"  cell error: {exc} (skipped from then on)")
             continue
         # A cell stopped by its timer would only cost the same seconds again next restart.
         skip.update(r["index"] for r in worker.load_report
-                    if str(r.get("error", "")).startswith("timed out"))
+                    if r.get("ok") is not True and _timed_out(r))
         return worker
 
 
-def _note_load(grade: SubmissionGrade, report: list[dict], tests: set[int]) -> None:
-    """Note what loading did; errors of the test cells are nbgrader's result, not notes."""
-    if any("loaded" in n for n in grade.notes):
-        return  # a restarted worker repeats the same load
+def _not_loaded(limits: Limits) -> WorkerFailure:
+    return WorkerFailure(f"the notebook did not load within {limits.load_timeout_s:g} s of "
+                         "CPU time", Failure(Failed.WORKER_STOPPED, cause=Cause.LOAD_TIME))
+
+
+def _note_load(run: Execution, report: list[dict], tests: set[int]) -> None:
+    """Note what the first load did; errors of the test cells are nbgrader's result, not
+    notes."""
     failed = [c for c in report if isinstance(c, dict) and not c.get("ok")
-              and c.get("error") != "skipped" and c.get("index") not in tests]
-    grade.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
+              and not c.get("skipped") and c.get("index") not in tests]
+    run.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
     for c in failed[:5]:
-        grade.notes.append(f"  cell error: {str(c.get('error'))[:200]} ({c.get('where', '')})")
+        run.notes.append(f"  cell error: {str(c.get('error'))[:200]} ({c.get('where', '')})")
     chars = max([c.get("output_chars", 0) for c in report if isinstance(c, dict)
                  and isinstance(c.get("output_chars"), int)] or [0])
     if chars > 100_000:
-        grade.notes.append(f"printed {chars} characters while loading (output discarded)")
+        run.notes.append(f"printed {chars} characters while loading (output discarded)")

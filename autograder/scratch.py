@@ -395,23 +395,25 @@ def _collect(course: Path, assignment: str, student: str, known: dict[tuple[str,
 
 
 def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db: Path,
-                        known: dict[tuple[str, str], float], grade_notebook, *,
+                        known: dict[tuple[str, str], float], run_tests, *,
                         notebook_mb: float = 20.0):
     """nbgrader's autograde of one frozen submission, its cells run once by cobotlab's grader.
 
     nbgrader's own converter runs here, in the trusted process, on a throwaway course (the
     template gradebook, the one submission): it sanitizes the notebook (clears outputs,
     restores locked and test cells from the gradebook, checks the metadata), then, where its
-    ``Execute`` would start a kernel, ``grade_notebook([path])`` runs the sanitized notebook
-    in the sandboxed worker, test cells included, and grades it on the hidden problems in the
-    same worker; its cell outcomes become the cells' outputs, and nbgrader scores them, saves
-    the scores and applies the late penalty as usual. No student code runs in this process:
-    the submission's notebook is only read, as JSON, by nbgrader and by the grader.
+    ``Execute`` would start a kernel, ``run_tests([path])`` runs the sanitized notebook in the
+    sandboxed worker, test cells included, and on the hidden problems in the same worker; its
+    cell outcomes become the cells' outputs, and nbgrader scores them, saves the scores and
+    applies the late penalty as usual. No student code runs in this process: the
+    submission's notebook is only read, as JSON, by nbgrader and by the grader.
 
-    ``grade_notebook(paths)`` must return a :class:`autograder.grading.SubmissionGrade` made
-    with ``run_tests=True``. Returns ``(ScratchResult, grade)``; ``grade`` is None when
-    nbgrader refused the notebook before running it (a broken or mangled notebook): nbgrader
-    scores it 0 then, and the caller grades the raw submission itself.
+    ``run_tests(paths)`` must return ``(execution, verdicts)``: the
+    :class:`autograder.grading.Execution` of a run with ``run_tests=True`` and the verdict of
+    each ``hidden_test(f)`` (:func:`autograder.grading.kernel_verdicts`). Returns
+    ``(ScratchResult, execution)``; ``execution`` is None when nbgrader refused the notebook
+    before running it (a broken or mangled notebook): nbgrader scores it 0 then, and the
+    caller runs the raw submission itself.
 
     What differs from a kernel: cells run as plain Python (IPython magics removed), so the
     outputs hold what the cells printed and their errors, not rich output (plots, the
@@ -428,7 +430,7 @@ def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db
     warnings.filterwarnings("ignore", message=r"Non-unique cell id")
     result = ScratchResult()
     logger, log_text = _captured_logger()
-    execute = _worker_execute_class()(grade_notebook=grade_notebook)
+    execute = _worker_execute_class()(run_tests=run_tests)
     with tempfile.TemporaryDirectory(prefix="cobotlab-nbgrader-") as work:
         course = Path(work) / "course"
         _lay_out(course, frozen, assignment, template_db)
@@ -449,12 +451,12 @@ def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db
             logger.handlers = []
         # nbgrader's own share: the grader's time inside it is counted as the grader's
         result.seconds = time.monotonic() - started - (
-            execute.grade.seconds if execute.grade is not None else 0.0)
+            execute.execution.seconds if execute.execution is not None else 0.0)
         result.log = printable(log_text.getvalue()[-4000:], 4000)
         result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s of its own (its cells "
                             "run by the grader)")
         _collect(course, assignment, frozen.student_id, known, notebook_mb, result)
-    return result, execute.grade
+    return result, execute.execution
 
 
 def _is_execute(preprocessor) -> bool:
@@ -530,24 +532,25 @@ def _worker_execute_class():
     class WorkerExecute(NbGraderPreprocessor):
         """Run the notebook in cobotlab's worker (and grade it there) instead of a kernel."""
 
-        def __init__(self, grade_notebook=None, **kwargs):
+        def __init__(self, run_tests=None, **kwargs):
             super().__init__(**kwargs)
-            self.grade_notebook = grade_notebook
-            self.grade = None
+            self.run_tests = run_tests
+            self.execution = None
 
         def preprocess(self, nb, resources):
             with tempfile.TemporaryDirectory(prefix="cobotlab-sanitized-") as tmp:
                 path = Path(tmp) / f"{resources['nbgrader']['notebook']}.ipynb"
                 nbformat.write(nb, str(path))
-                self.grade = grade = self.grade_notebook([path])
-            runs = {run.origin.position: run for run in grade.cell_runs}
+                self.execution, verdicts = self.run_tests([path])
+            ran = self.execution
+            runs = {run.origin.position: run for run in ran.cell_runs}
             for position, cell in enumerate(nb.cells, 1):
                 if cell.cell_type != "code":
                     continue
                 run = runs.get(position)
                 cell.outputs = []
                 if run is None:
-                    if not grade.cell_runs and cell.source.strip():
+                    if not ran.cell_runs and cell.source.strip():
                         cell.outputs.append(_error_output(
                             "WorkerError", "the notebook did not load in cobotlab's worker"))
                     continue
@@ -558,14 +561,14 @@ def _worker_execute_class():
                     cell.outputs.append(new_output("stream", name="stderr", text=run.stderr))
                 if run.error:
                     ename, _, evalue = run.error.partition(": ")
-                    if run.error == "timed out":
+                    if run.timed_out:
                         ename, evalue = "CellTimeoutError", "stopped at its time limit"
-                    where = student_location(f" ({run.where})", grade.cell_origins) \
+                    where = student_location(f" ({run.where})", ran.cell_origins) \
                         if run.where else ""
                     cell.outputs.append(_error_output(ename, evalue + where))
                 elif is_grade(cell) and not is_solution(cell) and HIDDEN_MARK in cell.source:
                     for name in hidden_tests_called([cell.source]):
-                        verdict = grade.kernel_checks.get(name, "not scored")
+                        verdict = verdicts.get(name, "not scored")
                         if verdict is not None:
                             cell.outputs.append(_error_output("AssertionError", verdict))
                             break   # the kernel would stop at the first failing assert

@@ -193,7 +193,22 @@ def _write(home, shard, private, assignment, students, cells, theirs, notes) -> 
         else:
             mine.pop(sid, None)
         _copy_outputs(home, shard, assignment, sid, notes)
+        _copy_kept_execution(shard, private, assignment, sid, notes)
     record.write_file(private, course._LEDGER, json.dumps(ledger).encode("utf-8"))
+
+
+def _copy_kept_execution(shard: Path, private: Path, assignment: str, sid: str,
+                         notes: list[str]) -> None:
+    """What the student's code did in the shard's run, so that ``cobotlab grade --rescore``
+    works at home (read without following links; checked again when it is used)."""
+    relative = course.kept_path(assignment, sid)
+    try:
+        data = safe_files.read_file(shard / grading.PRIVATE_DIR, relative, _CAP_BYTES)
+    except safe_files.Refused as exc:
+        if exc.why is not safe_files.Why.MISSING:
+            notes.append(f"{sid}: its kept execution not copied: {freeze.printable(exc)}")
+        return
+    record.write_file(private, relative, data)
 
 
 def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> list[dict]:
@@ -260,7 +275,8 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     if ungraded:
         notes.insert(0, f"not merged, the shard's grader failed on them (no score): "
                         f"{', '.join(ungraded)}: grade them again")
-    course._end_run(home, private, assignment, None, "merged", merged, [], {}, notes)
+    course._end_run(course.GradeRun(home, private, assignment, "", None, "merged",
+                                    grading.Limits(), notes, 0.0), merged, [], {})
     if not quiet:
         print(f"{assignment}: merged {len(merged)} student(s) from {shard} into {home}")
         for note in notes[:-1]:

@@ -48,7 +48,7 @@ nbgrader's converter (its own share, from .cobotlab/last_run.log), recording and
 (the completion gap less those), and the total (the median gap); then the template's shared
 leading cells and its one-off build (one template per worker thread), paid once, not per
 submission. The phases come from ``SubmissionGrade.profile``, captured by wrapping
-``autograder.grading.grade_notebook``. Each is a median on its own, so they need not add up
+``autograder.grading.score_execution``. Each is a median on its own, so they need not add up
 to the total's median.
 
 After each cobotlab run the scores are checked and a line starting ``!!! WARNING`` says
@@ -171,23 +171,26 @@ def _profile(grade) -> dict:
 def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
     """`grade_course` with nbgrader's cross-check: wall s, completion gaps s (and whose),
     CPU s, the rows, each submission's SubmissionGrade (captured by wrapping
-    ``autograder.grading.grade_notebook``, which course.py looks up at call time), nbgrader's
+    ``autograder.grading.score_execution``, which course.py looks up at call time), nbgrader's
     own share per student and the run's log."""
     marks: list[tuple[float, str]] = []
     captured: dict[str, object] = {}
     templates: dict[int, object] = {}
-    original = grading.grade_notebook
+    original_execute, original_score = grading.execute_notebook, grading.score_execution
 
-    def capture(*args, **kwargs):
+    def execute(*args, **kwargs):
         template = kwargs.get("template")
         if template is not None:   # autograder.template.Template: its build_s is one-off
             templates[id(template)] = template
-        grade = original(*args, **kwargs)
+        return original_execute(*args, **kwargs)
+
+    def score(*args, **kwargs):
+        grade = original_score(*args, **kwargs)
         if isinstance(grade, grading.SubmissionGrade):
-            captured[grade.student_id] = grade   # the last attempt is the one recorded
+            captured[grade.student_id] = grade   # one scoring per submission
         return grade
 
-    grading.grade_notebook = capture
+    grading.execute_notebook, grading.score_execution = execute, score
     started = time.time()
     try:
         with _CpuMeter() as meter:
@@ -196,7 +199,7 @@ def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
                                 progress=lambda done, total, sid: marks.append(
                                     (time.time(), sid)) if done else None)
     finally:
-        grading.grade_notebook = original
+        grading.execute_notebook, grading.score_execution = original_execute, original_score
     wall, cpu = time.time() - started, meter.cpu_s
     log = (course / ".cobotlab" / "last_run.log").read_text()
     own = {}
@@ -213,7 +216,7 @@ def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
 
 def _template_cost(run: dict) -> float | None:
     """The template's one-off cost of the run, if this version of the grader reports it:
-    the ``build_s`` of the templates handed to grade_notebook (summed: one per run, or per
+    the ``build_s`` of the templates handed to execute_notebook (summed: one per run, or per
     worker), else ``profile["template_s"]``, else a run note "template...: X s" in the log."""
     if run["template_build_s"]:
         return float(sum(run["template_build_s"]))

@@ -238,9 +238,9 @@ def _build_parser() -> argparse.ArgumentParser:
                             "(a scheduler with TLS client certificates), `gateway` (a new "
                             "dask-gateway cluster of --workers workers, shut down after) or "
                             "gateway:NAME / gateway://HOST:PORT/NAME (an existing one); each "
-                            "worker grades in its own sandbox with $COBOTLAB_GRADING_SECRET; "
-                            "tcp:// is refused. --workers: submissions in flight (default: "
-                            "the cluster's threads)")
+                            "worker runs submissions in its own sandbox on the inputs of "
+                            "their problems (it needs no grading secret); tcp:// is refused. "
+                            "--workers: submissions in flight (default: the cluster's threads)")
     grade.add_argument("--tls-ca-file", default=None, metavar="PEM",
                        help="with --cluster tls://: the cluster's CA (default: Dask's config "
                             "distributed.comm.tls.ca-file)")
@@ -254,6 +254,13 @@ def _build_parser() -> argparse.ArgumentParser:
                              "COURSE/.cobotlab/runs.jsonl); default: the course's fixed ones")
     redraw.add_argument("--replay", default=None, metavar="NONCE",
                         help="the problems of an earlier --fresh run (its nonce in runs.jsonl)")
+    redraw.add_argument("--rescore", action="store_true",
+                        help="run no student code: score every submission again from what "
+                             "its code did in the last grade run (kept in COURSE/.cobotlab/"
+                             "executions/), after a change to the lab's tolerances, points, "
+                             "bands or mistakes; refused, naming them, for a submission "
+                             "handed in again since, or when the change altered the "
+                             "problems' inputs")
 
     merge = sub.add_parser(
         "merge",
@@ -726,7 +733,7 @@ def _grade(args) -> None:
                      students=_student_ids(args.students),
                      progress=None if args.no_progress else progress,
                      fresh=args.fresh, nonce=args.replay, cluster=cluster,
-                     template=not args.no_template)
+                     template=not args.no_template, rescore=args.rescore)
     finally:
         if bar is not None:
             bar.close()

@@ -363,7 +363,7 @@ class SandboxedReference:
         except grading.WorkerFailure as exc:
             worker.close()
             self.worker = None
-            return checks.TrialOutcome(error=f"the worker stopped: {exc}")
+            return checks.TrialOutcome(error=f"the worker stopped: {exc}", failure=exc.failure)
         except grading.GraderError:   # a busy machine starved it: not the reference's loss
             self.worker = None
             if retries:
@@ -788,7 +788,8 @@ def worst_cell(lab: str, spec: FunctionSpec, student: str, problem: int,
         "    outcome = checks.TrialOutcome(value=answer)",
         "    print('errors:', spec.measure(answer, trial), 'tolerances:', trial.tol)",
         "except Exception as exc:",
-        "    outcome = checks.TrialOutcome(error=f'{type(exc).__name__}: {exc}')",
+        "    outcome = checks.TrialOutcome(error=f'{type(exc).__name__}: {exc}',",
+        "                                  failure=checks.raised(type(exc).__name__))",
         "print(checks.score_function(spec, [trial], [outcome]).summary())",
     ]
     return "\n".join(lines) + "\n"

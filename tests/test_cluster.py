@@ -2,11 +2,11 @@
 
 The cluster is real: a distributed.LocalCluster of two worker processes speaking TLS only
 (Security.temporary(): every connection needs a certificate its CA signed), each grading in
-the same bubblewrap sandbox as a local run, with the grading secret in the workers'
-environment, never in a task. One worker process is killed (SIGKILL) while it grades; Dask
+the same bubblewrap sandbox as a local run, on the problems' inputs each task carries: the
+workers hold no grading secret. One worker process is killed (SIGKILL) while it grades; Dask
 reruns its task elsewhere, and every submission still gets exactly one row, with the scores a
-local run gives. The rest checks what the trusted side refuses: unauthenticated schedulers,
-workers with another secret, and replies that do not add up.
+local run gives. The rest checks what the trusted side refuses (unauthenticated schedulers,
+replies that do not add up) and what a task carries: no secret, no tolerance.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import course_kit as kit
 import pytest
 from nbgrader.api import Gradebook
 
-from autograder import checks, cluster, grading, registry, sandbox
+from autograder import checks, cluster, executions, grading, registry, sandbox
 from autograder.course import grade_course
 from cobotlab.cli import main
 
@@ -83,71 +83,110 @@ def test_ctrl_c_cancels_the_task_within_seconds():
 
 # --------------------------------------------------------------------------- the wire
 
+SECRET = "cluster-test-secret-" + "0" * 24
 
-def _full_marks() -> grading.SubmissionGrade:
-    grade = grading.SubmissionGrade("ada", ASSIGNMENT, flags=["suspicious_x"], notes=["n"])
+
+def _execution() -> grading.Execution:
+    """A real execution: the reference of lab 0 run in this process on one student's
+    problems (the cluster's reply carries exactly this)."""
+    problems = grading.draw_problems(ASSIGNMENT, "ada", SECRET, None)
+    ex = grading.Execution("ada", ASSIGNMENT, suspicious=["suspicious_x"], notes=["n"])
     for spec in checks.SPECS[ASSIGNMENT]:
-        result = checks.score_function(spec, [], [])
-        for c in result.checks:
-            c.credit, c.n_trials, c.n_full = 1.0, 8, 8
-        result.points = spec.points
-        grade.functions.append(result)
-    grade.cell_origins = [grading.CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
-    grade.cell_runs = [grading.CellRun(grade.cell_origins[0], "", "", "printed", "")]
-    grade.kernel_checks = {"invert_pose": None}
-    return grade
+        answer = spec.code_mistakes[0].func if spec.name == "compose_chain" else None
+        outcomes = []
+        for trial in problems.trials[spec.name]:
+            value = trial.truth if answer is None else answer(*trial.args)
+            outcomes.append(checks.TrialOutcome(value=value, seconds=0.01, cpu_seconds=0.01))
+        ex.functions.append(grading.FunctionRun(spec.name, outcomes))
+    ex.functions[0].outcomes[0] = checks.TrialOutcome(
+        error="timed out (cell 1, line 2)", failure=checks.Failure(
+            checks.Failed.TIMED_OUT, where="cell 1, line 2"))
+    ex.cell_origins = [grading.CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
+    ex.cell_runs = [grading.CellRun(ex.cell_origins[0], "", "", "printed", "")]
+    ex.kernel_tests = ["invert_pose"]
+    ex.kernel_runs = {"invert_pose": grading.FunctionRun("invert_pose", [
+        checks.TrialOutcome(value=t.truth) for t in problems.kernel_trials("invert_pose")])}
+    return ex
 
 
 def _decode(data):
-    return cluster.grade_from_wire(json.loads(json.dumps(data)), ASSIGNMENT, "ada",
-                                   {f"{ASSIGNMENT}.ipynb"})
+    return executions.from_wire(json.loads(json.dumps(data)), ASSIGNMENT, "ada",
+                                {f"{ASSIGNMENT}.ipynb"})
 
 
-def test_a_valid_reply_round_trips():
-    grade = _full_marks()
-    back = _decode(cluster.grade_to_wire(grade))
-    assert back.score == grade.score == 10.0 and back.max_score == 10.0
-    assert [f.name for f in back.functions] == list(FUNCTIONS)
-    assert back.flags == grade.flags and back.cell_runs == grade.cell_runs
-    assert back.kernel_checks == {"invert_pose": None}
-    # units and descriptions are the local spec's, not the worker's
-    spec = checks.SPECS[ASSIGNMENT][0]
-    assert back.functions[0].checks[0].unit == spec.checks[0].unit
+def test_an_execution_round_trips_and_scores_the_same():
+    ex = _execution()
+    back = _decode(executions.to_wire(ex))
+    problems = grading.draw_problems(ASSIGNMENT, "ada", SECRET, None)
+    before, after = grading.score_execution(problems, ex), grading.score_execution(problems,
+                                                                                  back)
+    assert after.functions == before.functions and after.flags == before.flags
+    assert after.score == before.score and 0 < before.score < before.max_score
+    assert back.cell_runs == ex.cell_runs and back.kernel_tests == ["invert_pose"]
+    assert back.functions[0].outcomes[0].failure.kind is checks.Failed.TIMED_OUT
+    assert before.kernel_checks == after.kernel_checks == {"invert_pose": None}
+
+
+def _keys(data) -> set[str]:
+    if isinstance(data, dict):
+        return set(data) | {k for v in data.values() for k in _keys(v)}
+    if isinstance(data, (list, tuple)):
+        return {k for v in data for k in _keys(v)}
+    return set()
+
+
+def test_a_task_carries_no_secret_tolerance_or_one_call_truth():
+    """The cluster never holds the secret: a task is the notebook and the inputs."""
+    for lab in ("lab0_frames", "lab3_servoing"):
+        problems = grading.draw_problems(lab, "ada", SECRET, None)
+        payload = cluster.task_payload([("x.ipynb", b"{}")], problems, LIMITS, False)
+        text = json.dumps(payload, default=str)
+        assert SECRET not in text and not _keys(payload) & {"tol", "secret", "nonce"}
+        wired = payload["problems"]["trials"]
+        for spec in checks.SPECS[lab]:
+            rows = [grading.wire.decode(r) for r in wired[spec.name]]
+            assert all(set(r) == {"args", "truth"} for r in rows)
+            if spec.drive is None:   # a closed loop flies by its truth; nothing else gets one
+                assert all(r["truth"] is None for r in rows), spec.name
+        back = executions.problems_from_wire(json.loads(json.dumps(payload["problems"])),
+                                             lab, "ada")
+        assert executions.inputs_digest(back) == executions.inputs_digest(problems)
 
 
 def _tampered(edit):
-    data = cluster.grade_to_wire(_full_marks())
+    data = executions.to_wire(_execution())
     edit(data)
     return data
 
 
 @pytest.mark.parametrize("edit, why", [
-    (lambda d: d["functions"][0].update(points=99.0), "outside"),
-    (lambda d: d["functions"][0].update(points=float("nan")), "not finite"),
-    (lambda d: d["functions"][0].update(points=-1.0), "outside"),
-    (lambda d: d["functions"][0].update(max_points=100.0), "out of 100 points"),
-    (lambda d: d["functions"][0].update(name="answer_key"), "expected function"),
-    (lambda d: d["functions"].reverse(), "expected function"),
-    (lambda d: d["functions"].pop(), "functions scored"),
-    (lambda d: d["functions"][0]["checks"][0].update(credit=0.0), "check credits give"),
-    (lambda d: d["functions"][0]["checks"][0].update(credit=2.0), "outside"),
-    (lambda d: d["functions"][0]["checks"][0].update(n_full=True), "count"),
-    (lambda d: d["functions"][0]["checks"][0].update(name="other"), "not this lab's"),
+    (lambda d: d["functions"][0].update(name="answer_key"), "not invert_pose's"),
+    (lambda d: d["functions"].reverse(), "not invert_pose's"),
+    (lambda d: d["functions"].pop(), "functions run"),
+    (lambda d: d["functions"][0]["outcomes"].extend(d["functions"][0]["outcomes"] * 9),
+     "list of at most"),
+    (lambda d: d["functions"][0]["outcomes"][1].update(seconds=float("inf")), "outside"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(kind="full_marks"),
+     "no kind of failure"),
+    (lambda d: d["functions"][0]["outcomes"][1].update(value={"__nd__": "x", "dtype": "o"}),
+     "malformed array"),
     (lambda d: d.update(student_id="bo"), "another submission"),
-    (lambda d: d.update(seconds=float("inf")), "not finite"),
-    (lambda d: d.update(flags="a;b"), "not a list"),
-    (lambda d: d["cell_origins"].append(["/etc/passwd", 1, 1]), "notebooks sent"),
-    (lambda d: d.update(kernel_checks={str(i): None for i in range(40)}), "too many"),
+    (lambda d: d.update(seconds=float("nan")), "outside"),
+    (lambda d: d.update(suspicious="a;b"), "not a list"),
+    (lambda d: d["cell_origins"].append(["/etc/passwd", 1, 1]), "notebooks"),
+    (lambda d: d["kernel_runs"].update(compose_chain=d["kernel_runs"]["invert_pose"]),
+     "no test cell called"),
+    (lambda d: d.update(format=0), "format"),
 ])
 def test_replies_that_do_not_add_up_are_refused(edit, why):
-    with pytest.raises(cluster.WireRefused, match=why):
+    with pytest.raises(executions.ExecutionRefused, match=why):
         _decode(_tampered(edit))
 
 
 def test_strings_are_capped():
-    data = _tampered(lambda d: d.update(flags=["x" * 10_000], notes=["y" * 10_000]))
+    data = _tampered(lambda d: d.update(suspicious=["x" * 10_000], notes=["y" * 10_000]))
     back = _decode(data)
-    assert len(back.flags[0]) == 200 and len(back.notes[0]) == 1000
+    assert len(back.suspicious[0]) == 200 and len(back.notes[0]) == 1000
 
 
 # --------------------------------------------------------------------------- a real cluster
@@ -199,9 +238,8 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
     local, remote = kit.fresh_course(released, home), kit.fresh_course(released, away)
     for course in (local, remote):
         _submit_class(course)
-    # the workers hold the secret (a Kubernetes Secret in a real deployment), set before
-    # their processes start; tasks never carry it
-    monkeypatch.setenv(grading.SECRET_ENV, grading.load_secret(remote))
+    # the workers hold no secret: the tasks carry the problems' inputs
+    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
 
     local_rows = grade_course(local, ASSIGNMENT, workers=2, limits=LIMITS, quiet=True,
                               run_nbgrader=True)
@@ -212,8 +250,6 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
             Client(dask, security=security, set_as_default=False) as watcher:
         grader = cluster.connect(dask.scheduler_address, security=security)
         try:
-            with pytest.raises(ValueError, match="does not hold this course's grading secret"):
-                grader.check(ASSIGNMENT, "another-course-secret-0123456789")
             pids = watcher.run(os.getpid)
             outcome: dict = {}
 
@@ -293,8 +329,6 @@ def test_a_course_lab_reaches_the_workers_only_with_the_course(tmp_path, monkeyp
 
     course = tmp_path / "course"
     new_lab("gauge_offset", course)
-    secret = "0123456789abcdef" * 4
-    monkeypatch.setenv(grading.SECRET_ENV, secret)
     monkeypatch.delenv(registry.COURSE_ENV, raising=False)
     monkeypatch.chdir(tmp_path)   # no cobotlab.toml at or above the workers' folder
     security = Security.temporary()
@@ -308,12 +342,11 @@ def test_a_course_lab_reaches_the_workers_only_with_the_course(tmp_path, monkeyp
                 grader = cluster.connect(dask.scheduler_address, security=security)
                 try:
                     if workers_have_the_course:
-                        assert "graded on the Dask cluster" in grader.check("gauge_offset",
-                                                                            secret)
+                        assert "graded on the Dask cluster" in grader.check("gauge_offset")
                     else:
                         with pytest.raises(ValueError, match="cannot load the lab gauge_offset"
                                            ".*COBOTLAB_COURSE"):
-                            grader.check("gauge_offset", secret)
+                            grader.check("gauge_offset")
                 finally:
                     grader.close()
     finally:

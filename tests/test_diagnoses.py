@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from autograder import checks, feedback, mistakes
+from autograder.outcomes import raised
 from autograder.specs import lab1_flange as lab1
 from autograder.specs import lab3_servoing as lab3
 
@@ -119,7 +120,8 @@ def _mean_fraction(spec, answer, seeds=range(3)):
     for seed in seeds:
         trials = checks.make_trials(spec, np.random.default_rng(100 + seed))
         outcomes = [checks.TrialOutcome(value=answer(t)) if not isinstance(answer(t), Exception)
-                    else checks.TrialOutcome(error=f"{type(answer(t)).__name__}: trivial")
+                    else checks.TrialOutcome(error=f"{type(answer(t)).__name__}: trivial",
+                                             failure=raised(type(answer(t)).__name__))
                     for t in trials]
         fractions.append(checks.score_function(spec, trials, outcomes).fraction)
     return float(np.mean(fractions))
@@ -184,6 +186,6 @@ def test_an_edge_case_counts_once_the_method_is_right():
         try:
             return checks.TrialOutcome(value=lab1._kabsch(*trial.args))
         except ValueError as exc:
-            return checks.TrialOutcome(error=f"ValueError: {exc}")
+            return checks.TrialOutcome(error=f"ValueError: {exc}", failure=raised("ValueError"))
 
     assert checks.score_function(spec, trials, [reference(t) for t in trials]).fraction == 1.0

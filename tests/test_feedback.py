@@ -16,6 +16,7 @@ from autograder import checks, grading
 from autograder.checks import CheckResult, FunctionResult
 from autograder.feedback import error_lines, feedback_html, function_verdict
 from autograder.grading import CellOrigin, SubmissionGrade
+from autograder.outcomes import Cause, Failed, Failure, raised
 
 SECRET = "feedback-secret-" + "x" * 24
 LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
@@ -84,7 +85,8 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
         "compose_chain", 0.0, 3.0,
         [_check(n_full=0, worst=float("inf"), describe="HINT: multiply left to right")],
         errors=[f"on a chain of {k} problem: {stub}" for k in range(1, 6)],
-        n_problems=6, n_failed=6, error_counts={stub: 6})
+        n_problems=6, n_failed=6, error_counts={stub: 6},
+        failures={stub: raised("NotImplementedError")})
     assert function_verdict(f) == "not_implemented"
     section = _section(feedback_html(_grade(f, origins=_origins(2, 4))), "compose_chain")
     assert "not implemented" in section and "Not implemented yet" in section
@@ -92,20 +94,27 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
     assert "HINT" not in section and "FAILED" not in section and "within tolerance" not in section
     # raising NotImplementedError on some problems only is an error like any other
     partial = FunctionResult("compose_chain", 1.0, 3.0, [_check(n_full=4)], n_problems=6,
-                             n_failed=2, error_counts={stub: 2})
+                             n_failed=2, error_counts={stub: 2},
+                             failures={stub: raised("NotImplementedError")})
     assert function_verdict(partial) == "partial"
 
 
 def test_missing_function_forbidden_routine_and_time_out_are_said_plainly():
     missing = FunctionResult("invert_pose", 0.0, 3.0, [_check(n_full=0)], n_problems=6,
                              n_failed=6,
-                             error_counts={"no function named invert_pose is defined": 6})
+                             error_counts={"no function named invert_pose is defined": 6},
+                             failures={"no function named invert_pose is defined":
+                                       Failure(Failed.NOT_FOUND)})
     spec = checks.spec_for("pose_from_rotvec", "lab0_frames")
     banned = checks.forbidden_result(spec, ["scipy.spatial.transform.Rotation.from_rotvec"])
     hung = FunctionResult(
         "compose_chain", 0.0, 3.0, [_check(n_full=0, worst=float("inf"))], n_problems=6,
         n_failed=6, error_counts={"timed out (cell 1, line 4)": 1,
-                                  "skipped: an earlier problem timed out after 3 s": 5})
+                                  "skipped: an earlier problem timed out after 3 s": 5},
+        failures={"timed out (cell 1, line 4)": Failure(Failed.TIMED_OUT,
+                                                        where="cell 1, line 4"),
+                  "skipped: an earlier problem timed out after 3 s": Failure(
+                      Failed.SKIPPED, cause=Cause.TIMED_OUT, limit_s=3.0)})
     assert [function_verdict(f) for f in (missing, banned, hung)] == \
         ["not_found", "forbidden", "timed_out"]
     page = feedback_html(_grade(missing, banned, hung))

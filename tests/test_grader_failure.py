@@ -40,15 +40,15 @@ class BrokenSandbox:
     ``first_start`` the first worker the run starts, for ``always`` every worker of theirs."""
 
     def __init__(self, monkeypatch, first_start: bool = False, always=()):
-        self.real_jail, self.real_grade = grading.worker_jail, grading.grade_notebook
+        self.real_jail, self.real_execute = grading.worker_jail, grading.execute_notebook
         self.first_start, self.always = first_start, set(always)
         self.lock, self.local, self.broken = threading.Lock(), threading.local(), []
         monkeypatch.setattr(grading, "worker_jail", self.jail)
-        monkeypatch.setattr(grading, "grade_notebook", self.grade)
+        monkeypatch.setattr(grading, "execute_notebook", self.execute)
 
-    def grade(self, paths, assignment, student_id, *args, **kwargs):
-        self.local.student = student_id
-        return self.real_grade(paths, assignment, student_id, *args, **kwargs)
+    def execute(self, paths, problems, *args, **kwargs):
+        self.local.student = problems.student_id
+        return self.real_execute(paths, problems, *args, **kwargs)
 
     def jail(self, limits):
         jail = self.real_jail(limits)

@@ -18,7 +18,7 @@ import struct
 import numpy as np
 import pytest
 
-from autograder import checks, cluster, wire
+from autograder import checks, executions, wire
 
 # What a hostile (or merely confused) function returns instead of an answer.
 HOSTILE = {
@@ -87,6 +87,6 @@ def test_a_failure_of_the_caller_inside_a_closed_loop_is_not_the_students():
         checks.run_trial(spec, trial, call_once, spec.time_limit_s)
 
 
-def test_the_cluster_refuses_a_number_too_large_for_a_float():
-    with pytest.raises(cluster.WireRefused, match="too large"):
-        cluster._number(10**400, "the score")
+def test_a_kept_or_cluster_execution_refuses_a_number_too_large_for_a_float():
+    with pytest.raises(executions.ExecutionRefused, match="too large"):
+        executions._number(10**400, "the seconds")

@@ -1,0 +1,102 @@
+"""What one call of a student's function came to: a value, or a typed failure.
+
+A failure carries its kind as a value (:class:`Failed`), never as the first words of its
+message: the grader decides what follows a time-out (the rest of the function's problems
+skipped, a ``timed_out:<function>`` flag, the feedback's "Timed out" line) from
+``failure.kind``, so rewording a message changes what students read and nothing else.
+``error`` stays the text the feedback shows.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["Failed", "Cause", "Failure", "raised", "TrialOutcome"]
+
+
+class Failed(str, enum.Enum):
+    """Why a call gave no value."""
+
+    RAISED = "raised"                    # the function raised (``exception``: the type's name)
+    TIMED_OUT = "timed_out"              # a time limit stopped it
+    NOT_FOUND = "not_found"              # the notebook defines no function of that name
+    UNUSABLE = "unusable"                # it returned a value that cannot be sent or used
+    WORKER_STOPPED = "worker_stopped"    # the worker died or broke the protocol (``cause``)
+    SKIPPED = "skipped"                  # not run, because of ``cause``
+
+
+class Cause(str, enum.Enum):
+    """What stopped the worker, or what a skipped problem was skipped after."""
+
+    TIMED_OUT = "timed_out"              # skipped: an earlier problem timed out
+    WORKER_STOPPED = "worker_stopped"    # skipped: an earlier problem stopped the worker
+    DEADLINE = "deadline"                # skipped: the submission's wall clock was used up
+    CPU_LIMIT = "cpu_limit"              # the worker's lifetime CPU limit (RLIMIT_CPU) hit
+    LOAD_TIME = "load_time"              # the notebook did not load within its CPU budget
+    OTHER = "other"                      # killed, crashed, a malformed or oversized reply
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A typed failure. ``exception``: the raised exception's type name (RAISED); ``cause``
+    (SKIPPED, WORKER_STOPPED); ``limit_s``: the CPU limit in seconds that an earlier
+    problem's time-out or a closed loop ran into, when it is known; ``where``: the
+    student's line it stopped at ("cell 4, line 7"), when known."""
+
+    kind: Failed
+    exception: str = ""
+    cause: Cause | None = None
+    limit_s: float | None = None
+    where: str = ""
+
+    @property
+    def is_time_out(self) -> bool:
+        """A time-out, or a problem skipped after one (what the feedback says in words)."""
+        return self.kind is Failed.TIMED_OUT or (
+            self.kind is Failed.SKIPPED and self.cause is Cause.TIMED_OUT)
+
+    @property
+    def lost_to_time(self) -> bool:
+        """A problem lost to a time limit of any kind: a time-out, a problem skipped after
+        one or after the submission's deadline, a worker stopped by its CPU limit or a
+        notebook that did not load in time (the ``timed_out:<function>`` flag)."""
+        return self.is_time_out or (self.kind is Failed.SKIPPED and self.cause is Cause.DEADLINE) \
+            or (self.kind is Failed.WORKER_STOPPED
+                and self.cause in (Cause.CPU_LIMIT, Cause.LOAD_TIME))
+
+    @property
+    def skipped_after_earlier(self) -> bool:
+        """Not run because an earlier problem timed out or stopped the worker."""
+        return self.kind is Failed.SKIPPED and self.cause in (Cause.TIMED_OUT,
+                                                              Cause.WORKER_STOPPED)
+
+
+def raised(exception: str) -> Failure:
+    """The failure of a call that raised an exception of type name ``exception``."""
+    return Failure(Failed.RAISED, exception=exception)
+
+
+@dataclass
+class TrialOutcome:
+    """What a call returned (``value``) or why it failed (``error``: the words; ``failure``:
+    the kind); ``seconds`` of wall clock and ``cpu_seconds`` of the student's process it
+    took. An ``error`` given without a ``failure`` is taken as raised, by an exception of
+    no known type (so it matches no ``Trial.raises``)."""
+
+    value: Any = None
+    error: str | None = None
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    failure: Failure | None = None
+
+    def __post_init__(self):
+        if self.error is not None and self.failure is None:
+            self.failure = Failure(Failed.RAISED)
+
+    def has_raised(self, exception: str) -> bool:
+        """The call raised an exception whose type is named ``exception`` (a
+        :attr:`Trial.raises <autograder.spec_types.Trial.raises>`)."""
+        return self.failure is not None and self.failure.kind is Failed.RAISED \
+            and self.failure.exception == exception
