@@ -46,6 +46,7 @@ from autograder.feedback_release import (
     write_section,
 )
 from autograder.freeze import printable
+from autograder.outcomes import Flag, about_function
 from autograder.practice import build_practice, save_practice
 from autograder.safe_files import Refused, Why, move_aside, read_file
 from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
@@ -275,17 +276,18 @@ def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
 def _cross_check(grade: grading.SubmissionGrade, nb: dict, cell_map: dict[str, str]) -> None:
     """Flag functions nbgrader's kernel passed but the independent grader failed."""
     if not nb.get("cells"):
-        grade.flags.append("nbgrader_no_result")
+        grade.flags.append(Flag("nbgrader_no_result"))
         return
     by_function = {f.name: f for f in grade.functions}
     for grade_id, function in cell_map.items():
         if grade_id not in nb["cells"]:
-            grade.flags.append(f"nbgrader_missing_cell:{function}")
+            grade.flags.append(Flag("nbgrader_missing_cell", function, function=function))
             continue
         score, max_score = nb["cells"][grade_id]
         ours = by_function.get(function)
         if ours is not None and max_score > 0 and score >= max_score and ours.fraction < 0.5:
-            grade.flags.append(f"nbgrader_passed_but_grader_failed:{function}")
+            grade.flags.append(Flag("nbgrader_passed_but_grader_failed", function,
+                                    function=function))
 
 
 # --------------------------------------------------------------------------- grading
@@ -815,7 +817,8 @@ def _zero_grade(sub: freeze.Frozen, assignment: str, flags=(), notes=()):
 def _timeout_flags(grade: grading.SubmissionGrade) -> list[str]:
     """``timed_out:<function>`` for each function that lost problems to a time limit (a hang
     would otherwise show only as failed checks)."""
-    return [f"timed_out:{f.name}" for f in grade.functions if f.lost_to_time]
+    return [Flag("timed_out", f.name, function=f.name) for f in grade.functions
+            if f.lost_to_time]
 
 
 # ----------------------------------------------------------------- stage 6: record
@@ -1082,9 +1085,8 @@ def _comment(grade: grading.SubmissionGrade, f: checks.FunctionResult, first: bo
         lines.append("nbgrader's own hidden-test cell: " + ", ".join(
             f"{s:g} / {m:g}" for s, m in nbgrader_cells) + " (cross-check; the score above "
             "is the grade).")
-    names = {g.name for g in grade.functions}
-    own = [x for x in grade.flags if x.rsplit(":", 1)[-1] == f.name]
-    whole = [x for x in grade.flags if x.rsplit(":", 1)[-1] not in names]
+    own = [x for x in grade.flags if about_function(x) == f.name]
+    whole = [x for x in grade.flags if about_function(x) is None]
     if own:
         lines.append("Flags: " + "; ".join(printable(x, 120) for x in own) + ".")
     if first and whole:

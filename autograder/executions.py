@@ -23,7 +23,7 @@ import math
 from autograder import checks, wire
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, CellRun, Execution, FunctionRun, Problems
-from autograder.outcomes import Cause, Failed, Failure, TrialOutcome
+from autograder.outcomes import Cause, Failed, Failure, Note, TrialOutcome, student_words
 
 __all__ = ["FORMAT", "ExecutionRefused", "to_wire", "from_wire", "problems_to_wire",
            "problems_from_wire", "inputs_digest"]
@@ -149,7 +149,7 @@ def to_wire(execution: Execution) -> dict:
         "kernel_tests": list(execution.kernel_tests),
         "kernel_runs": {name: _run_to_wire(r) for name, r in execution.kernel_runs.items()},
         "suspicious": list(execution.suspicious), "sandbox_flags": list(execution.sandbox_flags),
-        "notes": list(execution.notes),
+        "notes": [[str(n), student_words(n)] for n in execution.notes],
         "cell_origins": [[o.notebook, o.position, o.prompt] for o in execution.cell_origins],
         "cell_runs": [{"origin": [r.origin.notebook, r.origin.position, r.origin.prompt],
                        "error": r.error, "where": r.where, "stdout": r.stdout,
@@ -158,6 +158,14 @@ def to_wire(execution: Execution) -> dict:
         "seconds": execution.seconds,
         "profile": {k: v for k, v in execution.profile.items()},
     }
+
+
+def _note(data) -> Note:
+    data = _items(data, 2, "notes")
+    if len(data) != 2:
+        raise ExecutionRefused("a note is not [text, what a student reads]")
+    shown = None if data[1] is None else _text(data[1], 1000, "notes")
+    return Note(_text(data[0], 1000, "notes"), for_student=shown)
 
 
 def _origin(data, notebooks, what: str) -> CellOrigin:
@@ -198,7 +206,7 @@ def from_wire(data, assignment: str, student_id: str, notebooks=None) -> Executi
                                                                  "suspicious")]
     ex.sandbox_flags = [_text(f, 200, "sandbox_flags")
                         for f in _items(data.get("sandbox_flags"), 8, "sandbox_flags")]
-    ex.notes = [_text(n, 1000, "notes") for n in _items(data.get("notes"), 256, "notes")]
+    ex.notes = [_note(n) for n in _items(data.get("notes"), 256, "notes")]
     ex.cell_origins = [_origin(o, notebooks, "cell_origins")
                        for o in _items(data.get("cell_origins"), 20000, "cell_origins")]
     for run in _items(data.get("cell_runs"), len(ex.cell_origins), "cell_runs"):

@@ -22,7 +22,7 @@ from collections import Counter
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
-from autograder.outcomes import Failed
+from autograder.outcomes import Failed, student_words
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
 
@@ -268,21 +268,16 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     return "".join(parts)
 
 
-# The notes a student may read, about running their own notebook; every other note (the
-# grader's retries, its sandbox, nbgrader's cross-check) is the instructor's, whatever it says.
-_STUDENT_NOTE = re.compile(r"^(?:cell error: |no code cells found|the memory limit \(|"
-                           r"[^:]*\.ipynb: unreadable notebook \()")
-
-
 def _notebook_notes(grade: SubmissionGrade) -> list[str]:
-    """The notes about running the student's notebook, each distinct one once with a count."""
+    """The notes about running the student's notebook (those with words for the student;
+    every other note, the grader's retries, its sandbox, nbgrader's cross-check, is the
+    instructor's, whatever it says), each distinct one once with a count."""
     merged: Counter = Counter()
     for note in grade.notes:
-        note = str(note).strip()
-        if not _STUDENT_NOTE.match(note):
+        words = student_words(note)
+        if words is None:
             continue
-        note = re.sub(r"^cell error: (.*?)(?: \(\))?$", r"\1", note)
-        merged[student_location(printable(note, MAX_TEXT), grade.cell_origins)] += 1
+        merged[student_location(printable(words.strip(), MAX_TEXT), grade.cell_origins)] += 1
     lines = [f"{note} (in {n} cells)" if n > 1 else note
              for note, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]]
     if len(merged) > MAX_LINES:

@@ -57,7 +57,7 @@ import numpy as np
 from autograder import checks, sandbox, wire
 from autograder._worker import WALL_STRETCH
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
-from autograder.outcomes import Cause, Failed, Failure
+from autograder.outcomes import Cause, Failed, Failure, Flag, Note
 
 __all__ = [
     "SECRET_ENV",
@@ -268,7 +268,8 @@ def extract_code(notebook_paths, with_origins: bool = False, tests: set[int] | N
             nb = json.loads(Path(path).read_text(encoding="utf-8", errors="replace"))
             raw_cells = nb.get("cells", []) if isinstance(nb, dict) else []
         except (OSError, ValueError) as exc:
-            notes.append(f"{Path(path).name}: unreadable notebook ({type(exc).__name__})")
+            text = f"{Path(path).name}: unreadable notebook ({type(exc).__name__})"
+            notes.append(Note(text, for_student=text))
             continue
         prompt = 0
         for position, cell in enumerate(raw_cells if isinstance(raw_cells, list) else [], 1):
@@ -937,7 +938,7 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
     own = [c for i, c in enumerate(cells) if i not in tests]   # the student's code
     run.suspicious = scan_for_tampering(own)
     if not cells:
-        run.notes.append("no code cells found")
+        run.notes.append(Note("no code cells found", for_student="no code cells found"))
     banned = {spec.name: static_hits(own, spec.name, spec.forbidden) for spec in specs}
     routines = sorted({name for spec in specs for name in spec.forbidden})
 
@@ -948,7 +949,7 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
             cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes)
         except (OSError, RuntimeError) as exc:
             # The run's header promised a cgroup: this row says it did not get one.
-            run.sandbox_flags.append("sandbox:no_cgroup")
+            run.sandbox_flags.append(Flag("sandbox", "no_cgroup"))
             run.notes.append(f"no cgroup for this submission ({exc}): per-process limits "
                              "only")
     if template is not None and not template.matches(cells):
@@ -988,14 +989,14 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
         if cgroup is not None:
             profile["peak_mb"] = cgroup.peak_memory_mb()
             if cgroup.oom_kills():
-                run.notes.append(f"the memory limit ({limits.memory_mb} MB for all the "
-                                 f"submission's processes) stopped it {cgroup.oom_kills()} "
-                                 "time(s)")
+                text = (f"the memory limit ({limits.memory_mb} MB for all the submission's "
+                        f"processes) stopped it {cgroup.oom_kills()} time(s)")
+                run.notes.append(Note(text, for_student=text))
             cgroup.remove()
     if not caps.bwrap:
-        run.sandbox_flags.append("sandbox:rlimits_only")
+        run.sandbox_flags.append(Flag("sandbox", "rlimits_only"))
     elif not caps.syscall_filter:   # a machine the keyring filter does not know
-        run.sandbox_flags.append("sandbox:no_keyring_filter")
+        run.sandbox_flags.append(Flag("sandbox", "no_keyring_filter"))
     run.seconds = time.monotonic() - started
     return run
 
@@ -1113,8 +1114,8 @@ def score_execution(problems: Problems, execution: Execution) -> SubmissionGrade
             checks.forbidden_result(spec, run.forbidden) if run.forbidden
             else checks.score_function(spec, problems.trials[run.name], run.outcomes))
     grade.flags = [*execution.suspicious, *(
-        f"forbidden:{name}" for name in sorted({n for r in execution.functions
-                                                for n in r.forbidden})),
+        Flag("forbidden", name) for name in sorted({n for r in execution.functions
+                                                    for n in r.forbidden})),
         *execution.sandbox_flags]
     grade.kernel_checks = kernel_verdicts(problems, execution)
     return grade
@@ -1206,12 +1207,19 @@ def _start_worker(cells, limits: Limits, skip: set[int], run: Execution,
         except CellHang as exc:
             first = False
             skip.add(exc.index)
-            run.notes.append(f"  cell error: {exc} (skipped from then on)")
+            run.notes.append(cell_error_note(f"{exc} (skipped from then on)"))
             continue
         # A cell stopped by its timer would only cost the same seconds again next restart.
         skip.update(r["index"] for r in worker.load_report
                     if r.get("ok") is not True and _timed_out(r))
         return worker
+
+
+def cell_error_note(error: str, where: str | None = None) -> Note:
+    """The note of a notebook cell that failed while loading: ``error`` and, when given,
+    the student's line it stopped at ("cell 4, line 7"); the student reads it too."""
+    text = f"  cell error: {error}" + (f" ({where})" if where is not None else "")
+    return Note(text, for_student=f"{error} ({where})" if where else error)
 
 
 def _not_loaded(limits: Limits) -> WorkerFailure:
@@ -1226,7 +1234,7 @@ def _note_load(run: Execution, report: list[dict], tests: set[int]) -> None:
               and not c.get("skipped") and c.get("index") not in tests]
     run.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
     for c in failed[:5]:
-        run.notes.append(f"  cell error: {str(c.get('error'))[:200]} ({c.get('where', '')})")
+        run.notes.append(cell_error_note(str(c.get("error"))[:200], str(c.get("where") or "")))
     chars = max([c.get("output_chars", 0) for c in report if isinstance(c, dict)
                  and isinstance(c.get("output_chars"), int)] or [0])
     if chars > 100_000:

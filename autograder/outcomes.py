@@ -1,10 +1,12 @@
-"""What one call of a student's function came to: a value, or a typed failure.
+"""The grader's typed values between its stages: what one call of a student's function
+came to (a value, or a typed failure), and the flags and notes a grade carries.
 
 A failure carries its kind as a value (:class:`Failed`), never as the first words of its
 message: the grader decides what follows a time-out (the rest of the function's problems
 skipped, a ``timed_out:<function>`` flag, the feedback's "Timed out" line) from
 ``failure.kind``, so rewording a message changes what students read and nothing else.
-``error`` stays the text the feedback shows.
+``error`` stays the text the feedback shows. In the same way a :class:`Flag` says which
+graded function it is about, and a :class:`Note` whether a student may read it.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Failed", "Cause", "Failure", "raised", "TrialOutcome"]
+__all__ = ["Failed", "Cause", "Failure", "raised", "TrialOutcome", "Flag", "Note"]
 
 
 class Failed(str, enum.Enum):
@@ -100,3 +102,40 @@ class TrialOutcome:
         :attr:`Trial.raises <autograder.spec_types.Trial.raises>`)."""
         return self.failure is not None and self.failure.kind is Failed.RAISED \
             and self.failure.exception == exception
+
+
+class Flag(str):
+    """A finding for the instructor, written ``kind`` or ``kind:detail`` (as grades.csv has
+    it); ``function``: the graded function it is about, None for the whole submission."""
+
+    kind: str
+    function: str | None
+
+    def __new__(cls, kind: str, detail: str = "", function: str | None = None):
+        self = super().__new__(cls, f"{kind}:{detail}" if detail else kind)
+        self.kind, self.function = kind, function
+        return self
+
+
+def about_function(flag: str) -> str | None:
+    """The graded function ``flag`` is about (a plain string is about the whole submission)."""
+    return flag.function if isinstance(flag, Flag) else None
+
+
+class Note(str):
+    """A note on a grade, for the instructor's run log; ``for_student``: the words a student
+    reads in their feedback (about running their own notebook), None when it is the
+    instructor's only (the grader's retries, its sandbox, nbgrader's cross-check)."""
+
+    for_student: str | None
+
+    def __new__(cls, text: str, for_student: str | None = None):
+        self = super().__new__(cls, text)
+        self.for_student = for_student
+        return self
+
+
+def student_words(note: str) -> str | None:
+    """What a student reads of ``note`` (None: nothing; a plain string is the instructor's)."""
+    return note.for_student if isinstance(note, Note) else None
+

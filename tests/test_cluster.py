@@ -173,6 +173,7 @@ def _tampered(edit):
     (lambda d: d.update(student_id="bo"), "another submission"),
     (lambda d: d.update(seconds=float("nan")), "outside"),
     (lambda d: d.update(suspicious="a;b"), "not a list"),
+    (lambda d: d.update(notes=["a bare string"]), "not a list"),
     (lambda d: d["cell_origins"].append(["/etc/passwd", 1, 1]), "notebooks"),
     (lambda d: d["kernel_runs"].update(compose_chain=d["kernel_runs"]["invert_pose"]),
      "no test cell called"),
@@ -184,9 +185,11 @@ def test_replies_that_do_not_add_up_are_refused(edit, why):
 
 
 def test_strings_are_capped():
-    data = _tampered(lambda d: d.update(suspicious=["x" * 10_000], notes=["y" * 10_000]))
+    data = _tampered(lambda d: d.update(suspicious=["x" * 10_000],
+                                        notes=[["y" * 10_000, "z" * 10_000]]))
     back = _decode(data)
     assert len(back.suspicious[0]) == 200 and len(back.notes[0]) == 1000
+    assert len(back.notes[0].for_student) == 1000
 
 
 # --------------------------------------------------------------------------- a real cluster

@@ -67,9 +67,9 @@ def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees
 
 def test_notebook_notes_are_deduplicated_with_a_count():
     notes = ["notebook loaded: 9 code cells, 3 raised"] + \
-        ["  cell error: NotImplementedError (cell 3, line 4)"] * 3 + \
-        ["  cell error: cell 5: timed out after 22 s (skipped from then on)",
-         "  cell error: KeyError: 'x' ()",
+        [grading.cell_error_note("NotImplementedError", "cell 3, line 4")] * 3 + \
+        [grading.cell_error_note("cell 5: timed out after 22 s (skipped from then on)"),
+         grading.cell_error_note("KeyError: 'x'", ""),
          "nbgrader's scratch gradebook is unreadable (hidden_test cells)"]
     page = feedback_html(_grade(notes=notes, origins=_origins(1, 2, 3, 5, 6, 8)))
     assert page.count("NotImplementedError") == 1
@@ -137,7 +137,8 @@ def test_student_text_is_escaped_and_capped():
     f = FunctionResult("invert_pose", 0.0, 3.0, [_check(n_full=0, worst=float("inf"))],
                        errors=[f"on a random problem: {hostile}"], n_problems=6, n_failed=6,
                        error_counts={f"{i} {hostile}": 1 for i in range(20)})
-    notes = [f"  cell error: {hostile} (cell 0, line 1)", "  cell error: \x1b[31m</code>"]
+    notes = [grading.cell_error_note(hostile, "cell 0, line 1"),
+             grading.cell_error_note("\x1b[31m</code>")]
     grade = SubmissionGrade("<b>bob</b>", "lab0_frames", [f], [], notes)
     page = feedback_html(grade)
     assert "<script" not in page and "&lt;script&gt;" in page

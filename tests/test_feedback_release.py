@@ -19,7 +19,7 @@ import pytest
 from nbformat.v4 import new_code_cell, new_notebook
 from traitlets.config import Config
 
-from autograder import feedback_release, freeze
+from autograder import feedback_release, freeze, grading
 from autograder.checks import CheckResult, FunctionResult
 from autograder.course import _CONFIG
 from autograder.feedback import feedback_html, feedback_section
@@ -114,7 +114,7 @@ def test_a_class_partly_outside_the_exchange_is_named_with_the_way_out(tmp_path)
 
 def test_the_section_is_the_students_page_without_instructor_notes_scoped():
     grade = _grade(flags=["suspicious_secret_probe"], notes=[
-        "  cell error: NameError: name 'x' is not defined (cell 0, line 1)",
+        grading.cell_error_note("NameError: name 'x' is not defined", "cell 0, line 1"),
         "graded after 1 grader error(s), each retried in a fresh sandbox: WorkerFailure: "
         "the memory limit of the template",
         "no cgroup for this submission (unreadable cgroup.procs): per-process limits only",
