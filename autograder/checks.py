@@ -34,7 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autograder import forbidden, mistakes, practice, registry, standin
+from autograder import forbidden, mistakes, practice, registry
+from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
 # Re-exported where callers reach them as checks.<name> (tests, benchmarks, grading).

@@ -1,11 +1,11 @@
 """An :class:`~autograder.grading.Execution` as data: one wire form for the cluster's replies
 and for the executions a grade run keeps (``cobotlab grade --rescore``).
 
-The form is :mod:`autograder.wire`'s JSON (arrays as raw little-endian bytes: a value read
+The form is :mod:`autograder.inside.wire`'s JSON (arrays as raw little-endian bytes: a value read
 back is the value the worker sent, bit for bit, so a rescore scores exactly what the grade
 run scored). Reading one back validates everything: the functions are the lab's, in order,
 every string is capped, every count and time is a bounded number, every value passes
-:func:`autograder.wire.decode`. What fails is refused (:class:`ExecutionRefused`), never
+:func:`autograder.inside.wire.decode`. What fails is refused (:class:`ExecutionRefused`), never
 half-read.
 
 The problems' inputs travel the same way (:func:`problems_to_wire`): a cluster task carries
@@ -20,9 +20,10 @@ import hashlib
 import json
 import math
 
-from autograder import checks, wire
+from autograder import checks
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, CellRun, Execution, FunctionRun, Problems
+from autograder.inside import wire
 from autograder.outcomes import Cause, Failed, Failure, Note, TrialOutcome, student_words
 
 __all__ = ["FORMAT", "ExecutionRefused", "to_wire", "from_wire", "problems_to_wire",

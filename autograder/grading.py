@@ -7,7 +7,7 @@ process:
 
 1. The submitted notebook is read as JSON (a mangled or renamed notebook still works) and
    every code cell is kept in order, except hidden-test cells and IPython magics.
-2. That code runs in a fresh worker process (:mod:`autograder._worker`) inside the
+2. That code runs in a fresh worker process (:mod:`autograder.inside.worker`) inside the
    sandbox of :mod:`autograder.sandbox` (bubblewrap: a read-only root holding only the
    interpreter and the lab packages, not ``solutions/``, the specs or the course; a
    size-limited /tmp; no network; run as ``nobody``), all of one submission's processes in
@@ -54,9 +54,10 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, sandbox, wire
-from autograder._worker import WALL_STRETCH
+from autograder import checks, sandbox
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
+from autograder.inside import wire
+from autograder.inside.worker import WALL_STRETCH
 from autograder.outcomes import Cause, Failed, Failure, Flag, Note
 
 __all__ = [
@@ -74,6 +75,15 @@ __all__ = [
     "scan_for_tampering",
     "sandbox_available",
     "Worker",
+    "NotebookRunner",
+    "Problems",
+    "HiddenProblems",
+    "draw_problems",
+    "Execution",
+    "FunctionRun",
+    "execute_notebook",
+    "score_execution",
+    "kernel_verdicts",
     "GraderError",
     "TemplateUnavailable",
     "grade_notebook",
@@ -498,7 +508,7 @@ class Worker:
     :class:`TemplateUnavailable` when the template cannot fork.
     ``control_fd`` starts a template instead (its end of the control socket).
     ``forbidden``: the routines the graded functions must not call, which the worker takes
-    hold of before any of the submission's cells runs (:class:`autograder.forbidden.Guard`).
+    hold of before any of the submission's cells runs (:class:`autograder.inside.tripwire.Guard`).
     ``start_s`` and ``cells_s`` are the wall-clock seconds until the worker was ready and
     of the cells it ran itself.
     """
@@ -578,7 +588,7 @@ class Worker:
         """Start a new interpreter in a new sandbox (a template's with ``control_fd``)."""
         req_r, self._req_w = os.pipe()
         self._rep_r, rep_w = os.pipe()
-        python = [sys.executable, "-I", "-m", "autograder._worker", str(req_r), str(rep_w),
+        python = [sys.executable, "-I", "-m", "autograder.inside.worker", str(req_r), str(rep_w),
                   str(limits.memory_mb), str(int(cpu_s)), str(limits.file_mb)]
         passed = (req_r, rep_w)
         if control_fd is not None:
@@ -956,8 +966,8 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
         run.notes.append("started cold: the notebook's first cells are not the released "
                          "notebook's read-only ones")
         template = None
-    worker = _SubmissionWorker(cells, limits, run, tests, cgroup, template, routines,
-                               limits.worker_cpu_s(specs), run_tests)
+    worker = NotebookRunner(cells, limits, run, tests, cgroup, template, routines,
+                            limits.worker_cpu_s(specs), run_tests)
     deadline = started + limits.deadline_s
     profile = run.profile
     try:
@@ -1001,13 +1011,27 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
     return run
 
 
-class _SubmissionWorker:
-    """The worker of one submission, started when first needed and again after it dies
-    (cells that hung skipped from then on, the load budget shared by every start)."""
+class NotebookRunner:
+    """Calls a notebook's functions on problems in a sandboxed worker: the one way the
+    grader (:func:`execute_notebook`) and ``cobotlab labs verify`` (the reference notebook)
+    run code on trials.
 
-    def __init__(self, cells, limits: Limits, run: Execution, tests: set[int], cgroup,
-                 template, routines, cpu_s: int, run_tests: bool):
-        self.cells, self.limits, self.execution, self.tests = cells, limits, run, tests
+    The worker loads ``cells`` when first needed and again after it dies (cells that hung
+    are skipped from then on, the load budget is shared by every start); :meth:`run` gives
+    one outcome per trial (a value or a typed failure). ``execution`` collects the load's
+    notes (and, with ``run_tests``, what each cell did on the first load); ``tests`` are the
+    indices of nbgrader's test cells, run on the first load only; ``routines``: the
+    forbidden routines the worker takes hold of before any cell runs; ``cpu_s``: the
+    worker's lifetime CPU limit (default: loading plus every function's trials, for
+    ``execution``'s assignment)."""
+
+    def __init__(self, cells, limits: Limits, execution: Execution | None = None,
+                 tests: set[int] = frozenset(), cgroup=None, template=None, routines=(),
+                 cpu_s: int | None = None, run_tests: bool = False):
+        run = execution if execution is not None else Execution(student_id="", assignment="")
+        if cpu_s is None:
+            cpu_s = limits.worker_cpu_s(_specs(run.assignment))
+        self.cells, self.limits, self.execution, self.tests = cells, limits, run, set(tests)
         self.cgroup, self.template, self.routines, self.cpu_s = cgroup, template, routines, cpu_s
         self.run_tests = run_tests
         self.worker: Worker | None = None
@@ -1047,8 +1071,17 @@ class _SubmissionWorker:
         self.skip.update(self.tests)   # they ran once, as in nbgrader; a restart needs the code
         return worker
 
-    def run(self, spec: checks.FunctionSpec, trials: list[checks.Trial], deadline: float):
-        """(outcomes, forbidden routines tripped) of ``spec``'s function on ``trials``."""
+    @property
+    def load_report(self) -> list[dict]:
+        """What each cell did on the current worker's load (empty before the first)."""
+        return self.worker.load_report if self.worker is not None else []
+
+    def run(self, spec: checks.FunctionSpec, trials: list[checks.Trial],
+            deadline: float = math.inf):
+        """(outcomes, forbidden routines tripped) of ``spec``'s function on ``trials``,
+        each call within its CPU limit; after a time-out, or a call that stopped the worker,
+        the rest are skipped, and past ``deadline`` (monotonic) nothing more runs. Raises
+        :class:`GraderError` when the machine starved a call (the caller tries again)."""
         outcomes: list[checks.TrialOutcome] = []
         failure: checks.TrialOutcome | None = None   # what every later problem gets
         tripped: set[str] = set()

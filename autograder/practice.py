@@ -10,7 +10,7 @@ writes them, with what scoring needs beside them, to one file per lab,
 tolerances, label, edge-case flags, the answers its classic mistakes give, and the stand-in
 tables of the graded functions it relies on (see :class:`autograder.spec_types.Trial`).
 
-The file is data only: JSON in :mod:`autograder.wire`'s encoding (arrays as raw little-endian
+The file is data only: JSON in :mod:`autograder.inside.wire`'s encoding (arrays as raw little-endian
 bytes of a whitelisted dtype, sizes capped), gzipped; never pickle, so a file from anywhere
 cannot run code. :func:`load_practice` looks for it in ``$COBOTLAB_PRACTICE_DIR`` (nbgrader's
 kernel sandbox points it at the assignment's folder), then in the current folder (a
@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import registry, wire
+from autograder import registry
+from autograder.inside import wire
 from autograder.spec_types import FunctionSpec, Trial, mistake_answers
 
 __all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "load_practice",

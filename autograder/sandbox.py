@@ -17,7 +17,7 @@ starts through :func:`command`, which builds a bubblewrap (``bwrap``) command li
   of its own, so thirty busy processes get no more of the machine than one
   (:attr:`Capabilities.cpu_share`);
 * it starts in a new, empty session keyring and cannot make keyring system calls, so it
-  reads neither the grader's keys nor another submission's (:mod:`autograder._syscalls`,
+  reads neither the grader's keys nor another submission's (:mod:`autograder.inside.syscalls`,
   whose launcher starts bubblewrap).
 
 Where bubblewrap cannot run, :func:`capabilities` says so and the caller falls back to
@@ -37,7 +37,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from autograder import _syscalls
+from autograder.inside import syscalls
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
            "SANDBOX_UID", "remove_stale_scratch", "Interrupted", "stop_all",
@@ -58,7 +58,7 @@ class Capabilities:
     evidence: tuple[str, ...] = ()
     # Without bubblewrap: why not, and what would bring it back (see fallback_warning()).
     why: str = ""
-    # The sandbox denies the keyring system calls (autograder._syscalls); False on a
+    # The sandbox denies the keyring system calls (autograder.inside.syscalls); False on a
     # machine the filter does not know, which every grade row then says.
     syscall_filter: bool = False
     # How each submission gets its own share of the CPU: "v1 cpu.shares", "v2 cpu.weight",
@@ -128,7 +128,7 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     ``argv`` and the paths are those inside the sandbox; the environment is ``jail.env``
     and nothing else. Requires :func:`capabilities` ``.bwrap``. The sandbox starts in a new
     session keyring and, with ``syscall_filter``, makes no keyring calls
-    (:mod:`autograder._syscalls`); a template passes False: each of its forks joins a
+    (:mod:`autograder.inside.syscalls`); a template passes False: each of its forks joins a
     keyring of its own, then installs the same filter.
     """
     if _STOPPING.is_set():
@@ -147,7 +147,7 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
              "--size", str(int(jail.scratch_mb) * 1024 * 1024), "--perms", "1777",
              "--tmpfs", "/tmp"]
     # /dev/null over procfs's key lists (a --ro-bind would be nodev: unreadable)
-    args += [arg for path in _syscalls.KEY_LISTS if os.path.exists(path)
+    args += [arg for path in syscalls.KEY_LISTS if os.path.exists(path)
              for arg in ("--dev-bind", "/dev/null", path)]
     # Mount points above the binds: traversable (0711), not listable, so the sandbox user
     # can reach a bound package without seeing what else its parent held on the host.
@@ -181,7 +181,7 @@ def command(argv: list[str], jail: Jail, cgroup: Cgroup | None = None,
     # The launcher joins the cgroup and a new session keyring before it starts bubblewrap,
     # so every process of the sandbox is charged to the one and never holds the grader's
     # keys; it hands bubblewrap the keyring filter.
-    launcher = [sys.executable, "-I", "-m", "autograder._syscalls"]
+    launcher = [sys.executable, "-I", "-m", "autograder.inside.syscalls"]
     for path in cgroup.procs_files if cgroup is not None else ():
         launcher += ["--join", str(path)]
     if syscall_filter and caps.syscall_filter:
@@ -631,9 +631,9 @@ def _probe() -> Capabilities:
     cpu_share = _probe_cpu(cgroup, evidence)
     _probe_run_queue(evidence)
     try:
-        _syscalls.program()
+        syscalls.program()
         filtered, unfiltered_why = True, ""
-    except _syscalls.UnsupportedMachine as exc:
+    except syscalls.UnsupportedMachine as exc:
         filtered, unfiltered_why = False, str(exc)
     caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why, filtered, cpu_share)
     if bwrap:
@@ -641,7 +641,7 @@ def _probe() -> Capabilities:
 
         jail = Jail.of_view(interpreter_view(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
         # Second line: what keyctl(KEYCTL_GET_KEYRING_ID, session) gives in the sandbox.
-        keyctl = _syscalls.keyctl_number() if filtered else -1
+        keyctl = syscalls.keyctl_number() if filtered else -1
         probe = [sys.executable, "-I", "-c",
                  "import os,socket,ctypes; open('/tmp/p','w').write('x'); "
                  "print(os.getuid(), len(socket.if_nameindex())); "
@@ -660,7 +660,7 @@ def _probe() -> Capabilities:
             ok = False
             said = str(exc)
             evidence.append(f"bwrap probe failed: {exc}")
-        denied = lines[1:2] == [f"-1 {_syscalls.DENIED_ERRNO}"]
+        denied = lines[1:2] == [f"-1 {syscalls.DENIED_ERRNO}"]
         if not filtered:
             evidence.append(f"keyring calls in the sandbox: not filtered ({unfiltered_why})")
         elif ok:

@@ -6,11 +6,11 @@ a lab are the instructor's, read-only and the same for every student (the import
 simulated workcell, the photographs of lab 1's first part): in a class of a hundred they
 were run a hundred times with the same result. A template runs them once per grade run, in
 a sandboxed worker of its own, and then forks one process per submission
-(:func:`autograder._worker._serve_forks`). Before any student code runs, each fork moves
+(:func:`autograder.inside.worker._serve_forks`). Before any student code runs, each fork moves
 into new user, mount, PID, IPC, UTS and network namespaces with an empty ``/tmp``
-(:mod:`autograder._isolate`), joins the submission's cgroup, drops every capability, and
+(:mod:`autograder.inside.isolate`), joins the submission's cgroup, drops every capability, and
 leaves the template's session keyring for an empty one of its own under the keyring filter
-every sandbox has (:mod:`autograder._syscalls`);
+every sandbox has (:mod:`autograder.inside.syscalls`);
 it then loads the submission's own cells from the first one that differs, and answers
 the grader exactly as a cold worker does.
 

@@ -43,12 +43,11 @@ OWN_PACKAGES = ("robots", "sim_backends")
 # The parts of autograder/ the grading worker needs: itself, the namespaces and the keyring
 # filter of a template's forks, its wire protocol, the forbidden-routine tripwire, the
 # stand-ins, and the practice data the notebooks import.
-WORKER_MODULES = ("__init__.py", "_worker.py", "_isolate.py", "_syscalls.py", "wire.py",
-                  "forbidden.py", "standin.py", "datasets.py", "synthetic.py", "data")
+WORKER_MODULES = ("__init__.py", "inside", "datasets.py", "synthetic.py", "data")
 # nbgrader's kernel runs the notebook's hidden_test cells: the public scoring and the
 # practice problems of the kernel seeds (data, not the generators behind them).
 KERNEL_MODULES = WORKER_MODULES + ("checks.py", "spec_types.py", "mistakes.py", "practice.py",
-                                   "registry.py",
+                                   "registry.py", "forbidden.py", "outcomes.py",
                                    "scoring", "nbgrader_hooks.py")
 # Distributions whose closure a lab notebook may import besides cobotlab's requirements
 # (the notebook's own display libraries), and what nbgrader's run needs on top.

@@ -48,7 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, fairness, grading, registry, wire
+from autograder import checks, fairness, grading, registry
+from autograder.inside import wire
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
@@ -207,12 +208,12 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
 
 
 def _forbidden(specs) -> list[Finding]:
-    from autograder.forbidden import _resolve
+    from autograder.forbidden import resolve
 
     return [Finding("forbidden", f"{spec.name}: forbidden routine {dotted!r} names nothing "
                     "importable here; spell it as module.attribute (e.g. "
                     "'cv2.calibrateHandEye') or the ban catches nothing", spec.name)
-            for spec in specs for dotted in spec.forbidden if _resolve(dotted) is None]
+            for spec in specs for dotted in spec.forbidden if resolve(dotted) is None]
 
 
 # --------------------------------------------------------------------------- the generators
@@ -326,8 +327,9 @@ def reference_notebook(source: Path) -> dict:
 
 
 class SandboxedReference:
-    """The reference notebook loaded once in the grader's bubblewrap worker; calls go there.
-    A worker that dies (a limit, a crash) is started again for the next problem."""
+    """The reference notebook loaded once in the grader's bubblewrap worker, called through
+    the grader's own :class:`autograder.grading.NotebookRunner`; a worker that dies (a limit,
+    a crash) is started again for the next problem."""
 
     def __init__(self, source: Path, limits: grading.Limits):
         import nbformat
@@ -337,45 +339,31 @@ class SandboxedReference:
         path = Path(self._folder.name) / source.name
         nbformat.write(reference_notebook(source), path)
         self.cells, _ = grading.extract_code(path)
-        self.worker = None
-        self.load_errors: list[str] = []
         self.tripped: set[str] = set()
-        self._start()
-
-    def _start(self) -> None:
-        # A day of CPU: the worker answers thousands of problems, and this is the author's code.
-        self.worker = grading.Worker(self.cells, self.limits, cpu_s=86400)
+        # A day of CPU: the worker answers thousands of problems, and this is the author's
+        # code. Each call's tripwire still sees the spec's forbidden routines.
+        self.runner = grading.NotebookRunner(self.cells, limits, cpu_s=86400)
+        self.runner.loaded()
         self.load_errors = [f"cell {r.get('index')}: {r.get('error')}"
-                            for r in self.worker.load_report if not r.get("ok")]
+                            for r in self.runner.load_report if not r.get("ok")]
+
+    @property
+    def worker(self):
+        return self.runner.worker
 
     def __call__(self, spec: FunctionSpec, trial: Trial, retries: int = 1) -> checks.TrialOutcome:
-        if self.worker is None or not self.worker.alive:
-            self._start()
-        worker = self.worker
-
-        def once(args, timeout_s):
-            return worker.call(spec.name, args, timeout_s, spec.forbidden,
-                               spec.substitutes(args) if spec.substitutes else None)
-
         try:
-            outcome = checks.run_trial(spec, trial, once, self.limits.call_limit_s(spec),
-                                       self.limits.wall_factor)
-        except grading.WorkerFailure as exc:
-            worker.close()
-            self.worker = None
-            return checks.TrialOutcome(error=f"the worker stopped: {exc}", failure=exc.failure)
+            (outcome,), tripped = self.runner.run(spec, [trial])
         except grading.GraderError:   # a busy machine starved it: not the reference's loss
-            self.worker = None
+            self.runner.close()
             if retries:
                 return self(spec, trial, retries - 1)
             raise
-        self.tripped |= worker.tripped
-        worker.tripped.clear()
+        self.tripped |= tripped
         return outcome
 
     def close(self) -> None:
-        if self.worker is not None:
-            self.worker.close()
+        self.runner.close()
         self._folder.cleanup()
 
 

@@ -105,7 +105,7 @@ def interrupt_once_running(cli: subprocess.Popen, runner: str, seen: dict[int, s
 @pytest.mark.timeout(300)
 # By default the grader's worker runs the notebook for nbgrader too; --nbgrader-kernel runs
 # nbgrader's own kernel first (as for an assignment of several notebooks).
-@pytest.mark.parametrize("option, runner", [(None, "autograder._worker"),
+@pytest.mark.parametrize("option, runner", [(None, "autograder.inside.worker"),
                                             ("--nbgrader-kernel", "ipykernel")])
 def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, option, runner):
     course = kit.fresh_course(released, tmp_path)

@@ -12,7 +12,8 @@ import struct
 import numpy as np
 import pytest
 
-from autograder import checks, grading, wire
+from autograder import checks, grading
+from autograder.inside import wire
 from robots import geometry as geo
 from solutions.registration import fit_rigid
 
@@ -437,7 +438,7 @@ def test_a_worker_that_dies_late_is_reloaded_for_the_next_function(tmp_path):
 
 
 def test_a_stand_in_answers_the_expected_call_and_leaves_the_rest_to_the_student():
-    from autograder import standin
+    from autograder.inside import standin
 
     def own(x, y):
         return x - y

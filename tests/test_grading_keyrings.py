@@ -24,7 +24,8 @@ import sys
 import course_kit as kit
 import pytest
 
-from autograder import _syscalls, grading, sandbox, scratch
+from autograder import grading, sandbox, scratch
+from autograder.inside import syscalls
 from autograder.template import Template
 
 LIMITS = grading.Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30)
@@ -69,7 +70,7 @@ NOTHING = {"found": {}, "listed": [], "planted": [DENIED, DENIED], "session": DE
 
 pytestmark = [
     pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="bubblewrap cannot run here"),
-    pytest.mark.skipif(not _syscalls.supported(), reason=f"no keyring filter for "
+    pytest.mark.skipif(not syscalls.supported(), reason=f"no keyring filter for "
                        f"{platform.machine()}"),
 ]
 
@@ -170,7 +171,7 @@ ABIS = [("x86_64", 0xC000003E, (248, 249, 250), (0, 1, 59, 231, 251, 247)),
 @pytest.mark.parametrize("machine, arch, keyring, others", ABIS)
 def test_the_filter_denies_keyring_calls_in_every_abi_of_its_machine(machine, arch, keyring,
                                                                      others):
-    program = _syscalls.program(machine)
+    program = syscalls.program(machine)
     assert len(program) % 8 == 0 and len(program) // 8 < 256   # jumps are 8-bit
     assert [_run_filter(program, arch, nr) for nr in keyring] == [EPERM] * 3
     assert [_run_filter(program, arch, nr) for nr in others] == [ALLOW] * len(others)
@@ -180,6 +181,6 @@ def test_the_filter_denies_keyring_calls_in_every_abi_of_its_machine(machine, ar
 
 
 def test_an_unknown_machine_is_refused_by_name():
-    with pytest.raises(_syscalls.UnsupportedMachine, match="no keyring filter for riscv64"):
-        _syscalls.program("riscv64")
-    assert _syscalls.supported("arm64") and not _syscalls.supported("ppc64le")
+    with pytest.raises(syscalls.UnsupportedMachine, match="no keyring filter for riscv64"):
+        syscalls.program("riscv64")
+    assert syscalls.supported("arm64") and not syscalls.supported("ppc64le")

@@ -18,7 +18,8 @@ import struct
 import numpy as np
 import pytest
 
-from autograder import checks, executions, wire
+from autograder import checks, executions
+from autograder.inside import wire
 
 # What a hostile (or merely confused) function returns instead of an answer.
 HOSTILE = {

@@ -376,7 +376,7 @@ time.sleep(600)
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("option, runner", [(None, "autograder._worker"),
+@pytest.mark.parametrize("option, runner", [(None, "autograder.inside.worker"),
                                             ("--nbgrader-kernel", "ipykernel")])
 def test_ctrl_c_stops_every_process_in_the_fallback(ta, option, runner):
     """tests/test_grade_cli.py's Ctrl-C test, as the user and without user namespaces: no

@@ -110,7 +110,7 @@ def _trial_backproject(rng, index: int) -> Trial:
                                                             < 0.15 * h)
     z[box] -= rng.uniform(0.03, 0.15)
     z = z + rng.normal(0.0, 1.0, z.shape) * rng.uniform(*NOISE_K) * z ** 2
-    # Z16 values (0..65535), held as int64: the grader's wire format (autograder.wire) sends
+    # Z16 values (0..65535), held as int64: the grader's wire format (autograder.inside.wire) sends
     # integer arrays as int64, so check(), the kernel and the sandbox all pass the same type.
     raw = np.clip(np.rint(z / scale), 1, 65535).astype(np.int64)
     # Holes as the sensor leaves them: scattered pixels, a dropout band along the box's

@@ -1,6 +1,6 @@
 """A fresh sandbox for one submission, made inside the grading template's sandbox.
 
-The template (:mod:`autograder._worker` in template mode) has imported the lab's libraries
+The template (:mod:`autograder.inside.worker` in template mode) has imported the lab's libraries
 and run the notebook's leading read-only cells once; each submission is a fork of it. A
 fork shares the template's mount, PID and IPC namespaces, so before any student code runs
 the forked process moves into namespaces of its own:
@@ -18,7 +18,7 @@ the forked process moves into namespaces of its own:
 Then the process drops every capability (bounding set too), keeps ``no_new_privs`` and
 may not create further user namespaces, as bubblewrap's ``--disable-userns`` has it; the
 worker then gives it a session keyring of its own and the keyring filter
-(:mod:`autograder._syscalls`).
+(:mod:`autograder.inside.syscalls`).
 Standard library only (ctypes for the system calls Python 3.11 lacks): this module runs in
 the worker's view.
 """
@@ -32,7 +32,7 @@ import os
 import socket
 import struct
 
-from autograder import _syscalls
+from autograder.inside import syscalls
 
 CLONE_NEWNS = 0x00020000
 CLONE_NEWUTS = 0x04000000
@@ -119,7 +119,7 @@ def enter_own_pid_namespace() -> bool:
     do not exist, and the template is not dumpable)."""
     result = _libc.mount(b"proc", b"/proc", b"proc", MS_NOSUID | MS_NODEV | MS_NOEXEC, None)
     if result == 0:
-        for path in _syscalls.KEY_LISTS:   # as bubblewrap's /proc has them: empty
+        for path in syscalls.KEY_LISTS:   # as bubblewrap's /proc has them: empty
             if os.path.exists(path):
                 _mount("/dev/null", path, None, MS_BIND, None, f"hide {path}")
         return True

@@ -1,6 +1,6 @@
 """The student-code worker: runs one submission's code and calls its functions on request.
 
-Started by :mod:`autograder.grading` as ``python -I -m autograder._worker REQ_FD REPLY_FD
+Started by :mod:`autograder.grading` as ``python -I -m autograder.inside.worker REQ_FD REPLY_FD
 MEM_MB CPU_S FILE_MB``, inside the sandbox of :mod:`autograder.sandbox` where it can run
 (no view of the course, the answer key or the specs; ``autograder.checks`` is replaced by a
 stub so the notebook's ``from autograder.checks import check`` still works, and
@@ -15,12 +15,12 @@ notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` 
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
 the cell wrote to stdout and to stderr;
 ``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
-routines graded functions must not call (:class:`autograder.forbidden.Guard`);
+routines graded functions must not call (:class:`autograder.inside.tripwire.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
 "substitutes": {name: [[args, value], ...]}}`` calls a function by name, those routines
 poisoned and a tripwire on them (calls seen are reported as ``"forbidden"`` in the reply;
 the grader's own static scan is the authoritative rule, the report can only add to it),
-with the stand-ins of :mod:`autograder.standin`; ``{"op": "quit"}``.
+with the stand-ins of :mod:`autograder.inside.standin`; ``{"op": "quit"}``.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ import time
 import traceback
 import types
 
-from autograder import _isolate, _syscalls, forbidden, standin, wire
+from autograder.inside import isolate, standin, syscalls, tripwire, wire
 
 OUTPUT_KEEP = 4096
 
@@ -112,7 +112,7 @@ def _sandbox_cpu_s() -> float | None:
     included; None outside one (the host's processes are not the submission's).
 
     A fork of the template may keep the template's ``/proc`` (see
-    :func:`autograder._isolate.enter_own_pid_namespace`), which lists other submissions
+    :func:`autograder.inside.isolate.enter_own_pid_namespace`), which lists other submissions
     too: there only this process's descendants count, which are all of its namespace's
     processes, since it is that namespace's process 1 (orphans are reparented to it).
     """
@@ -163,7 +163,7 @@ def _on_alarm(signum, frame):
     # Raised inside the tripwire's profile hook, the time-out would make CPython drop the
     # hook, which the tripwire must read as student code removing it (every forbidden
     # routine flagged). So it is put off by a millisecond, to the student's next line.
-    if forbidden.Tripwire.is_hook(frame):
+    if tripwire.Tripwire.is_hook(frame):
         signal.setitimer(signal.ITIMER_REAL, 0.001)
         return
     if signum == signal.SIGALRM:
@@ -332,7 +332,7 @@ def main(argv: list[str]) -> int:
     namespace = {"__name__": "__main__", "__builtins__": builtins}
     _stub_checks()
     _stub_viewer()
-    guard = forbidden.Guard()
+    guard = tripwire.Guard()
     # Before any student code: the grader knows the sandbox started (a failure until here
     # is the grader's, retried in a fresh sandbox, never a student's zero).
     wire.send(rep_fd, {"op": "ready"})
@@ -340,10 +340,10 @@ def main(argv: list[str]) -> int:
 
 
 def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
-           err: _CappedWriter, guard: forbidden.Guard, control_fd: int | None = None) -> int:
+           err: _CappedWriter, guard: tripwire.Guard, control_fd: int | None = None) -> int:
     """Answer requests until "quit" or the grader closes the pipe; returns the exit code."""
     # bound now: student code may patch the modules
-    send, receive, tripwire_of = wire.send, wire.receive, forbidden.Tripwire
+    send, receive, tripwire_of = wire.send, wire.receive, tripwire.Tripwire
     while True:
         try:
             request = receive(req_fd)
@@ -388,10 +388,10 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 continue
             args = request.get("args", [])
             names = [str(n) for n in request.get("forbidden", [])]
-            tripwire = tripwire_of(names, guard=guard)
+            watch = tripwire_of(names, guard=guard)
             started, cpu_started = time.monotonic(), time.process_time()
             try:
-                with standin.substituted(namespace, _tables(request)), tripwire:
+                with standin.substituted(namespace, _tables(request)), watch:
                     value = _run_guarded(lambda: _settled(func(*args)), *_limits_of(request))
                 reply = {"ok": True, "value": value}
             except _Unsendable as exc:
@@ -399,8 +399,8 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                                                f"number ({exc})", "failure": "unusable"}
             except BaseException as exc:  # noqa: BLE001
                 reply = _failure(exc)
-            if tripwire.hits:
-                reply["forbidden"] = sorted(tripwire.hits)
+            if watch.hits:
+                reply["forbidden"] = sorted(watch.hits)
             reply["seconds"] = time.monotonic() - started
             reply["cpu_seconds"] = time.process_time() - cpu_started
             reply["output_chars"] = out.total + err.total
@@ -418,7 +418,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
 # A template is a worker that has run the notebook's leading read-only cells (the lab's
 # imports, its simulator set-up: instructor code, the same for every student) and then
 # forks one process per submission. Each fork leaves the template's namespaces for fresh
-# ones (autograder._isolate) before it runs any student code, and answers on the pipes the
+# ones (autograder.inside.isolate) before it runs any student code, and answers on the pipes the
 # grader passed with the fork request, exactly as a freshly started worker would.
 
 
@@ -453,14 +453,14 @@ def _single_threaded() -> str | None:
 
 
 def _serve_forks(control_fd: int, req_fd: int, rep_fd: int, namespace: dict,
-                 out: _CappedWriter, err: _CappedWriter, guard: forbidden.Guard) -> int:
+                 out: _CappedWriter, err: _CappedWriter, guard: tripwire.Guard) -> int:
     """The template's loop: one fork per request on the control socket (fds attached:
     the submission's request and reply pipes, its stderr file, its cgroups' procs files)."""
     busy = _single_threaded()
     wire.send(rep_fd, {"ok": busy is None, "error": busy or "", "pid": os.getpid()})
     if busy is not None:
         return 0
-    _isolate.not_dumpable()
+    isolate.not_dumpable()
     control = socket.socket(fileno=control_fd)
     exited: dict[int, int] = {}
     while True:
@@ -520,7 +520,7 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err,
         for fd in cgroups:   # "0": this process; its children inherit the group
             os.write(fd, b"0")
             os.close(fd)
-        _isolate.leave_template(int(request.get("scratch_bytes", 64 * 2**20)))
+        isolate.leave_template(int(request.get("scratch_bytes", 64 * 2**20)))
         child = os.fork()
     except BaseException as exc:  # noqa: BLE001 - told to the grader, which starts cold
         _refuse(rep_w, exc)
@@ -531,14 +531,14 @@ def _become_submission(control, fds, request, template_fds, namespace, out, err,
         code = os.waitstatus_to_exitcode(status)
         os._exit(code if code >= 0 else 128 - code)
     try:
-        _isolate.enter_own_pid_namespace()
-        _isolate.drop_privileges()
+        isolate.enter_own_pid_namespace()
+        isolate.drop_privileges()
         # The template's session keyring is every fork's: each leaves it for one of its
         # own, then may make no keyring call at all (the template has no filter, or no
         # fork could join one).
-        if _syscalls.supported():
-            _syscalls.new_session_keyring()
-            _syscalls.install()
+        if syscalls.supported():
+            syscalls.new_session_keyring()
+            syscalls.install()
         os.dup2(err_w, 2)
         _close_all_but({0, 1, 2, req_r, rep_w})   # the template's files and pipes too
         cpu_s = int(request.get("cpu_s", 60))
