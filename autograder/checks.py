@@ -74,10 +74,9 @@ __all__ = [
     "InstructorOnly",
 ]
 
-PUBLIC_SEEDS = (0, 1, 2)
-# The seeds nbgrader's in-kernel hidden tests use; not secret (the kernel is not trusted), just
-# different from the practice seeds. The authoritative grade uses secret per-student seeds.
-KERNEL_SEEDS = (1001, 1002)
+# The public seeds of check() and the kernel seeds of hidden_test() are the practice data's
+# (autograder.practice), re-exported here where notebooks and the grader reach them.
+PUBLIC_SEEDS, KERNEL_SEEDS = practice.PUBLIC_SEEDS, practice.KERNEL_SEEDS
 
 
 class InstructorOnly(ImportError):
@@ -178,6 +177,8 @@ class FunctionResult:
     # The kind of failure behind each message of ``error_counts`` that is a failed call's
     # (a time-out, a problem skipped, a raise); a message the scoring wrote has none.
     failures: dict[str, Failure] = field(default_factory=dict)
+    # (problem label, message) of each line of ``errors``, in the same order.
+    error_labels: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def fraction(self) -> float:
@@ -308,6 +309,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     errors: list[str] = []
+    labelled: list[tuple[str, str]] = []
     counts: dict[str, int] = {}
     failures: dict[str, Failure] = {}
 
@@ -315,7 +317,9 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
              failure: Failure | None = None) -> None:
         line = f"on a {label} problem: {message}"
         if line not in errors:
-            errors.insert(0, line) if first else errors.append(line)
+            at = 0 if first else len(errors)
+            errors.insert(at, line)
+            labelled.insert(at, (label, message))
         # capped: a submission can make every message distinct
         if message in counts or len(counts) < 20:
             counts[message] = counts.get(message, 0) + 1
@@ -389,7 +393,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     points = round(spec.points * total / weight_sum, 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts,
-                          failures=failures)
+                          failures=failures, error_labels=labelled[:5])
 
 
 def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:

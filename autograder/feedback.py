@@ -63,6 +63,7 @@ _VERDICTS = {
 
 _WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
 _HUNG_CELL = re.compile(r"^cell (\d+): ")
+_STUDENT_CELL = re.compile(r"\((cell In \[\d+\], line \d+)\)")   # student_location's form
 
 
 def _esc(text, limit: int = MAX_TEXT) -> str:
@@ -84,23 +85,13 @@ def student_location(text: str, origins: list[CellOrigin]) -> str:
     return _HUNG_CELL.sub(lambda m: f"{_cell_name(int(m[1]), origins)}: ", text)
 
 
-def _problem_label(error: str, message: str) -> str:
-    """The problem kind (the spec's label, e.g. "zero rotation") of ``error``, an entry of
-    :attr:`FunctionResult.errors`, when it reports ``message``; else ""."""
-    for article in ("a", "an"):
-        head = f"on {article} "
-        tail = f" problem: {message}"
-        if error.startswith(head) and error.endswith(tail):
-            return error[len(head):len(error) - len(tail)]
-    return ""
-
-
 def _problem_counts(f: FunctionResult) -> Counter:
-    """{error message: problems it happened on}; from ``errors`` (uncounted, label prefix
-    dropped) when the result carries no counts."""
+    """{error message: problems it happened on}; ``errors`` themselves (uncounted) when the
+    result carries no counts (a forbidden routine's verdict)."""
     if f.error_counts:
         return Counter(f.error_counts)
-    return Counter({re.sub(r"^on an? .*? problem: ", "", e): 0 for e in f.errors})
+    return Counter({message or e: 0 for e, (_, message) in
+                    zip(f.errors, f.error_labels or [("", "")] * len(f.errors))})
 
 
 def function_verdict(f: FunctionResult) -> str:
@@ -157,9 +148,8 @@ def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
         shown = student_location(printable(message, MAX_TEXT), origins)
         merged[shown] += n
         labels = kinds.setdefault(shown, [])
-        for error in f.errors:
-            label = _problem_label(error, message)
-            if label and label not in labels:
+        for label, said in f.error_labels:
+            if said == message and label and label not in labels:
                 labels.append(label)
     for message, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]:
         which = f": {', '.join(kinds[message][:3])}" if kinds.get(message) else ""
@@ -222,8 +212,9 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
              f"{f.max_points:g} <span class='badge {css}'>{label}</span></h2>"]
     if verdict == "not_implemented":
         where = next((_esc(w[1], 120) for m in f.error_counts
-                      if (w := re.search(r"\((cell In \[\d+\], line \d+)\)$",
-                                         student_location(m, origins)))), "")
+                      if (x := f.failures.get(m)) is not None and x.where
+                      and (w := _STUDENT_CELL.fullmatch(student_location(f"({x.where})",
+                                                                         origins)))), "")
         parts.append(f"<p>Not implemented yet: <code>{_esc(f.name)}</code> still raises "
                      "<code>NotImplementedError</code> (the placeholder of the released "
                      f"notebook{', ' + where if where else ''}) on every problem. Replace "

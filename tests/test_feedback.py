@@ -54,6 +54,8 @@ def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees
         [_check(n_full=5, n=8, worst=float("inf"), describe="the rotation block of the pose")],
         errors=[f"on a {label} problem: {message}" for label in ("zero rotation", "tiny rotation",
                                                                   "half turn")],
+        error_labels=[(label, message) for label in ("zero rotation", "tiny rotation",
+                                                     "half turn")],
         n_problems=8, n_failed=3, error_counts={message: 3})
     # the grader's cell 2 is the student's In [7] (magic and hidden cells were dropped)
     page = feedback_html(_grade(f, origins=_origins(1, 4, 7)))
@@ -85,8 +87,10 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
         "compose_chain", 0.0, 3.0,
         [_check(n_full=0, worst=float("inf"), describe="HINT: multiply left to right")],
         errors=[f"on a chain of {k} problem: {stub}" for k in range(1, 6)],
+        error_labels=[(f"chain of {k}", stub) for k in range(1, 6)],
         n_problems=6, n_failed=6, error_counts={stub: 6},
-        failures={stub: raised("NotImplementedError")})
+        failures={stub: Failure(Failed.RAISED, exception="NotImplementedError",
+                                where="cell 1, line 3")})
     assert function_verdict(f) == "not_implemented"
     section = _section(feedback_html(_grade(f, origins=_origins(2, 4))), "compose_chain")
     assert "not implemented" in section and "Not implemented yet" in section
