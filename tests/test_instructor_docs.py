@@ -65,6 +65,8 @@ def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
     assert (course / "feedback_cobotlab" / getpass.getuser() / "lab0_frames"
             / "feedback.html").is_file()
     assert "graded 1 submissions in" in done.stdout and "wall clock" in done.stdout, log
+    # scored again from the kept execution, no student code run
+    assert "rescored 1 submissions" in done.stdout and "no student code ran" in done.stdout, log
     # the feedback block: the student fetched nbgrader's page with cobotlab's on top
     [page] = (home / "dry-run" / "lab0_frames" / "feedback").glob("*/lab0_frames.html")
     text = page.read_text()
