@@ -21,9 +21,13 @@ the largest error / full-credit tolerance over every problem (below 1: full cred
 
 The Monte Carlo itself is :mod:`autograder.fairness` (draws, scoring, margins, intervals);
 calls are in-process (``fairness.in_process``, the grader's own scoring): the sandbox
-changes where code runs, not what it scores.
+changes where code runs, not what it scores. ``--sandboxed`` shows it: the notebook's
+reference also runs as the grader runs a submission, in the sandboxed worker through
+:class:`autograder.grading.NotebookRunner` (the one call loop of the grader and of
+``cobotlab labs verify``), as a variant of its own on the same draws.
 
     .venv/bin/python benchmarks/grading_fairness.py --quick              # ~2 min, 300 draws
+    .venv/bin/python benchmarks/grading_fairness.py --quick --labs lab0_frames --sandboxed
     .venv/bin/python benchmarks/grading_fairness.py --labs lab0_frames,lab4_stereo
     .venv/bin/python benchmarks/grading_fairness.py --functions tsai_lenz --draws 3000
 
@@ -72,6 +76,7 @@ from solutions import servoing as sv  # noqa: E402
 RESULTS_JSON = ROOT / "docs" / "benchmarks" / "grading_fairness.json"
 RESULTS_MD = ROOT / "docs" / "benchmarks" / "grading_fairness.md"
 SECRET = "fairness-benchmark-secret"
+SANDBOXED = "notebook solution, in the grader's worker"
 CORRECT_TARGET = 1e-4
 MISTAKE_TARGET = 0.99
 
@@ -616,21 +621,34 @@ def problem_rng(assignment: str, student: str, function: str) -> np.random.Gener
 def run_function(job) -> dict:
     """All variants of one function over draws [start, stop) (:func:`fairness.score_draws`).
 
-    ``job`` is (assignment, function, start, stop[, mistakes_stop]): mistakes are scored on
-    draws below ``mistakes_stop`` only (1,000 draws without a miss already bound their rate
-    above 99.6 %; it is correct code that needs the long run)."""
+    ``job`` is (assignment, function, start, stop[, mistakes_stop[, sandboxed]]): mistakes
+    are scored on draws below ``mistakes_stop`` only (1,000 draws without a miss already
+    bound their rate above 99.6 %; it is correct code that needs the long run); with
+    ``sandboxed``, the notebook's reference runs in the grader's worker too."""
     assignment, name, start, stop = job[:4]
     mistakes_stop = job[4] if len(job) > 4 else None
+    sandboxed = bool(job[5]) if len(job) > 5 else False
     spec = next(s for s in checks.SPECS[assignment] if s.name == name)
     table = variants(assignment)[name]
     if len({v.name for v in table}) != len(table):
         raise ValueError(f"{name}: two variants share a name: {[v.name for v in table]}")
     started = time.perf_counter()
-    stats = fairness.score_draws(
-        spec, assignment, range(start, stop),
-        {v.name: fairness.in_process(v.func) for v in table},
-        lambda student: problem_rng(assignment, student, name),
-        correct={v.name for v in table if v.correct}, mistakes_stop=mistakes_stop)
+    callers = {v.name: fairness.in_process(v.func) for v in table}
+    correct = {v.name for v in table if v.correct}
+    with contextlib.ExitStack() as stack:
+        if sandboxed:
+            from autograder.registry import find_lab
+            from cobotlab.verify import SandboxedReference
+
+            reference = SandboxedReference(find_lab(assignment).notebook
+                                           or kit.source_notebook(assignment), grading.Limits())
+            stack.callback(reference.close)
+            callers[SANDBOXED] = reference
+            correct.add(SANDBOXED)
+        stats = fairness.score_draws(
+            spec, assignment, range(start, stop), callers,
+            lambda student: problem_rng(assignment, student, name),
+            correct=correct, mistakes_stop=mistakes_stop)
     return {"assignment": assignment, "function": name, "start": start,
             "draws": stop - start, "stats": stats,
             "seconds": time.perf_counter() - started, "n_trials": spec.n_trials,
@@ -754,6 +772,9 @@ def main(argv=None) -> int:
     parser.add_argument("--functions", default="", help="comma-separated function names")
     parser.add_argument("--workers", type=int, default=1, help="processes (2 on a quiet machine)")
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--sandboxed", action="store_true",
+                        help="also run the notebook's reference in the grader's sandboxed "
+                             "worker (autograder.grading.NotebookRunner), a variant of its own")
     args = parser.parse_args(argv)
     draws = 300 if args.quick else args.draws
     labs = [x for x in args.labs.split(",") if x] or list(LABS)
@@ -766,8 +787,8 @@ def main(argv=None) -> int:
             # Small chunks keep both workers busy to the end (the mistakes make the first
             # draws dearer) and let the progress bar move on runs of an hour or more.
             chunk = min(CHUNK_DRAWS, math.ceil(draws / max(1, args.workers)))
-            jobs += [(lab, spec.name, s, min(s + chunk, draws), args.mistake_draws)
-                     for s in range(0, draws, chunk)]
+            jobs += [(lab, spec.name, s, min(s + chunk, draws), args.mistake_draws,
+                      args.sandboxed) for s in range(0, draws, chunk)]
     started = time.perf_counter()
     parts = []
     pool = mp.get_context("fork").Pool(args.workers) if args.workers > 1 else None
