@@ -22,11 +22,13 @@ process:
    from the kernel's counts, never the worker's report). Where bubblewrap cannot run,
    rlimits alone remain and every row says so (``sandbox:rlimits_only``).
 3. Problems are drawn from the secret seed, the assignment, the student id and the function
-   name only, so a regrade gives the same submission the same problems and the same score.
-   A run that asks for fresh problems mixes in a random nonce, which reaches the disk (the
-   run log, for replays) only after the workers are gone. Only the inputs go to the worker;
-   its replies are decoded defensively (no pickle) and scored here, against truth that
-   stays here.
+   name only (:func:`draw_problems`), so a regrade gives the same submission the same
+   problems and the same score. A run that asks for fresh problems mixes in a random nonce,
+   which reaches the disk (the run log, for replays) only after the workers are gone. Only
+   the inputs go to the worker; its replies are decoded defensively (no pickle) into an
+   :class:`Execution` (:func:`execute_notebook`: what each call came to, a value or a typed
+   failure, nothing scored), which :func:`score_execution` scores here, a pure function,
+   against truth that stays here. :func:`grade_notebook` is the three in a row.
 
 A crash, hang, NaN or exception costs the student the problems it touched, nothing else; a
 worker that dies is restarted for the next function. A function whose code reaches one of
@@ -110,7 +112,10 @@ class Limits:
     # busy the grading machine is; each has a wall-clock backstop of ``wall_factor`` times it
     # (for code that sleeps or blocks). The worker's whole life is capped (RLIMIT_CPU) at the
     # sum of its load and call limits, so a student who disables the timers gains nothing.
-    cell_timeout_s: float = 10.0   # each notebook cell while loading
+    # Each notebook cell while loading. Lab 4's released capture cell (40 stereo renders of
+    # the simulator) takes 9-12 s of CPU: with 10 s it timed out on a loaded machine and the
+    # students' feedback blamed their notebook for it (and for the NameErrors that followed).
+    cell_timeout_s: float = 20.0
     load_timeout_s: float = 90.0   # loading, restarts after hung cells included
     call_timeout_s: float | None = None   # per call; None: the function spec's own limit
     wall_factor: float = checks.WALL_BACKSTOP_FACTOR
