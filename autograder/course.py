@@ -6,8 +6,8 @@
 (:mod:`autograder.freeze`), execute untrusted code in a throwaway sandbox (the isolated
 grader's worker, :mod:`autograder.grading`, which also runs the cells for nbgrader's own
 autograde, :mod:`autograder.scratch`), and record from the trusted process
-(:mod:`autograder.record`), writing ``DIR/grades.csv`` and per-student feedback HTML
-(:mod:`autograder.feedback`).
+(:mod:`autograder.gradebook`, :mod:`autograder.record`), writing ``DIR/grades.csv`` and
+per-student feedback HTML (:mod:`autograder.feedback`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from autograder import (
     executions,
     feedback,
     freeze,
+    gradebook,
     grading,
     record,
     registry,
@@ -122,11 +123,8 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
         config.write_text(_CONFIG.format(root=str(root), exchange=str(exchange_dir),
                                          course_id=course_id))
     if not (root / "gradebook.db").exists():
-        from nbgrader.api import Gradebook
-
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
-        with Gradebook(f"sqlite:///{root / 'gradebook.db'}", course_id=course_id):
-            pass
+        gradebook.create(root, course_id)
     own = {name for name, lab in registry.all_labs().items() if not lab.builtin}
     for name, folder in sources.items():
         target = root / "source" / name
@@ -183,8 +181,9 @@ def run_nbgrader_autograde(course_dir, assignment: str, student_id,
         missing = [s for s in wanted if s not in frozen]
         if missing:
             raise ValueError(f"no usable submission of {assignment!r} by {missing}")
-        template = scratch.make_template(root, assignment, Path(store), _duedate(root, assignment))
-        known = scratch.template_cells(template, assignment)
+        template = scratch.make_template(root, assignment, Path(store),
+                                         gradebook.duedate(root, assignment))
+        known = gradebook.template_cells(template, assignment)
         for sid in wanted:
             result = scratch.autograde_one(frozen[sid], assignment, root, template, known,
                                            timeout_s=timeout_s, cell_timeout_s=cell_timeout_s,
@@ -195,42 +194,6 @@ def run_nbgrader_autograde(course_dir, assignment: str, student_id,
 
 
 # --------------------------------------------------------------------------- nbgrader's view
-
-
-def _nbgrader_results(root: Path, assignment: str, students: list[str]) -> dict:
-    """{student: {"cells": {grade_id: (auto score, max)}, "student": {...}, "timestamp",
-    "penalty", "duedate"}} as the gradebook holds them now."""
-    db = root / "gradebook.db"
-    out: dict = {}
-    if not db.exists():
-        return out
-    try:
-        from nbgrader.api import Gradebook, MissingEntry
-    except ImportError:
-        return out
-    with Gradebook(f"sqlite:///{db}") as gb:
-        try:
-            duedate = gb.find_assignment(assignment).duedate
-        except MissingEntry:
-            return out
-        for sid in students:
-            entry: dict = {"duedate": duedate, "cells": {}}
-            try:
-                st = gb.find_student(sid)
-                entry["student"] = {"last_name": st.last_name or "", "first_name":
-                                    st.first_name or "", "email": st.email or ""}
-                sub = gb.find_submission(assignment, sid)
-            except MissingEntry:
-                out[sid] = entry
-                continue
-            entry["timestamp"] = sub.timestamp
-            entry["penalty"] = float(sub.late_submission_penalty or 0.0)
-            for nb in sub.notebooks:
-                for g in nb.grades:
-                    entry["cells"][g.name] = (float(g.auto_score or 0.0),
-                                              float(g.max_score or 0.0))
-            out[sid] = entry
-    return out
 
 
 def _source_cells(root: Path, assignment: str):
@@ -526,8 +489,8 @@ def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Pat
     if run_nbgrader:
         try:
             template = scratch.make_template(root, assignment, store,
-                                             _duedate(root, assignment))
-            known = scratch.template_cells(template, assignment)
+                                             gradebook.duedate(root, assignment))
+            known = gradebook.template_cells(template, assignment)
         except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
             run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
 
@@ -824,26 +787,13 @@ def _timeout_flags(grade: grading.SubmissionGrade) -> list[str]:
 # ----------------------------------------------------------------- stage 6: record
 
 
-def _duedate(root: Path, assignment: str):
-    db = root / "gradebook.db"
-    if not db.is_file():
-        return None
-    from nbgrader.api import Gradebook, MissingEntry
-
-    with Gradebook(f"sqlite:///{db}") as gb:
-        try:
-            return gb.find_assignment(assignment).duedate
-        except MissingEntry:
-            return None
-
-
 def _record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
                      result: scratch.ScratchResult) -> None:
     """The validated cell scores and autograded notebooks of one scratch run, into the course
     (the notebooks for nbgrader's own next commands: generate_feedback, formgrader)."""
     present = {p.stem for p in sub.notebooks}
-    record.record_nbgrader(root, assignment, sub.student_id, sub.timestamp, result.cells,
-                           present)
+    gradebook.write_nbgrader_cells(root, assignment, sub.student_id, sub.timestamp,
+                                   result.cells, present)
     for name, data in result.notebooks.items():
         record.write_file(root, f"autograded/{sub.student_id}/{assignment}/{name}.ipynb", data)
     if result.notebooks:   # what nbgrader's release_feedback reads beside them
@@ -878,7 +828,7 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
     accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted and g.graded]
     ledger = _load_ledger(private)
     nb_own = {} if damaged else _nbgrader_own(
-        _nbgrader_results(root, assignment, [g.student_id for g, _ in accepted]),
+        gradebook.results(root, assignment, [g.student_id for g, _ in accepted]),
         ledger.get(assignment, {}), {sub.student_id: sub.timestamp for _, sub in accepted},
         set(nb_runs))
     cell_map = _cell_to_function(root, assignment)
@@ -891,7 +841,7 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
         _withdraw_ungraded(root, assignment, grades, frozen, run_notes)
         damaged = _check_gradebook(root, private, run_notes)
     # names, timestamps and late penalties as the gradebook has them now, our scores in it
-    nb_results = {} if damaged else _nbgrader_results(
+    nb_results = {} if damaged else gradebook.results(
         root, assignment, [g.student_id for g, _ in accepted])
 
     rows = []
@@ -934,7 +884,7 @@ def _withdraw_ungraded(root: Path, assignment: str, grades, frozen, run_notes) -
         if grade.graded or not sub.accepted:
             continue
         try:
-            emptied = record.withdraw_scores(
+            emptied = gradebook.withdraw_scores(
                 root, assignment, grade.student_id,
                 "cobotlab: not graded (the grader failed on every attempt); no score is "
                 "recorded, and the next `cobotlab grade` grades it again.")
@@ -951,7 +901,7 @@ def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | Non
               max_score: float, flags: str, timestamp="") -> dict:
     """One grades.csv row (:data:`GRADE_COLUMNS`): the score cobotlab gave, with the names,
     due date, timestamp and late penalty as the gradebook has them now (``nb``: an entry of
-    ``_nbgrader_results``; the score less the penalty, never below 0). ``raw_score`` None:
+    :func:`autograder.gradebook.results`; the score less the penalty, never below 0). ``raw_score`` None:
     not graded (the grader failed), so the score columns stay empty."""
     penalty = float(nb.get("penalty", 0.0))
     if raw_score is None:
@@ -970,13 +920,13 @@ def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | Non
 def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | None:
     """None if gradebook.db passes its check; else restore the copy made before this run and
     say so (in ``run_notes`` too)."""
-    problem = record.gradebook_problem(root / "gradebook.db")
+    problem = gradebook.problem(root / "gradebook.db")
     if not problem:
         return None
     damaged = f"gradebook.db failed its check after grading ({problem})"
     backup = private / "gradebook.backup.db"
     if backup.is_file():
-        record.restore_gradebook(root, backup)
+        gradebook.restore(root, backup)
         damaged += "; restored from the copy made before this run"
     run_notes.append(damaged)
     return damaged
@@ -1060,8 +1010,8 @@ def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledg
             theirs[g] for g, name in cell_map.items() if name == f.name and g in theirs])
             for i, f in enumerate(grade.functions) if f.name in solution_of}
         try:
-            written = record.record_cobotlab(root, assignment, grade.student_id, sub.timestamp,
-                                             fractions, comments)
+            written = gradebook.write_cobotlab(root, assignment, grade.student_id,
+                                               sub.timestamp, fractions, comments)
         except Exception as exc:  # noqa: BLE001 - grades.csv still gets the score
             note = f"cobotlab's scores not written to gradebook.db: {printable(exc, 200)}"
             if note not in run_notes:
@@ -1108,10 +1058,10 @@ def _begin_run(root: Path, private: Path) -> list[str]:
         if pid and pid != os.getpid() and sandbox.process_alive(pid):
             raise ValueError(f"another `cobotlab grade` (pid {pid}) is grading this course; "
                              f"wait for it, or remove {marker} if it is gone")
-        problem = record.gradebook_problem(root / "gradebook.db")
+        problem = gradebook.problem(root / "gradebook.db")
         backup = private / "gradebook.backup.db"
         if problem and backup.is_file():
-            record.restore_gradebook(root, backup)
+            gradebook.restore(root, backup)
             notes.append(f"the previous run was interrupted and gradebook.db was damaged "
                          f"({problem}): restored from its backup")
         else:
@@ -1120,11 +1070,11 @@ def _begin_run(root: Path, private: Path) -> list[str]:
     removed = sandbox.remove_stale_scratch()
     if removed:
         notes.append(f"removed {removed} scratch folder(s) left by an interrupted run")
-    problem = record.gradebook_problem(root / "gradebook.db")
+    problem = gradebook.problem(root / "gradebook.db")
     if problem:
         raise ValueError(f"gradebook.db is damaged before grading ({problem}); restore it from "
                          f"{private / 'gradebook.backup.db'} or nbgrader's own backup first")
-    record.backup_gradebook(root, private)
+    gradebook.backup(root, private)
     record.write_file(private, record.RUN_MARKER, json.dumps(
         {"pid": os.getpid(), "started": datetime.now(timezone.utc).isoformat()}).encode())
     return notes

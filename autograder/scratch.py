@@ -9,11 +9,12 @@ nbgrader's kernel runs the student's notebook, so it gets what that run needs an
 else: a scratch course (its own config, the assignment's source read-only, a gradebook that
 holds only the assignment's definition, the one frozen submission) inside the sandbox of
 :mod:`autograder.sandbox`, with a temporary ``HOME``, a minimal environment, no network and
-a wall-clock deadline. Afterwards the trusted process reads the scratch gradebook and keeps
-only cell scores it can validate against the template it made itself (known cell, finite,
-``0 <= score <= max``); names, penalties and anything else the run wrote are ignored. What
-it reads back (the gradebook, the autograded notebooks) it opens through
-:mod:`autograder.safe_files`: a folder the kernel swapped for a link is never followed.
+a wall-clock deadline. Afterwards the trusted process reads the scratch gradebook
+(:func:`autograder.gradebook.read_scratch_scores`) and keeps only cell scores it can
+validate against the template it made itself (known cell, finite, ``0 <= score <= max``);
+names, penalties and anything else the run wrote are ignored. What it reads back (the
+gradebook, the autograded notebooks) it opens through :mod:`autograder.safe_files`: a
+folder the kernel swapped for a link is never followed.
 """
 
 from __future__ import annotations
@@ -21,10 +22,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import math
 import os
 import shutil
-import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -37,20 +36,13 @@ from pathlib import Path
 from autograder import safe_files, sandbox
 from autograder.feedback import student_location
 from autograder.freeze import Frozen, printable
+from autograder.gradebook import CellScore, read_scratch_scores, set_duedate
 from autograder.grading import HIDDEN_MARK, hidden_tests_called
 
-__all__ = ["CellScore", "ScratchResult", "make_template", "autograde_one",
+__all__ = ["ScratchResult", "make_template", "autograde_one",
            "autograde_in_worker", "put_interpreter_on_path", "speed_up_new_gradebooks"]
 
 INSIDE = "/course"
-
-
-@dataclass(frozen=True)
-class CellScore:
-    notebook: str
-    cell: str
-    score: float
-    max_score: float
 
 
 @dataclass
@@ -176,10 +168,7 @@ def make_template(root: Path, assignment: str, work: Path, duedate=None) -> Path
         raise RuntimeError(f"nbgrader generate_assignment {assignment} failed on a copy of the "
                            f"source: {error} {messages.getvalue()[-1200:]}")
     if duedate is not None:
-        from nbgrader.api import Gradebook
-
-        with Gradebook(f"sqlite:///{db}") as gb:
-            gb.update_or_create_assignment(assignment, duedate=duedate)
+        set_duedate(db, assignment, duedate)
     return db
 
 
@@ -207,57 +196,6 @@ def _captured_logger():
     logger.setLevel(logging.INFO)
     logger.handlers = [logging.StreamHandler(text)]
     return logger, text
-
-
-def template_cells(template_db: Path, assignment: str) -> dict[tuple[str, str], float]:
-    """{(notebook, grade cell): max score} of the assignment, from the trusted template."""
-    from nbgrader.api import Gradebook
-
-    with Gradebook(f"sqlite:///{template_db}") as gb:
-        return {(nb.name, cell.name): float(cell.max_score)
-                for nb in gb.find_assignment(assignment).notebooks for cell in nb.grade_cells}
-
-
-def _read_scores(db: Path, assignment: str, student: str,
-                 known: dict[tuple[str, str], float]) -> tuple[list[CellScore], list[str]]:
-    """Cell scores of ``student`` in a gradebook written next to student code: read-only,
-    with plain SQL (no ORM, no triggers), and only values that pass validation."""
-    notes: list[str] = []
-    scores: dict[tuple[str, str], float] = {}
-    uri = f"file:{db}?mode=ro&immutable=1"
-    try:
-        con = sqlite3.connect(uri, uri=True, timeout=2)
-        try:
-            con.execute("PRAGMA trusted_schema=OFF")
-            rows = con.execute(
-                "SELECT notebook.name, base_cell.name, grade.auto_score FROM grade "
-                "JOIN submitted_notebook ON grade.notebook_id = submitted_notebook.id "
-                "JOIN submitted_assignment ON submitted_notebook.assignment_id = "
-                "submitted_assignment.id "
-                "JOIN assignment ON submitted_assignment.assignment_id = assignment.id "
-                "JOIN notebook ON submitted_notebook.notebook_id = notebook.id "
-                "JOIN base_cell ON grade.cell_id = base_cell.id "
-                "WHERE submitted_assignment.student_id = ? AND assignment.name = ? "
-                "LIMIT 10000", (student, assignment)).fetchall()
-        finally:
-            con.close()
-    except sqlite3.Error as exc:
-        return [], [f"nbgrader's scratch gradebook is unreadable ({type(exc).__name__}): its "
-                    "cell results are ignored"]
-    for nb, cell, score in rows:
-        key = (str(nb), str(cell))
-        if key not in known:
-            notes.append(f"nbgrader result for an unknown cell {printable(key, 80)} ignored")
-            continue
-        top = known[key]
-        if isinstance(score, (int, float)) and math.isfinite(score) and 0 <= score <= top:
-            # a row planted twice counts at its lowest
-            scores[key] = min(float(score), scores.get(key, math.inf))
-        elif score is not None:
-            notes.append(f"nbgrader score {printable(score, 40)} for {key[1]} is outside 0..{top:g}:"
-                         " ignored (scored 0)")
-    return [CellScore(nb, cell, scores.get((nb, cell), 0.0), top)
-            for (nb, cell), top in sorted(known.items())], notes
 
 
 def _lay_out(course: Path, frozen: Frozen, assignment: str, template_db: Path) -> None:
@@ -373,7 +311,7 @@ def _collect(course: Path, assignment: str, student: str, known: dict[tuple[str,
                 refused("gradebook.db", exc, "its cell results are 0")
             result.cells = [CellScore(nb, c, 0.0, m) for (nb, c), m in sorted(known.items())]
         else:
-            result.cells, notes = _read_scores(copy, assignment, student, known)
+            result.cells, notes = read_scratch_scores(copy, assignment, student, known)
             result.notes += notes
     for name in sorted({nb for nb, _ in known}):
         try:

@@ -32,11 +32,11 @@ from autograder import (
     course,
     feedback_release,
     freeze,
+    gradebook,
     grading,
     record,
     registry,
     safe_files,
-    scratch,
 )
 
 __all__ = ["merge_shard"]
@@ -104,34 +104,7 @@ def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
             safe_files.copy_file(shard, "gradebook.db", copy, _GRADEBOOK_CAP)
         except safe_files.Refused as exc:
             raise ValueError(f"the shard's gradebook: {exc}") from None
-        return _gradebook_cells(copy, shard / "gradebook.db", assignment, students)
-
-
-def _gradebook_cells(db: Path, named: Path, assignment: str, students: list[str]) -> dict:
-    """:func:`_shard_gradebook` of the gradebook copied to ``db`` (``named`` in messages)."""
-    from nbgrader.api import Gradebook, MissingEntry
-
-    out = {}
-    with Gradebook(f"sqlite:///{db}") as gb:
-        for sid in students:
-            try:
-                sub = gb.find_submission(assignment, sid)
-            except MissingEntry:
-                raise ValueError(f"{named} has no submission of {assignment!r} by {sid}, yet its "
-                                 "grades.csv has a row: the shard's copy is incomplete") from None
-            scores, comments = {}, {}
-            for nb in sub.notebooks:
-                for g in nb.grades:
-                    value, top = float(g.auto_score or 0.0), float(g.max_score or 0.0)
-                    if not (math.isfinite(value) and 0.0 <= value <= top):
-                        raise ValueError(f"{named}: cell {g.name!r} of {sid} scores {value:g} "
-                                         f"of {top:g} points")
-                    scores[(nb.name, g.name)] = (value, top)
-                for c in nb.comments:
-                    if c.auto_comment:  # written by the job's trusted process; capped anyway
-                        comments[c.name] = str(c.auto_comment)[:4000]
-            out[sid] = (sub.timestamp.isoformat() if sub.timestamp else "", scores, comments)
-    return out
+        return gradebook.read_submissions(copy, shard / "gradebook.db", assignment, students)
 
 
 def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: list[str]) -> None:
@@ -163,17 +136,6 @@ def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: lis
                                  f"{freeze.printable(exc)}")
 
 
-def _check_assignment(home: Path, assignment: str) -> None:
-    from nbgrader.api import Gradebook, MissingEntry
-
-    with Gradebook(f"sqlite:///{home / 'gradebook.db'}") as gb:
-        try:
-            gb.find_assignment(assignment)
-        except MissingEntry:
-            raise ValueError(f"{home}'s gradebook has no assignment {assignment!r}: run "
-                             f"`nbgrader generate_assignment {assignment}` there first") from None
-
-
 def _write(home, shard, private, assignment, students, cells, theirs, notes) -> None:
     """The shard's students into HOME: gradebook cells and comments, ledger, files."""
     ledger = course._load_ledger(private)
@@ -182,11 +144,12 @@ def _write(home, shard, private, assignment, students, cells, theirs, notes) -> 
         timestamp, scores, comments = cells[sid]
         # nbgrader's cell results first (every cell, a notebook's missing ones at 0), then the
         # comments with cobotlab's findings: the same two writes `cobotlab grade` makes.
-        record.record_nbgrader(
+        gradebook.write_nbgrader_cells(
             home, assignment, sid, timestamp,
-            [scratch.CellScore(nb, gid, value, top) for (nb, gid), (value, top) in scores.items()],
+            [gradebook.CellScore(nb, gid, value, top)
+             for (nb, gid), (value, top) in scores.items()],
             {nb for nb, _ in scores})
-        record.record_cobotlab(home, assignment, sid, timestamp, {}, comments)
+        gradebook.write_cobotlab(home, assignment, sid, timestamp, {}, comments)
         entry = theirs.get(sid)
         if isinstance(entry, dict) and isinstance(entry.get("cells"), dict):
             mine[sid] = {"timestamp": entry.get("timestamp"), "cells": entry["cells"]}
@@ -236,7 +199,7 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     cells = _shard_gradebook(shard, assignment, students)
     theirs = course._load_ledger(shard / grading.PRIVATE_DIR).get(assignment, {})
 
-    _check_assignment(home, assignment)
+    gradebook.require_assignment(home, assignment)
 
     private = course._private_dir(home)
     notes = course._begin_run(home, private)
@@ -244,12 +207,12 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
         _write(home, shard, private, assignment, students, cells, theirs, notes)
     except BaseException:
         # Nothing half-merged: the gradebook as it was before, and no run left marked.
-        record.restore_gradebook(home, private / "gradebook.backup.db")
+        gradebook.restore(home, private / "gradebook.backup.db")
         (private / record.RUN_MARKER).unlink(missing_ok=True)
         raise
     damaged = course._check_gradebook(home, private, notes)
 
-    now = {} if damaged else course._nbgrader_results(home, assignment, students)
+    now = {} if damaged else gradebook.results(home, assignment, students)
     merged = []
     for row in rows:
         nb = now.get(row["student_id"], {})

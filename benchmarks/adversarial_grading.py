@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import course_kit as kit  # noqa: E402
 
-from autograder import record, sandbox  # noqa: E402
+from autograder import gradebook, sandbox  # noqa: E402
 from autograder.freeze import student_key  # noqa: E402
 
 ASSIGNMENT = "lab0_frames"
@@ -91,20 +91,13 @@ OUTPUTS = ("gradebook.db", "autograded", "feedback", "feedback_cobotlab", "grade
 
 
 def _scores(course: Path) -> tuple[dict[str, float], str | None]:
-    problem = record.gradebook_problem(course / "gradebook.db")
+    problem = gradebook.problem(course / "gradebook.db")
     if problem:
         return {}, problem
-    from nbgrader.api import Gradebook
-
-    out = {}
     try:
-        with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
-            for sub in gb.assignment_submissions(ASSIGNMENT):
-                out[sub.student.id] = round(float(sub.score) - float(
-                    sub.late_submission_penalty or 0), 2)
+        return gradebook.net_scores(course, ASSIGNMENT), None
     except Exception as exc:  # noqa: BLE001 - a forged gradebook may break the API
         return {}, f"{type(exc).__name__}: {exc}"
-    return out, None
 
 
 def run_plain(base: Path, released: Path, cases: dict, name: str) -> dict:
@@ -177,7 +170,7 @@ def run_cobotlab(base: Path, released: Path, cases: dict, names) -> dict:
     with open(course / "grades.csv", newline="") as f:
         rows = {r["student_id"]: r for r in csv.DictReader(f)}
     return {"rows": rows, "folders": folders, "exit": done.returncode, "seconds": seconds,
-            "stdout": done.stdout, "gradebook": record.gradebook_problem(course / "gradebook.db"),
+            "stdout": done.stdout, "gradebook": gradebook.problem(course / "gradebook.db"),
             "changed": {k: _changed(before[k], after[k]) for k in watched},
             "export": kit.nbgrader(course, "export", "--CsvExportPlugin.to=export.csv").returncode}
 

@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import grading_class  # noqa: E402
 
-from autograder import checks, grading  # noqa: E402
+from autograder import checks, gradebook, grading  # noqa: E402
 from autograder.course import grade_course, init_course  # noqa: E402
 
 SECRET = "cobotlab-grading-gate-fixed-secret-0001"
@@ -50,20 +50,7 @@ COURSES = Path("/tmp/cobotlab-gate")
 def gradebook_dump(course: Path, lab: str) -> dict:
     """{student: {cell: [auto score, max score, auto comment]}} of ``lab`` in the course's
     gradebook.db, sorted, so that two runs compare as text."""
-    from nbgrader.api import Gradebook
-
-    out: dict = {}
-    with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
-        for sub in gb.assignment_submissions(lab):
-            cells: dict = {}
-            for nb in sub.notebooks:
-                for g in nb.grades:
-                    cells.setdefault(g.name, [None, None, None])[:2] = [g.auto_score,
-                                                                        g.max_score]
-                for c in nb.comments:
-                    cells.setdefault(c.name, [None, None, None])[2] = c.auto_comment
-            out[sub.student.id] = dict(sorted(cells.items()))
-    return dict(sorted(out.items()))
+    return gradebook.cells_and_comments(course, lab)
 
 
 def record_lab(lab: str, out: Path, students: int, seed: int, workers: int) -> dict:

@@ -18,7 +18,7 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import checks, record, sandbox
+from autograder import checks, gradebook, record, sandbox
 from autograder.course import grade_course
 from autograder.shards import merge_shard
 from cobotlab.cli import _student_ids
@@ -122,7 +122,7 @@ def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, 
     while _still_running(seen) and time.monotonic() < stop:
         time.sleep(0.2)
     assert _still_running(seen) == []
-    assert record.gradebook_problem(course / "gradebook.db") is None
+    assert gradebook.problem(course / "gradebook.db") is None
     assert not (course / "grades.csv").exists()   # nothing half-recorded
     assert not sandbox.stopping()
 
@@ -178,7 +178,7 @@ def test_a_shard_grades_only_its_students_and_merges_back_into_the_home_course(r
     assert not (home / "autograded" / "cy" / ASSIGNMENT / "submission_secret.txt").exists()
     ledger = json.loads((home / ".cobotlab" / "nbgrader_cells.json").read_text())
     assert set(ledger[ASSIGNMENT]) == {"ada", "cy"}
-    assert record.gradebook_problem(home / "gradebook.db") is None
+    assert gradebook.problem(home / "gradebook.db") is None
     assert not (home / ".cobotlab" / record.RUN_MARKER).exists()
 
     # A shard whose grades.csv was tampered with (or graded another lab version) is refused,

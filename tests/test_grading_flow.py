@@ -23,7 +23,7 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import record, sandbox
+from autograder import gradebook, sandbox
 
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
@@ -141,7 +141,7 @@ def test_the_corpus_slice_through_cobotlab_grade(tmp_path):
     assert not (course / "grades.csv").is_symlink()
 
     # the gradebook is healthy and nbgrader's own next commands work on it
-    assert record.gradebook_problem(course / "gradebook.db") is None
+    assert gradebook.problem(course / "gradebook.db") is None
     kit.nbgrader(course, "export", "--CsvExportPlugin.to=export.csv")
     with open(course / "export.csv") as f:
         exported = {r["student_id"]: r for r in csv.DictReader(f)}

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from autograder import freeze, record
+from autograder import freeze, gradebook, record
 
 ASSIGNMENT = "lab0_frames"
 NOTEBOOK = f"{ASSIGNMENT}.ipynb"
@@ -149,12 +149,12 @@ def test_a_damaged_gradebook_is_detected_and_restored(tmp_path):
     private.mkdir(parents=True)
     db = course / "gradebook.db"
     _gradebook(db)
-    assert record.gradebook_problem(db) is None
-    backup = record.backup_gradebook(course, private)
+    assert gradebook.problem(db) is None
+    backup = gradebook.backup(course, private)
     db.write_bytes(b"not a database any more" * 100)
-    assert record.gradebook_problem(db) is not None
-    record.restore_gradebook(course, backup)
-    assert record.gradebook_problem(db) is None
+    assert gradebook.problem(db) is not None
+    gradebook.restore(course, backup)
+    assert gradebook.problem(db) is None
     con = sqlite3.connect(db)
     assert con.execute("SELECT auto_score FROM grade").fetchone() == (3.0,)
     con.close()
@@ -172,7 +172,7 @@ def test_a_rerun_after_an_interrupted_run_restores_and_says_so(tmp_path):
     marker.write_text(json.dumps({"pid": 2**22 + 12345}))  # a pid that is gone
     notes = course_mod._begin_run(course, private)
     assert any("interrupted" in n and "restored" in n for n in notes), notes
-    assert record.gradebook_problem(course / "gradebook.db") is None
+    assert gradebook.problem(course / "gradebook.db") is None
     marker.write_text(json.dumps({"pid": os.getpid() + 0}))
     assert course_mod._begin_run(course, private) == [
         "the previous run was interrupted; gradebook.db checked: ok"]
