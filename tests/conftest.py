@@ -1,5 +1,5 @@
-"""Shared pytest settings: a deterministic hypothesis profile (reproducible CI runs) and
-slow test files collected first."""
+"""Shared pytest settings: a deterministic hypothesis profile (reproducible CI runs), slow
+test files collected first, and one folder per run for what is built once and shared."""
 import os
 
 import pytest
@@ -33,3 +33,15 @@ def _no_course_left_behind():
         from autograder import registry
 
         registry.use_course(before)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _built_once_for_the_whole_run(tmp_path_factory):
+    """What tests/course_kit.built_once builds (a released course, a wheel) goes in this
+    run's temporary folder, the one all xdist workers share (each worker's own folder is in
+    it), so it is built once per run and removed with pytest's old temporary folders."""
+    import course_kit
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    course_kit.BUILT_ONCE_DIR = shared / "built-once"

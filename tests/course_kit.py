@@ -6,14 +6,18 @@ autograder.course.grade_course. Each lab's test file uses these with its own ass
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import copy
 import csv
+import fcntl
 import json
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import nbformat
@@ -44,10 +48,54 @@ def nbgrader(course: Path, *args: str, home: Path | None = None) -> subprocess.C
     return done
 
 
-def released_course(root: Path, assignment: str) -> Path:
-    """A new course under ``root`` with ``assignment`` generated (released) once."""
-    course = init_course(root / "course")
+# Where built_once() keeps what it builds: set by tests/conftest.py to a folder of the test
+# run that every xdist worker shares; otherwise (this module used on its own) one of this
+# process's, removed when it exits.
+BUILT_ONCE_DIR: Path | None = None
+
+
+def built_once(name: str, build: Callable[[Path], None]) -> Path:
+    """The folder ``build(folder)`` filled, built once per test run however many tests and
+    workers ask for it (the first builds it, the others wait for it under a file lock). What
+    it holds is shared: callers copy it, never change it. A build that raises leaves nothing
+    behind, and the next caller tries again."""
+    global BUILT_ONCE_DIR
+    if BUILT_ONCE_DIR is None:
+        BUILT_ONCE_DIR = Path(tempfile.mkdtemp(prefix="cobotlab-built-once-"))
+        atexit.register(shutil.rmtree, BUILT_ONCE_DIR, True)
+    BUILT_ONCE_DIR.mkdir(parents=True, exist_ok=True)
+    folder = BUILT_ONCE_DIR / name
+    built = BUILT_ONCE_DIR / f"{name}.built"   # written last: the build finished
+    with open(BUILT_ONCE_DIR / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)   # released when the file closes
+        if not built.exists():
+            # built in place (what it writes may name its own path, as nbgrader_config.py)
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            try:
+                build(folder)
+            except BaseException:
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
+            built.touch()
+    return folder
+
+
+def _release(course: Path, assignment: str) -> None:
+    init_course(course)
     nbgrader(course, "generate_assignment", assignment)
+
+
+def released_course(root: Path, assignment: str) -> Path:
+    """A new course under ``root`` (``root/course``) with ``assignment`` generated
+    (released): a copy of the course that `init_course` and nbgrader's
+    ``generate_assignment`` made once in this test run (built_once), so that the dozen test
+    files grading lab 0 pay for one release, not one each. Like init_course, it makes the
+    course the one this process loads labs from."""
+    master = built_once(f"released-{assignment}",
+                        lambda folder: _release(folder / "course", assignment)) / "course"
+    course = fresh_course(master, root)
+    registry.use_course(course)
     return course
 
 

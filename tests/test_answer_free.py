@@ -315,7 +315,7 @@ def unpacked_wheel(tmp_path_factory) -> Path:
     """The student wheel, built from a copy of the sources and unpacked."""
     from test_student_install import _build_wheel
 
-    wheel = _build_wheel(tmp_path_factory)
+    wheel = _build_wheel()
     names = zipfile.ZipFile(wheel).namelist()
     assert not any(n.startswith("autograder/specs/") for n in names), names
     assert any(n.startswith("autograder/scoring/") for n in names)

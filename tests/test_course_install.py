@@ -90,15 +90,25 @@ def new_env(path: Path) -> dict:
     return env
 
 
+def _build_wheel(dist: Path) -> None:
+    (dist / "src").mkdir()
+    src = _copy_sources(dist / "src")
+    run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
+         str(src), "-w", str(dist)])
+    shutil.rmtree(src)   # nothing of the sources is left but the wheel
+
+
+def cobotlab_wheel() -> Path:
+    """cobotlab's wheel, built from a copy of the working tree's sources once per test run
+    (tests/test_unprivileged.py installs the same one)."""
+    (wheel,) = kit.built_once("cobotlab-wheel", _build_wheel).glob("cobotlab-*.whl")
+    return wheel
+
+
 @pytest.fixture(scope="module")
 def regular(tmp_path_factory):
     """(environment folder, its variables): the built wheel installed the regular way."""
-    src = _copy_sources(tmp_path_factory.mktemp("src"))
-    dist = tmp_path_factory.mktemp("dist")
-    run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
-         str(src), "-w", str(dist)])
-    (wheel,) = dist.glob("cobotlab-*.whl")
-    shutil.rmtree(src)   # nothing of the sources is left but the wheel
+    wheel = cobotlab_wheel()
     env_dir = tmp_path_factory.mktemp("regular") / "env"
     env = new_env(env_dir)
     run([str(env_dir / "bin" / "python"), "-m", "pip", "install", "--quiet", "--no-deps",
@@ -122,6 +132,19 @@ def editable(tmp_path_factory):
     return env_dir, env, checkout
 
 
+@pytest.fixture(scope="module")
+def regular_course(regular, tmp_path_factory) -> Path:
+    """A course that `cobotlab course init` of the regular install made, in a folder of its
+    own; each test works on a copy (kit.fresh_course: its own path, the same files). One
+    `course init` (several seconds: it draws every built-in lab's practice problems) for
+    the three tests below that need a course, not one each; `course init` from an editable
+    install (the project's own .venv) is run as written by tests/test_instructor_docs.py."""
+    env_dir, env = regular
+    cwd = tmp_path_factory.mktemp("regular-course")
+    run([str(env_dir / "bin" / "cobotlab"), "course", "init", "course"], env=env, cwd=cwd)
+    return cwd / "course"
+
+
 def where(env_dir: Path, env: dict, cwd: Path) -> dict[str, str]:
     code = ("import importlib.util, json\n"
             "print(json.dumps({n: importlib.util.find_spec(n).origin for n in "
@@ -141,7 +164,7 @@ def test_pyproject_lists_every_package_of_the_tree():
     assert listed["package-dir"] == {"cobotlab_labs": "labs"}
 
 
-def test_a_regular_install_runs_a_course(regular, tmp_path):
+def test_a_regular_install_runs_a_course(regular, regular_course, tmp_path):
     env_dir, env = regular
     bin_dir = env_dir / "bin"
     here = where(env_dir, env, tmp_path)
@@ -150,8 +173,7 @@ def test_a_regular_install_runs_a_course(regular, tmp_path):
         assert origin.startswith(str(env_dir)), (name, origin)
         assert not origin.startswith((str(ROOT), site)), (name, origin)
 
-    run([str(bin_dir / "cobotlab"), "course", "init", "course"], env=env, cwd=tmp_path)
-    course = tmp_path / "course"
+    course = kit.fresh_course(regular_course, tmp_path)   # `cobotlab course init course`
     assert (course / "source" / "lab0_frames" / "lab0_frames.ipynb").is_file()
     run([str(bin_dir / "cobotlab"), "labs", "student", "student_labs"], env=env, cwd=tmp_path)
     released = (tmp_path / "student_labs" / "lab0_frames" / "lab0_frames.ipynb").read_text()
@@ -292,9 +314,10 @@ def assert_out_of_reach(seen: dict, install: str) -> None:
         assert found["named"] == [], (install, view, found["named"])
 
 
-def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, tmp_path):
+def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, regular_course,
+                                                              tmp_path):
     env_dir, env = regular
-    run([str(env_dir / "bin" / "cobotlab"), "course", "init", "course"], env=env, cwd=tmp_path)
+    kit.fresh_course(regular_course, tmp_path)
     package_root = Path(where(env_dir, env, tmp_path)["autograder"]).parent.parent
     paths, modules = plant_markers(package_root, tmp_path / "course")
     # checks.py has no token: what matters is that the worker cannot open it (its stub
@@ -312,11 +335,14 @@ def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, tmp_path):
     assert_out_of_reach(seen, "regular")
 
 
-def test_the_answer_key_is_out_of_reach_in_an_editable_install(editable, tmp_path):
+def test_the_answer_key_is_out_of_reach_in_an_editable_install(editable, regular_course,
+                                                               tmp_path):
     env_dir, env, checkout = editable
     here = where(env_dir, env, tmp_path)
     assert here["solutions"].startswith(str(checkout)), here
-    run([str(env_dir / "bin" / "cobotlab"), "course", "init", "course"], env=env, cwd=tmp_path)
+    # the course: a copy of the regular install's `course init` (the same files as this
+    # install's would be; what is checked here is the view of the checkout and the course)
+    kit.fresh_course(regular_course, tmp_path)
     paths, modules = plant_markers(checkout, tmp_path / "course")
     # The checkout's own lab sources too (labs/, the package cobotlab_labs in this install).
     lab_marker = checkout / "labs" / "lab0_frames" / f"{TOKEN}.txt"

@@ -20,6 +20,7 @@ import venv
 import zipfile
 from pathlib import Path
 
+import course_kit as kit
 import nbformat
 import pytest
 import tomllib
@@ -82,21 +83,27 @@ def _once(name: str, build):
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
-    return _once("the student wheel", lambda: _build_wheel(tmp_path_factory))
+def wheel() -> Path:
+    return _once("the student wheel", _build_wheel)
 
 
-def _build_wheel(tmp_path_factory) -> Path:
+def _build_wheel() -> Path:
+    """The student wheel, built once per test run (tests/test_answer_free.py reads the same
+    one)."""
+    (found,) = kit.built_once("student-wheel", _build_student_wheel).glob(
+        "cobotlab_student-*.whl")
+    return found
+
+
+def _build_student_wheel(dist: Path) -> None:
     # A copy, so no build/ or egg-info from an earlier build can slip files in.
-    src = tmp_path_factory.mktemp("src")
+    src = dist / "src"
     skip = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
     for name in (*PACKAGES, "student"):
         shutil.copytree(ROOT / name, src / name, ignore=skip)
-    dist = tmp_path_factory.mktemp("dist")
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", str(src / "student"),
           "-w", str(dist)])
-    (found,) = dist.glob("cobotlab_student-*.whl")
-    return found
+    shutil.rmtree(src)
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import course_kit as kit
 import pytest
-from test_course_install import _copy_sources, _link_tree
+from test_course_install import _link_tree, cobotlab_wheel
 from test_grade_cli import _still_running, interrupt_once_running
 
 from autograder import checks, sandbox
@@ -211,15 +211,8 @@ def ta(tmp_path_factory) -> Instructor:
         site = Path(run([str(me.env_dir / "bin" / "python"), "-c", "import sysconfig; "
                          "print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
         _link_tree(Path(sysconfig.get_paths()["purelib"]), site)
-        src = _copy_sources(Path(tempfile.mkdtemp(dir=base)))
-        dist = Path(tempfile.mkdtemp(dir=base))
-        run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", str(src), "-w",
-             str(dist)])
-        (wheel,) = dist.glob("cobotlab-*.whl")
         run([str(me.env_dir / "bin" / "python"), "-m", "pip", "install", "--quiet",
-             "--no-deps", "--no-index", str(wheel)])
-        shutil.rmtree(src)
-        shutil.rmtree(dist)
+             "--no-deps", "--no-index", str(cobotlab_wheel())])
         found = me.run(["python", "-c", "import sys, numpy, scipy, cv2, pybullet, nbgrader, "
                         "autograder; print(sys.executable); print(autograder.__file__)"])
         assert found.stdout.splitlines() == [str(me.env_dir / "bin" / "python"),
