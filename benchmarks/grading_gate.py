@@ -3,6 +3,7 @@ versions of the grader byte for byte.
 
 Usage: python benchmarks/grading_gate.py OUT [--labs lab0_frames ...] [--students 30]
                                          [--seed 0] [--workers 1] [--compare BASE]
+                                         [--cell-timeout-s S]
 
 Per lab, a course at a fixed path (``/tmp/cobotlab-gate/<lab>``: nothing in the output then
 depends on where it was graded), a fixed grading secret (:data:`SECRET`) and the class of
@@ -21,7 +22,9 @@ and ``OUT/manifest.json``, the SHA-256 of each of those files. ``--compare BASE`
 compares OUT with an earlier OUT (``BASE/manifest.json``): one line per file that differs or
 is missing, a unified diff of the first lines that differ, and exit status 1 if anything
 does. This is the gate of a refactoring that must keep every grade: record BASE on the
-old version, OUT on the new one.
+old version, OUT on the new one. ``--cell-timeout-s`` grades with another per-cell limit
+than :class:`autograder.grading.Limits`' default, to compare with a version whose default
+differed (issue 39 raised it from 10 s to 20 s: ``--cell-timeout-s 10`` compares with f7588bf).
 """
 
 from __future__ import annotations
@@ -53,7 +56,8 @@ def gradebook_dump(course: Path, lab: str) -> dict:
     return gradebook.cells_and_comments(course, lab)
 
 
-def record_lab(lab: str, out: Path, students: int, seed: int, workers: int) -> dict:
+def record_lab(lab: str, out: Path, students: int, seed: int, workers: int,
+               limits: grading.Limits = grading.Limits()) -> dict:
     """Grade the class of ``lab`` and copy what the run wrote into ``out``; per file its hash."""
     course = COURSES / lab
     shutil.rmtree(course, ignore_errors=True)
@@ -62,7 +66,8 @@ def record_lab(lab: str, out: Path, students: int, seed: int, workers: int) -> d
     subs = grading_class.build_class(course, lab, students, seed=seed)
     print(grading_class.describe(lab, subs), flush=True)
     started = time.monotonic()
-    grade_course(course, lab, workers=workers, run_nbgrader=True, template=True, quiet=True)
+    grade_course(course, lab, workers=workers, run_nbgrader=True, template=True, quiet=True,
+                 limits=limits)
     print(f"{lab}: graded in {time.monotonic() - started:.0f} s", flush=True)
     mine = out / lab
     shutil.rmtree(mine, ignore_errors=True)
@@ -107,14 +112,20 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--compare", type=Path, default=None, metavar="BASE",
                         help="an earlier OUT to compare this run with")
+    parser.add_argument("--cell-timeout-s", type=float, default=None, metavar="S",
+                        help="per-cell CPU limit while the notebook loads "
+                             f"(default: {grading.Limits().cell_timeout_s:g} s)")
     args = parser.parse_args()
+    limits = (grading.Limits() if args.cell_timeout_s is None
+              else grading.Limits(cell_timeout_s=args.cell_timeout_s))
     os.environ[grading.SECRET_ENV] = SECRET
     args.out.mkdir(parents=True, exist_ok=True)
     manifest_path = args.out / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     for lab in args.labs:
         manifest = {k: v for k, v in manifest.items() if not k.startswith(f"{lab}/")}
-        manifest.update(record_lab(lab, args.out, args.students, args.seed, args.workers))
+        manifest.update(record_lab(lab, args.out, args.students, args.seed, args.workers,
+                                   limits))
         manifest_path.write_text(json.dumps(dict(sorted(manifest.items())), indent=1))
     if args.compare is not None:
         return 1 if compare(args.out, args.compare) else 0
