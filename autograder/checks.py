@@ -304,8 +304,14 @@ def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
 
 
 def score_function(spec: FunctionSpec, trials: list[Trial],
-                   outcomes: list[TrialOutcome]) -> FunctionResult:
-    """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem."""
+                   outcomes: list[TrialOutcome], *, hints: bool = True) -> FunctionResult:
+    """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem.
+
+    ``hints=False`` leaves out the "looks like a classic mistake" notes, which never change a
+    score: the fairness statistics of ``labs verify`` score thousands of draws and only count
+    points, and naming a mistake costs more than scoring it (every failed problem is compared
+    with each of the spec's mistakes and the truth's classic transforms).
+    """
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     errors: list[str] = []
@@ -360,8 +366,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             gated += 1
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
-        hint = _mistake_hint(spec, outcome.value, trial) if failed and measured is not None \
-            and trial.raises is None else None
+        hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
+            and measured is not None and trial.raises is None else None
         if hint is not None:
             note(f"this answer looks like a classic mistake: {hint}", trial.label, first=True)
         for name, row in rows.items():
