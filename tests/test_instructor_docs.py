@@ -75,6 +75,9 @@ def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
     assert (course / ".cobotlab" / "secret").read_text().strip() not in text
     if sandbox.capabilities().bwrap:
         assert "sandbox:rlimits_only" not in mine[0]["flags"]
+    # grades to the LMS (Moodle's import, by email)
+    export = (course / "exports" / "lab0_frames_moodle.csv").read_text().splitlines()
+    assert export == ["email,lab0_frames", f"{getpass.getuser()}@example.edu,0"], export
 
 
 def test_nbgrader_from_the_venv_works_without_activating_it(tmp_path):
