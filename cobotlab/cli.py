@@ -276,7 +276,7 @@ def _build_parser() -> argparse.ArgumentParser:
     merge.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
     merge.add_argument("shards", metavar="SHARD", nargs="+", help="a graded copy of the course")
 
-    # Issue 40, part 4: grades to the LMS.
+    # Issue 40, parts 4 and 5: grades to the LMS and the class at a glance.
     export = sub.add_parser(
         "export", help="write a lab's grades as the LMS imports them (Canvas, Moodle, CSV)",
         description=(
@@ -306,6 +306,19 @@ def _build_parser() -> argparse.ArgumentParser:
     export.add_argument("--skip-unrostered", action="store_true",
                         help="leave out (and name) students who submitted but are not in the "
                              "roster, instead of refusing")
+    class_report = sub.add_parser(
+        "report", help="the class at a glance: an HTML page with figures and CSV files",
+        description=(
+            "Write COURSE/reports/ASSIGNMENT/index.html (and its figures and CSV files): the "
+            "score distribution, each function's and check's share of students who lost "
+            "credit, the named mistakes and who made them, each check's errors against its "
+            "tolerance, late and ungraded submissions, and pairs of students whose graded "
+            "functions are the same code up to names and formatting. Scores again, in this "
+            "process, from the executions the last grade run kept: no student code runs."))
+    class_report.add_argument("course_dir", metavar="COURSE", help="course directory")
+    class_report.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
+    class_report.add_argument("--out", default=None, metavar="DIR",
+                              help="default COURSE/reports/ASSIGNMENT")
 
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
@@ -824,6 +837,10 @@ def main(argv: list[str] | None = None) -> int:
             from cobotlab.lms_export import run_export
 
             run_export(args)
+        elif args.command == "report":
+            from cobotlab.class_report import run_report
+
+            run_report(args)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:

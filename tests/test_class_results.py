@@ -16,6 +16,7 @@ from datetime import datetime
 
 import course_kit as kit
 import pytest
+from test_browser_lab import browser  # noqa: F401 - the Chromium fixture, shared
 
 from autograder import registry
 from autograder.course import grade_course
@@ -241,3 +242,58 @@ def test_plain_export_and_bad_rosters(graded, tmp_path, capsys):
     twice = _roster(tmp_path, [("ref", "a@x"), ("ref", "b@x")], ("student_id", "email"))
     assert main(["export", str(course), LAB, "--format", "moodle", "--roster", twice]) == 2
     assert "listed again" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _read(path) -> list[dict]:
+    return list(csv.DictReader(io.StringIO(path.read_text())))
+
+
+def test_class_report_numbers_and_page_in_chromium(graded, tmp_path, browser):  # noqa: F811
+    course, rows, _ = graded
+    out = tmp_path / "report"
+    assert main(["report", str(course), LAB, "--out", str(out)]) == 0
+
+    scores = {r["student_id"]: r for r in _read(out / "scores.csv")}
+    assert set(scores) == set(STUDENTS)
+    assert scores["late"]["status"] == "late" and float(scores["late"]["score"]) == 0.0
+    assert scores["ref"]["status"] == "graded" and float(scores["ref"]["score"]) == 10.0
+    assert float(scores["mistake"]["score"]) == pytest.approx(MANUAL)
+
+    lost = {(r["function"], r["check"]): r for r in _read(out / "lost_credit.csv")}
+    # invert_pose: the mistake and the blank; compose and rotvec: the three who left them blank
+    assert lost[("invert_pose", "")]["students"].split(";") == ["blank", "mistake"]
+    for f in ("compose_chain", "pose_from_rotvec"):
+        assert sorted(lost[(f, "")]["students"].split(";")) == ["blank", "late", "mistake"]
+        assert lost[(f, "")]["share"] == f"{3 / 6:.3f}"
+    assert all(r["students_rescored"] == "6" for r in lost.values())
+
+    mistakes = _read(out / "mistakes.csv")
+    named = [r for r in mistakes if r["mistake"].startswith(MISTAKE_LABEL)]
+    assert [(r["function"], r["who"]) for r in named] == [("invert_pose", "mistake")]
+
+    errors = _read(out / "check_errors.csv")
+    ref_rot = [r for r in errors if r["student_id"] == "ref" and r["function"] == "invert_pose"]
+    assert ref_rot and all(float(r["error_over_tolerance"]) <= 1.0 for r in ref_rot)
+    wrong = [r for r in errors if r["student_id"] == "mistake" and r["function"] == "invert_pose"]
+    assert any(float(r["error_over_tolerance"]) > 1.0 for r in wrong)
+    assert {r["student_id"] for r in errors} == set(STUDENTS)
+
+    pairs = _read(out / "similar_pairs.csv")
+    assert [(p["student_a"], p["student_b"], p["functions_same"], p["n_both_wrote"])
+            for p in pairs] == [("twin_a", "twin_b", ";".join(sorted(FUNCTIONS)), "3")]
+
+    page = browser.new_page()
+    try:
+        page.goto((out / "index.html").as_uri())
+        widths = page.eval_on_selector_all("img", "imgs => imgs.map(i => i.naturalWidth)")
+        assert len(widths) == 3 and all(w > 0 for w in widths), widths
+        text = page.inner_text("body")
+        assert "How the code is compared" in text and "twin_a" in text
+        assert "renamed in order of first use" in text and MISTAKE_LABEL in text
+        page.screenshot(path=str(tmp_path / "class_report.png"), full_page=True)
+    finally:
+        page.close()
+    assert (tmp_path / "class_report.png").stat().st_size > 0
