@@ -10,8 +10,10 @@ zero; one who handed in the released notebook blank.
 
 from __future__ import annotations
 
+import ast
 import csv
 import io
+import json
 from datetime import datetime
 
 import course_kit as kit
@@ -20,6 +22,7 @@ from test_browser_lab import browser  # noqa: F401 - the Chromium fixture, share
 
 from autograder import registry
 from autograder.course import grade_course
+from cobotlab.class_report import canonical, normalised_functions, notebook_functions, similar_pairs
 from cobotlab.cli import main
 
 LAB = "lab0_frames"
@@ -297,3 +300,59 @@ def test_class_report_numbers_and_page_in_chromium(graded, tmp_path, browser):  
     finally:
         page.close()
     assert (tmp_path / "class_report.png").stat().st_size > 0
+
+
+# --------------------------------------------------------------------------- the code compared
+
+
+def _canonical_of(source: str) -> str:
+    return canonical(ast.parse(source).body[0])
+
+
+def test_same_code_means_same_tree_up_to_names_and_layout():
+    assert _canonical_of(TWIN_A["invert_pose"]) == _canonical_of(TWIN_B["invert_pose"])
+    assert _canonical_of(TWIN_A["pose_from_rotvec"]) == _canonical_of(TWIN_B["pose_from_rotvec"])
+    # the mistake (R kept, not R^T) and the late student's own code are other code
+    forms = {_canonical_of(c) for c in (TWIN_A["invert_pose"], MISTAKE["invert_pose"],
+                                        LATE["invert_pose"])}
+    assert len(forms) == 3
+    # a name the function only reads (a module) is no local: numpy's np is not renamed
+    assert _canonical_of("def f(x):\n    return np.eye(x)\n") != \
+        _canonical_of("def f(x):\n    return sp.eye(x)\n")
+    assert _canonical_of("def f(x):\n    y = x + 1\n    return y\n") == \
+        _canonical_of("def g(a):\n    '''doc'''\n    b = a + 1  # note\n    return (b)\n")
+
+
+def test_the_released_stub_pairs_nobody():
+    stub = "def invert_pose(a_T_b):\n    # YOUR CODE HERE\n    raise NotImplementedError()\n"
+
+    def notebook(*sources):
+        return {"n.ipynb": json.dumps({"cells": [
+            {"cell_type": "code", "source": s} for s in sources]})}
+
+    released = notebook_functions(notebook(stub)["n.ipynb"], ["invert_pose"])
+    template = {name: canonical(f) for name, f in released.items()}
+    written = {s: normalised_functions(notebook(stub), ["invert_pose"], template)
+               for s in ("a", "b", "c")}
+    assert written == {"a": {}, "b": {}, "c": {}} and similar_pairs(written) == []
+    # the last definition counts, as a run of the notebook leaves it; a cell that does not
+    # parse and IPython's magics are no obstacle
+    written["a"] = normalised_functions(notebook(stub, "%timeit 1\ndef (", TWIN_A["invert_pose"]),
+                                        ["invert_pose"], template)
+    written["b"] = normalised_functions(notebook(TWIN_B["invert_pose"]), ["invert_pose"],
+                                        template)
+    assert similar_pairs(written) == [("a", "b", ["invert_pose"], 1)]
+
+
+def test_a_submission_handed_in_again_is_not_scored_from_a_stale_execution(graded, tmp_path):
+    course = kit.fresh_course(graded[0], tmp_path)   # a copy: the shared class stays as it is
+    notebook = course / "submitted" / "twin_b" / LAB / f"{LAB}.ipynb"
+    notebook.write_text(notebook.read_text().replace("result", "answer"))
+    out = tmp_path / "report"
+    assert main(["report", str(course), LAB, "--out", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    assert "Not scored again here" in page
+    assert "twin_b: submitted again since it was graded" in page
+    lost = _read(out / "lost_credit.csv")
+    assert {r["students_rescored"] for r in lost} == {"5"}
+    assert "twin_b" in {r["student_id"] for r in _read(out / "scores.csv")}
