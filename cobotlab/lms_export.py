@@ -15,20 +15,23 @@ file with one row per enrolled student:
 
 Nothing is dropped or made up in silence: a submission whose student is not in the roster
 is refused by name (``--skip-unrostered`` leaves them out, still named); a roster row with no
-submission, or a submission the grader could not grade, gets an empty cell (an LMS leaves
-its grade as it was) and is named on stderr; ``--missing zero`` writes 0 for the first.
+submission, or a submission the grader could not grade, gets an empty cell, never a made-up
+zero, and is named on stderr; ``--missing zero`` writes 0 for the first.
 
 The formats, as their vendors document them:
 
-* Canvas, gradebook import: a CSV with the columns Student, ID, SIS User ID, SIS Login ID
-  and Section, then one column per assignment named "Title (assignment id)" (a title with
-  no id makes a new assignment), and a "Points Possible" row under the header, as Canvas'
-  export writes it. https://teaching.resources.osu.edu/toolsets/carmencanvas/guides/
-  calculating-final-grades/import-csv-file-carmen-grades ; https://ts.vcu.edu/askit/
-  teaching-and-learning/canvas/faculty/grading-faculty/gradebook-action-menu-faculty/
+* Canvas, gradebook import (as universities' guides to it describe Canvas' own "How do I
+  import grades in the Gradebook?"): a CSV with the columns Student, ID, SIS User ID, SIS
+  Login ID and Section, then one column per assignment, named "Title (assignment id)" as
+  Canvas' export names it (a new column makes a new assignment), and the "Points Possible"
+  row under the header that the export writes:
+  https://teaching.resources.osu.edu/toolsets/carmencanvas/guides/calculating-final-grades/import-csv-file-carmen-grades
+  https://ts.vcu.edu/askit/teaching-and-learning/canvas/faculty/grading-faculty/gradebook-action-menu-faculty/
 * Moodle, grade import from CSV: one column identifies the user, mapped in the import form
   ("Map from" the file's column "to" useremail, useridnumber or username), the others are
-  mapped to grade items. https://docs.moodle.org/311/en/Grade_import
+  mapped to grade items: https://docs.moodle.org/311/en/Grade_import
+* LTI 1.3 Assignment and Grade Services, the passback this module does not do (see
+  docs/instructors.md): https://www.imsglobal.org/spec/lti-ags/v2p0/
 """
 
 from __future__ import annotations
