@@ -20,11 +20,12 @@ import course_kit as kit
 import pytest
 from test_browser_lab import browser  # noqa: F401 - the Chromium fixture, shared
 
-from autograder import registry
+from autograder import gradebook, registry
 from autograder.course import grade_course
 from cobotlab.class_report import canonical, normalised_functions, notebook_functions, similar_pairs
 from cobotlab.cli import main
 
+pytestmark = pytest.mark.slow   # a class graded in the sandbox, and Chromium
 LAB = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 DUE = datetime(2026, 11, 21)            # everyone's timestamp is 2026-11-20 10:00 UTC ...
@@ -356,3 +357,20 @@ def test_a_submission_handed_in_again_is_not_scored_from_a_stale_execution(grade
     lost = _read(out / "lost_credit.csv")
     assert {r["students_rescored"] for r in lost} == {"5"}
     assert "twin_b" in {r["student_id"] for r in _read(out / "scores.csv")}
+
+
+def test_a_submission_the_grader_could_not_grade_is_named_not_zeroed(graded, tmp_path, capsys):
+    course = kit.fresh_course(graded[0], tmp_path)
+    # what a run leaves when the grader failed on every attempt (course._withdraw_ungraded)
+    assert gradebook.withdraw_scores(course, LAB, "twin_a", "not graded") > 0
+    out = tmp_path / "moodle.csv"
+    roster = _roster(tmp_path, [(s, f"{s}@example.edu") for s in STUDENTS],
+                     ("student_id", "email"))
+    assert main(["export", str(course), LAB, "--format", "moodle", "--roster", roster,
+                 "--out", str(out)]) == 0
+    assert "1 submitted but not graded" in capsys.readouterr().err
+    got = dict(list(csv.reader(io.StringIO(out.read_text())))[1:])
+    assert got["twin_a@example.edu"] == "" and float(got["twin_b@example.edu"]) == 10.0
+    assert main(["report", str(course), LAB, "--out", str(tmp_path / "report")]) == 0
+    scores = {r["student_id"]: r for r in _read(tmp_path / "report" / "scores.csv")}
+    assert scores["twin_a"]["status"].startswith("ungraded") and scores["twin_a"]["score"] == ""
