@@ -12,7 +12,9 @@ late penalty is points taken off the total, times are nbgrader's (naive UTC ``da
   :func:`create` makes the empty one of a new course.
 * Read from it: :func:`duedate`, :func:`results` (each student's cells, names, timestamp and
   penalty), :func:`require_assignment`, :func:`read_submissions` (a shard's copy, checked),
-  :func:`net_scores` and :func:`cells_and_comments` (what the benchmarks compare).
+  :func:`net_scores` and :func:`cells_and_comments` (what the benchmarks compare),
+  :func:`class_scores` (each submission's total, penalty and manual cells: the LMS export
+  and the class report).
 * Written to it from the trusted process: :func:`write_nbgrader_cells` (nbgrader's validated
   cell scores), :func:`write_cobotlab` (cobotlab's scores and findings; an instructor's
   manual score or comment is never touched, so it wins on every regrade),
@@ -39,7 +41,7 @@ from autograder.freeze import printable
 __all__ = ["CellScore", "problem", "backup", "restore", "create", "duedate", "results",
            "require_assignment", "read_submissions", "net_scores", "cells_and_comments",
            "write_nbgrader_cells", "write_cobotlab", "withdraw_scores", "set_duedate",
-           "template_cells", "read_scratch_scores"]
+           "template_cells", "read_scratch_scores", "class_scores"]
 
 
 @dataclass(frozen=True)
@@ -478,3 +480,48 @@ def read_scratch_scores(db: Path, assignment: str, student: str,
                          " ignored (scored 0)")
     return [CellScore(nb, cell, scores.get((nb, cell), 0.0), top)
             for (nb, cell), top in sorted(known.items())], notes
+
+
+# --------------------------------------------------------------------------- the class's totals
+
+
+def class_scores(root: Path, assignment: str) -> dict:
+    """{student: {...}} of every submission of ``assignment`` in ``root/gradebook.db``, as an
+    LMS export or the class report needs them (read through nbgrader's API, nothing written).
+
+    Each entry: ``score`` (the total less the late penalty, rounded to 0.01, never below 0;
+    None when the submission is *ungraded*: some cell has neither an automatic nor a manual
+    score, as :func:`withdraw_scores` leaves it), ``raw_score`` (nbgrader's total, a manual
+    score counting over the automatic one), ``penalty``, ``max_score``, ``manual`` (the grade
+    ids with a manual score), ``timestamp`` and ``duedate`` (naive UTC ``datetime`` or None),
+    ``seconds_late`` (0 when on time), and ``first_name``, ``last_name``, ``email`` ("" when
+    unset). Raises ValueError when there is no gradebook or it lacks the assignment."""
+    db = root / "gradebook.db"
+    if not db.is_file():
+        raise ValueError(f"{root} has no gradebook.db: is it a course made by `cobotlab course "
+                         "init`, graded with `cobotlab grade`?")
+    from nbgrader.api import Gradebook, MissingEntry
+
+    out: dict = {}
+    with Gradebook(f"sqlite:///{db}") as gb:
+        try:
+            gb.find_assignment(assignment)
+        except MissingEntry:
+            raise ValueError(f"{root}'s gradebook has no assignment {assignment!r}: check the "
+                             "name, or run `nbgrader generate_assignment` and `cobotlab grade`"
+                             ) from None
+        for sub in gb.assignment_submissions(assignment):
+            grades = [g for nb in sub.notebooks for g in nb.grades]
+            ungraded = any(g.auto_score is None and g.manual_score is None for g in grades)
+            raw = float(sub.score or 0.0)
+            penalty = float(sub.late_submission_penalty or 0.0)
+            st = sub.student
+            out[sub.student.id] = {
+                "score": None if ungraded else max(0.0, round(raw - penalty, 2)),
+                "raw_score": raw, "penalty": penalty, "max_score": float(sub.max_score or 0.0),
+                "manual": sorted(g.name for g in grades if g.manual_score is not None),
+                "timestamp": sub.timestamp, "duedate": sub.duedate,
+                "seconds_late": float(sub.total_seconds_late or 0.0),
+                "first_name": st.first_name or "", "last_name": st.last_name or "",
+                "email": st.email or ""}
+    return dict(sorted(out.items()))
