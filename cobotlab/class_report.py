@@ -276,6 +276,7 @@ def _score_figure(n: ClassNumbers, path: Path) -> str:
     ax.set_xlim(0, top)
     ax.set_xlabel(f"score, late penalty taken off (points of {top:g})")
     ax.set_ylabel("students")
+    ax.yaxis.get_major_locator().set_params(integer=True)   # a count of students: no 0.5
     ax.set_title(f"{n.assignment}: {len(scored)} scores, median "
                  f"{np.median(scored) if scored else math.nan:.3g}")
     return _save(fig, path)
