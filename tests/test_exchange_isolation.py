@@ -19,6 +19,7 @@ import grp
 import json
 import os
 import pwd
+import re
 import shutil
 import subprocess
 import sys
@@ -35,6 +36,8 @@ ASSIGNMENT = "lab0_frames"
 STAFF, TEACHER, ANA, BEN = "exch_staff", "exch_teach", "exch_ana", "exch_ben"
 COURSE_ID = "cobotlab"
 BIN = Path(sys.executable).parent
+DOC = Path(__file__).resolve().parent.parent / "docs" / "exchange.md"
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -345,10 +348,51 @@ def test_set_up_refuses_what_would_leave_work_exposed(machine, tmp_path):
     os.chmod(shared, 0o777)   # what `cobotlab course init` makes for the default exchange
     with pytest.raises(ValueError, match="nbgrader's default exchange is 0777"):
         exchange.set_up(shared, [ANA], STAFF)
+    # the classes, pointed at a folder that is not a private exchange, refuse it
+    from nbgrader.coursedir import CourseDirectory
+    from nbgrader.exchange import ExchangeError
+
+    lister = exchange.PrivateList(coursedir=CourseDirectory(course_id=COURSE_ID), root=str(shared))
+    with pytest.raises(ExchangeError, match="not a private exchange"):
+        lister.start()
     roster = tmp_path / "roster.csv"
     roster.write_text("student,name\nana,Ana\n")
     with pytest.raises(ValueError, match="no 'id' column"):
         exchange.read_roster(roster)
+
+
+def test_the_admin_page_runs_as_written(machine):
+    """docs/exchange.md's ```bash blocks, in order, in one root shell (as
+    tests/test_instructor_docs.py runs instructors.md), with its settings given as the
+    page allows; then the folders are as its layout table says."""
+    m = machine
+    blocks = [body for lang, body in FENCE.findall(DOC.read_text()) if lang == "bash"]
+    assert len(blocks) >= 4 and "cobotlab course exchange" in "\n".join(blocks)
+    root = m.base / "srv2" / "exchange"
+    env = {"PATH": f"{BIN}:/usr/sbin:/usr/bin:/sbin:/bin", "LANG": "C.UTF-8",
+           "HOME": str(m.base), "EXCHANGE": str(root), "STAFF": STAFF,
+           "INSTRUCTOR": TEACHER, "ROSTER": str(m.base / "roster.csv"),
+           "CONFIG": str(m.base / "etc2" / "nbgrader_config.py")}
+    done = subprocess.run(["bash", "-c", "\n".join(["set -euo pipefail", *blocks])],
+                          cwd=m.base, env=env, capture_output=True, text=True, timeout=120,
+                          check=False)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert f"ok: {ANA} cannot list" in done.stdout
+    config = (m.base / "etc2" / "nbgrader_config.py").read_text()
+    assert exchange.config_block(root, COURSE_ID) in config
+    layout = DOC.read_text().split("## The layout", 1)[1].split("```")[1]
+    staff = grp.getgrnam(STAFF).gr_gid
+    for key, (owner, group, mode) in exchange.MODES.items():
+        relative = {"root": "", "course": COURSE_ID}.get(key, f"{COURSE_ID}/{key}")
+        path = root / relative.replace("SID", ANA)
+        info = os.stat(path)
+        uid = pwd.getpwnam(ANA).pw_uid if owner == "student" else 0
+        gid = staff if group == "staff" else 0
+        assert (info.st_uid, info.st_gid, info.st_mode & 0o7777) == (uid, gid, mode), key
+        line = next(x for x in layout.splitlines()
+                    if x.strip() and x.split()[0] == f"ROOT/{relative.replace(COURSE_ID, 'cobotlab')}/"
+                    .replace("//", "/"))
+        assert f"{mode:04o}" in line.split()[2], (line, key)
 
 
 def test_the_module_imports_only_what_a_student_server_has():
