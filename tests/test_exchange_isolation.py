@@ -24,6 +24,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,6 +127,13 @@ class Machine:
         return self.run(user, [sys.executable, "-m", "nbgrader", *args], cwd, check)
 
 
+def _each(step, items) -> list:
+    """``step(item)`` for every item at once (each a command of its own user): the
+    students act independently, and each nbgrader start costs seconds."""
+    with ThreadPoolExecutor(len(items)) as pool:
+        return list(pool.map(step, items))
+
+
 def _quiet(*argv) -> None:
     subprocess.run(argv, capture_output=True, check=False)
 
@@ -202,14 +210,12 @@ def term(machine):
     m = machine
     log = {}
     m.nbgrader(TEACHER, "release_assignment", ASSIGNMENT)
-    for student in (ANA, BEN):
-        m.nbgrader(student, "fetch_assignment", ASSIGNMENT)
+    _each(lambda student: m.nbgrader(student, "fetch_assignment", ASSIGNMENT), (ANA, BEN))
     solutions = kit.solution_sources(ASSIGNMENT, ("invert_pose", "compose_chain",
                                                   "pose_from_rotvec"))
     _answer(m, ANA, solutions)                                    # all right: 10 points
     _answer(m, BEN, {"invert_pose": solutions["invert_pose"]})    # one function: 3 points
-    for student in (ANA, BEN):
-        m.nbgrader(student, "submit", ASSIGNMENT)
+    _each(lambda student: m.nbgrader(student, "submit", ASSIGNMENT), (ANA, BEN))
     # Ben's traps in his own folder, for the instructor's collect: a later "submission" that
     # is a link to Ana's, a folder named as Ana's, and a link to her notebook in his own
     mine = m.root / COURSE_ID / "inbound" / BEN
@@ -265,10 +271,12 @@ def test_two_students_and_an_instructor_through_nbgrader(machine, term):
     rows = {r["student_id"]: r for r in csv.DictReader((m.course / "grades.csv").open())}
     assert float(rows[ANA]["score"]) == 10.0 and float(rows[BEN]["score"]) == 3.0, rows
     # each student fetches their own feedback with nbgrader's command, and it is theirs
-    for student, score in ((ANA, "10"), (BEN, "3")):
+    def fetch(student):
         listed = m.nbgrader(student, "list", "--cached")
+        return listed, m.nbgrader(student, "fetch_feedback", ASSIGNMENT)
+
+    for (student, score), (listed, _) in zip(((ANA, "10"), (BEN, "3")), _each(fetch, (ANA, BEN))):
         assert "feedback ready to be fetched" in listed.stdout + listed.stderr
-        m.nbgrader(student, "fetch_feedback", ASSIGNMENT)
         [page] = (m.home(student) / "work" / ASSIGNMENT / "feedback").glob(
             f"*/{ASSIGNMENT}.html")
         assert f"Score: {score} / 10<" in page.read_text()
@@ -309,28 +317,28 @@ def test_a_student_cannot_list_read_replace_or_delete_anothers_work(machine, ter
 
 def test_nbgrader_commands_act_for_the_student_only(machine, term):
     m = machine
-    listed = m.nbgrader(BEN, "list", "--inbound")
-    text = listed.stdout + listed.stderr
-    assert f"{BEN} {ASSIGNMENT}" in text and ANA not in text, text
-    as_ana = m.nbgrader(BEN, "submit", ASSIGNMENT, f"--student={ANA}", check=False)
-    assert as_ana.returncode != 0 and "your own Unix user" in as_ana.stderr, as_ana.stderr
-    assert len(os.listdir(m.root / COURSE_ID / "inbound" / ANA)) == 1
-    theirs = m.nbgrader(BEN, "fetch_feedback", ASSIGNMENT, f"--student={ANA}", check=False)
-    assert theirs.returncode != 0 and "your own Unix user" in theirs.stderr, theirs.stderr
-    collect = m.nbgrader(BEN, "collect", ASSIGNMENT, check=False)
-    assert collect.returncode != 0 and "instructors' group" in collect.stderr, collect.stderr
-    # a page of his own making, released as Ana's feedback from a course of his own
+    # a page of his own making, to release as Ana's feedback from a course of his own
     forged = m.home(BEN) / "work" / "feedback" / ANA / ASSIGNMENT
     forged.mkdir(parents=True)
     for name, text in ((f"{ASSIGNMENT}.html", "forged"), ("timestamp.txt", "x"),
                        ("submission_secret.txt", "guess")):
         (forged / name).write_text(text)
     _give(m.home(BEN) / "work" / "feedback", BEN)
-    before = _page(m, ANA).read_bytes()
-    release = m.nbgrader(BEN, "release_feedback", ASSIGNMENT, check=False)
+    page = _page(m, ANA).read_bytes()
+    listed, as_ana, theirs, collect, release = _each(
+        lambda args: m.nbgrader(BEN, *args, check=False),
+        [("list", "--inbound"), ("submit", ASSIGNMENT, f"--student={ANA}"),
+         ("fetch_feedback", ASSIGNMENT, f"--student={ANA}"), ("collect", ASSIGNMENT),
+         ("release_feedback", ASSIGNMENT)])
+    text = listed.stdout + listed.stderr
+    assert listed.returncode == 0 and f"{BEN} {ASSIGNMENT}" in text and ANA not in text, text
+    assert as_ana.returncode != 0 and "your own Unix user" in as_ana.stderr, as_ana.stderr
+    assert len(os.listdir(m.root / COURSE_ID / "inbound" / ANA)) == 1
+    assert theirs.returncode != 0 and "your own Unix user" in theirs.stderr, theirs.stderr
+    assert collect.returncode != 0 and "instructors' group" in collect.stderr, collect.stderr
     assert release.returncode != 0 and "feedback not released for exch_ana" in release.stderr
     assert [p.read_bytes() for p in (m.root / COURSE_ID / "feedback" / ANA).iterdir()] == \
-        [before]
+        [page]
 
 
 def test_set_up_refuses_what_would_leave_work_exposed(machine, tmp_path):
