@@ -483,21 +483,22 @@ class PrivateReleaseFeedback(_Private, default.ExchangeReleaseFeedback):
             sid, notebook_id = match.group("student_id"), match.group("notebook_id")
             if sid in exclude:
                 continue
-            folder = os.path.dirname(html_file)
-            with open(os.path.join(folder, "submission_secret.txt")) as fh:
-                name = notebook_hash(secret=fh.read(), notebook_id=notebook_id) + ".html"
-            with open(html_file, "rb") as fh:
-                page = fh.read()
             try:
+                secret_path = os.path.join(os.path.dirname(html_file), "submission_secret.txt")
+                with open(secret_path) as fh:
+                    name = notebook_hash(secret=fh.read(), notebook_id=notebook_id) + ".html"
+                with open(html_file, "rb") as fh:
+                    page = fh.read()
                 _replace(self.dest_path, sid, name, page)
-            except (Refused, OSError) as exc:
+            except (Refused, OSError) as exc:   # the others' feedback is still released
                 failed.append(f"{sid} ({exc})")
                 continue
             self.log.info("Released feedback for %s on %s/%s", sid,
                           self.coursedir.assignment_id, notebook_id)
         if failed:
-            self.fail(f"feedback not released for {', '.join(failed)}: a student needs a "
-                      f"feedback folder of their own ({_SETUP})")
+            self.fail(f"feedback not released for {', '.join(failed)}: releasing needs the "
+                      "instructors' group, each page its submission_secret.txt (from "
+                      f"collect), and each student a feedback folder of their own ({_SETUP})")
 
 
 def _replace(feedback_root: str, sid: str, name: str, data: bytes) -> None:
