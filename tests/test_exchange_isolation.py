@@ -100,6 +100,21 @@ print(json.dumps(out))
 """
 
 
+# Run as a student: what the JupyterLab Assignments tab's server side does (nbgrader's
+# assignment_list extension, the same exchange classes, the same config).
+TAB = r"""
+import json, os, sys
+from nbgrader.server_extensions.assignment_list.handlers import AssignmentList
+course, assignment = sys.argv[1:]
+tab = AssignmentList()
+tab.root_dir = os.getcwd()
+out = {"courses": tab.list_courses(), "before": tab.list_assignments(course)["value"],
+       "fetched": tab.fetch_feedback(course, assignment)}
+out["after"] = tab.list_assignments(course)["value"]
+print(json.dumps(out))
+"""
+
+
 @dataclass
 class Machine:
     base: Path
@@ -275,12 +290,26 @@ def test_two_students_and_an_instructor_through_nbgrader(machine, term):
     rows = {r["student_id"]: r for r in csv.DictReader((m.course / "grades.csv").open())}
     assert float(rows[ANA]["score"]) == 10.0 and float(rows[BEN]["score"]) == 3.0, rows
     # each student fetches their own feedback with nbgrader's command, and it is theirs
+    # Ben with nbgrader's commands, Ana through the JupyterLab Assignments tab's server side
     def fetch(student):
-        listed = m.nbgrader(student, "list", "--cached")
-        return listed, m.nbgrader(student, "fetch_feedback", ASSIGNMENT)
+        if student == BEN:
+            listed = m.nbgrader(BEN, "list", "--cached")
+            m.nbgrader(BEN, "fetch_feedback", ASSIGNMENT)
+            return "feedback ready to be fetched" in listed.stdout + listed.stderr
+        done = m.run(ANA, [sys.executable, "-c", TAB, COURSE_ID, ASSIGNMENT],
+                     m.home(ANA) / "work")
+        tab = json.loads(done.stdout)
+        assert tab["courses"] == {"success": True, "value": [COURSE_ID]}, tab
+        assert tab["fetched"] == {"success": True}, tab
+        [released] = [a for a in tab["before"] if "submissions" not in a]
+        [submitted] = [a for a in tab["before"] if "submissions" in a]
+        [after] = [a for a in tab["after"] if "submissions" in a]
+        assert released["status"] == "fetched" and submitted["student_id"] == ANA, tab
+        assert after["submissions"][-1]["has_local_feedback"], tab
+        return submitted["submissions"][-1]["has_exchange_feedback"]
 
-    for (student, score), (listed, _) in zip(((ANA, "10"), (BEN, "3")), _each(fetch, (ANA, BEN))):
-        assert "feedback ready to be fetched" in listed.stdout + listed.stderr
+    for (student, score), ready in zip(((ANA, "10"), (BEN, "3")), _each(fetch, (ANA, BEN))):
+        assert ready, student
         [page] = (m.home(student) / "work" / ASSIGNMENT / "feedback").glob(
             f"*/{ASSIGNMENT}.html")
         assert f"Score: {score} / 10<" in page.read_text()
