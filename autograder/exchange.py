@@ -39,6 +39,7 @@ import secrets
 import shutil
 import stat
 from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from nbgrader.exchange import default
@@ -66,6 +67,7 @@ MODES = {
 _SUBMITTED_FILE, _SUBMITTED_DIR = 0o640, 0o750
 # Released files: every instructor may replace them (release --force), everyone reads.
 _RELEASED_FILE, _RELEASED_DIR = 0o664, 0o2775
+_CLOCK_SLACK = timedelta(minutes=5)   # servers' clocks and slow copies
 _FEEDBACK_FILE = 0o644   # read through feedback/SID/, which only SID and staff enter
 _NAME = re.compile(r"[a-z_][a-z0-9_.-]*\$?", re.I)   # a Unix user name (no '+', '*', '/')
 _BEGIN, _END = "# >>> cobotlab private exchange >>>", "# <<< cobotlab private exchange <<<"
@@ -428,6 +430,16 @@ class PrivateCollect(_Private, default.ExchangeCollect):
                                  "a folder %s owns)", path, sid, record["username"], sid)
                 continue
             record["filename"] = os.path.join(sid, name)
+            # The name's time is the student's own clock, or their choice; the folder's
+            # change time is the kernel's, and can only move later (chmod, rename).
+            changed = datetime.fromtimestamp(info.st_ctime, timezone.utc)
+            stamped = record["timestamp"]
+            if stamped.tzinfo is None:
+                stamped = stamped.replace(tzinfo=timezone.utc)
+            if stamped < changed - _CLOCK_SLACK:
+                self.log.warning("%s: its name says %s, but the folder was made or changed "
+                                 "at %s: a forged time? (a late submission named as on time)",
+                                 path, stamped, changed.isoformat(sep=" "))
             latest.setdefault(sid, []).append(record)
         with Gradebook(self.coursedir.db_url, self.coursedir.course_id) as gb:
             try:

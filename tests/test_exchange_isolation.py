@@ -236,13 +236,15 @@ def term(machine):
     _answer(m, BEN, {"invert_pose": solutions["invert_pose"]})    # one function: 3 points
     _each(lambda student: m.nbgrader(student, "submit", ASSIGNMENT), (ANA, BEN))
     # Ben's traps in his own folder, for the instructor's collect: a later "submission" that
-    # is a link to Ana's, a folder named as Ana's, and a link to her notebook in his own
+    # is a link to Ana's, a folder named as Ana's, one named as handed in long ago, and a
+    # link to her notebook in his real one
     mine = m.root / COURSE_ID / "inbound" / BEN
     [real] = os.listdir(mine)
     ana_sub = _submission(m, ANA)
     traps = (f"import os; os.symlink({str(ana_sub)!r}, {str(mine)!r} + "
              f"'/{BEN}+{ASSIGNMENT}+2099-01-01 00:00:00.000000 UTC+link'); "
              f"os.mkdir({str(mine)!r} + '/{ANA}+{ASSIGNMENT}+2099-01-01 00:00:00.000000 UTC+x'); "
+             f"os.mkdir({str(mine)!r} + '/{BEN}+{ASSIGNMENT}+2000-01-01 00:00:00.000000 UTC+y'); "
              f"os.symlink({str(ana_sub / (ASSIGNMENT + '.ipynb'))!r}, "
              f"{str(mine / real)!r} + '/stolen.ipynb')")
     m.run(BEN, [sys.executable, "-c", traps], m.home(BEN))
@@ -265,7 +267,7 @@ def term(machine):
 def _submission(m: Machine, student: str) -> Path:
     """The student's one real submission in the exchange (as root sees it)."""
     folder = m.root / COURSE_ID / "inbound" / student
-    [name] = [n for n in os.listdir(folder) if "2099" not in n]
+    [name] = [n for n in os.listdir(folder) if "2099" not in n and "2000" not in n]
     return folder / name
 
 
@@ -287,6 +289,7 @@ def test_two_students_and_an_instructor_through_nbgrader(machine, term):
             "2099-01-01 00:00:00.000000 UTC"
     collect_log = term["collect"].stdout + term["collect"].stderr
     assert "stolen.ipynb" in collect_log and f"{ANA}+{ASSIGNMENT}+2099" in collect_log
+    assert "2000-01-01 00:00:00+00:00, but the folder was made or changed" in collect_log
     rows = {r["student_id"]: r for r in csv.DictReader((m.course / "grades.csv").open())}
     assert float(rows[ANA]["score"]) == 10.0 and float(rows[BEN]["score"]) == 3.0, rows
     # each student fetches their own feedback with nbgrader's command, and it is theirs
