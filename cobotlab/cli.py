@@ -195,6 +195,31 @@ def _build_parser() -> argparse.ArgumentParser:
     init.add_argument("--exchange", default=None, metavar="PATH",
                       help="nbgrader's exchange folder (default DIR/exchange; created). On a "
                            "JupyterHub, a folder every student's server mounts at this path")
+    private = course_sub.add_parser(
+        "exchange",
+        help="as root: a private nbgrader exchange where no student reaches another's work",
+        description=(
+            "Set up (or bring up to date) nbgrader's exchange at ROOT for a machine many "
+            "students share (JupyterHub spawning each student's server as their own Unix "
+            "user): each student on the roster gets an inbound and a feedback folder of their "
+            "own, which the instructors' group GROUP reads; nobody else can list, read, "
+            "replace or delete them. Run as root; again after adding students. Every user's "
+            "nbgrader then needs the lines this prints (or writes with --config) in its "
+            "nbgrader_config.py. See docs/exchange.md."
+        ),
+    )
+    private.add_argument("root", metavar="ROOT", help="the exchange folder (made if missing; "
+                         "root-owned folders above it), e.g. /srv/nbgrader/exchange")
+    private.add_argument("--students", required=True, metavar="ROSTER",
+                         help="CSV with an id column (as for `nbgrader db student import`): "
+                              "each student's Unix user name")
+    private.add_argument("--instructors", required=True, metavar="GROUP",
+                         help="the Unix group of the instructors (and the grading account)")
+    private.add_argument("--course", default="cobotlab", metavar="ID",
+                         help="nbgrader course id (default cobotlab, as `course init` writes)")
+    private.add_argument("--config", default=None, metavar="FILE",
+                         help="also write the nbgrader_config.py lines into FILE, e.g. "
+                              "/etc/jupyter/nbgrader_config.py (other lines kept)")
 
     grade = sub.add_parser(
         "grade",
@@ -824,6 +849,19 @@ def main(argv: list[str] | None = None) -> int:
             if write_gitignore(course):
                 print(f"{course / '.gitignore'} keeps the grading secret and the students' "
                       "data out of git")
+        elif args.command == "course" and args.course_command == "exchange":
+            from autograder import exchange
+
+            done = exchange.set_up(args.root, exchange.read_roster(args.students),
+                                   args.instructors, course_id=args.course)
+            for line in done.changed + [f"warning: {w}" for w in done.warnings]:
+                print(line)
+            if args.config:
+                print(f"wrote {exchange.write_config(args.config, args.root, args.course)}")
+            else:
+                print("Put these lines in every user's nbgrader_config.py "
+                      "(/etc/jupyter/nbgrader_config.py):\n"
+                      + exchange.config_block(args.root, args.course))
         elif args.command == "grade":
             _grade(args)
         elif args.command == "merge":
