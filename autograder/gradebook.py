@@ -478,3 +478,50 @@ def read_scratch_scores(db: Path, assignment: str, student: str,
                          " ignored (scored 0)")
     return [CellScore(nb, cell, scores.get((nb, cell), 0.0), top)
             for (nb, cell), top in sorted(known.items())], notes
+
+
+# --------------------------------------------------------------------------- a lab removed
+
+
+def assignment_submissions(root: Path, assignment: str) -> tuple[int, int] | None:
+    """(submissions, graded submissions) of ``assignment`` in ``root/gradebook.db``, read
+    with plain read-only SQL; None when there is no gradebook or it lacks the assignment. A
+    submission is graded when any of its cells holds an automatic or a manual score."""
+    db = root / "gradebook.db"
+    if not db.is_file():
+        return None
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=10)
+    try:
+        found = con.execute("SELECT id FROM assignment WHERE name = ?", (assignment,)).fetchone()
+        if found is None:
+            return None
+        submissions, graded = con.execute(
+            "SELECT count(DISTINCT submitted_assignment.id), count(DISTINCT CASE WHEN "
+            "grade.auto_score IS NOT NULL OR grade.manual_score IS NOT NULL THEN "
+            "submitted_assignment.id END) FROM submitted_assignment "
+            "LEFT JOIN submitted_notebook ON submitted_notebook.assignment_id = "
+            "submitted_assignment.id "
+            "LEFT JOIN grade ON grade.notebook_id = submitted_notebook.id "
+            "WHERE submitted_assignment.assignment_id = ?", (found[0],)).fetchone()
+    finally:
+        con.close()
+    return int(submissions), int(graded)
+
+
+def remove_assignment(root: Path, assignment: str) -> bool:
+    """Delete ``assignment`` from ``root/gradebook.db`` with every submission of it and
+    their scores and comments, through nbgrader's API (``Gradebook.remove_assignment``, one
+    transaction). Returns whether it was there."""
+    from nbgrader.api import MissingEntry
+
+    if not (root / "gradebook.db").is_file():
+        return False
+    with _open(root) as gb:
+        try:
+            gb.remove_assignment(assignment)
+        except MissingEntry:
+            return False
+    return True
+
+
+__all__ += ["assignment_submissions", "remove_assignment"]
