@@ -133,10 +133,7 @@ def _build_parser() -> argparse.ArgumentParser:
     student.add_argument("--force", action="store_true",
                          help="replace notebooks already in DIR (they may hold a student's "
                               "work), and write labs whose last `labs verify` failed")
-    student.add_argument("--course", default=None, metavar="COURSE",
-                         help="the course whose own labs are written too (default: that of "
-                              "$COBOTLAB_COURSE or the nearest cobotlab.toml above the current "
-                              "folder, as git finds its repository)")
+    _course_option(student, "the course whose own labs are written too")
     remove = labs_sub.add_parser(
         "remove",
         help="remove a lab from the course: its folders, gradebook entry and grades",
@@ -150,9 +147,7 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     remove.add_argument("name", metavar="NAME", help="the lab (its nbgrader assignment name)")
-    remove.add_argument("--course", default=None, metavar="COURSE",
-                        help="the course folder (default: the course found from the current "
-                             "folder, as for the other commands)")
+    _course_option(remove, "the course to remove it from")
     remove.add_argument("--yes", action="store_true",
                         help="remove without asking (for scripts; without it, a run with no "
                              "terminal is refused)")
@@ -719,6 +714,14 @@ def _labs_new(name: str, course_dir, from_lab) -> None:
         print(f"  {number}. {step}")
 
 
+def _course_option(parser, what: str) -> None:
+    """``--course COURSE`` of the lab commands that work on one course, found as git finds
+    its repository when not given."""
+    parser.add_argument("--course", default=None, metavar="COURSE",
+                        help=f"{what} (default: that of $COBOTLAB_COURSE, else the nearest "
+                             "cobotlab.toml at or above the current folder)")
+
+
 def _labs_student(args) -> None:
     """``cobotlab labs student``: the course named, or found from here (said when none is)."""
     from autograder import registry
@@ -728,9 +731,10 @@ def _labs_student(args) -> None:
         from pathlib import Path
 
         course = Path(args.course).expanduser().resolve()
-        if not (course / registry.CONFIG_NAME).is_file():
-            raise ValueError(f"--course {args.course}: no {registry.CONFIG_NAME} there; give "
-                             "the course folder (the one `cobotlab labs new` wrote it into)")
+        if not any((course / f).is_file() for f in (registry.CONFIG_NAME, "nbgrader_config.py")):
+            raise ValueError(f"--course {args.course}: not a course (no {registry.CONFIG_NAME} "
+                             "or nbgrader_config.py there); give the course folder, the one "
+                             "`cobotlab course init` or `cobotlab labs new` wrote into")
         registry.use_course(course)
     elif registry.course_root() is None:
         print(f"cobotlab: no course found (no {registry.CONFIG_NAME} here or above, "

@@ -54,6 +54,7 @@ class Removal:
     gradebook: tuple[int, int] | None = None
     grade_rows: int = 0
     scored_rows: int = 0
+    outside: list[Path] = field(default_factory=list)   # the lab's files out of the course
 
     @property
     def graded(self) -> bool:
@@ -79,6 +80,8 @@ class Removal:
         if self.builtin:
             out.append(f"  cobotlab.toml: {self.name} added to removed_labs (the built-in lab "
                        "stays in the package for other courses)")
+        out += [f"  (kept: {p} is outside the course; delete it, or take its folder out of "
+                "lab_folders, or `course init` brings the lab back)" for p in self.outside]
         return out
 
 
@@ -134,7 +137,11 @@ def plan_removal(name: str, course_dir=None) -> Removal:
     paths.append(root / grading.PRIVATE_DIR / "executions" / name)
     paths.append(root / registry.PRIVATE_DIR.parent / "verified" / f"{name}.json")
     if lab is not None and not lab.builtin:
-        paths += [lab.folder, lab.spec_file, registry.verification_path(name)]
+        own = [lab.folder, lab.spec_file, registry.verification_path(name)]
+        # a lab folder outside the course (lab_folders = ["../shared"]) may be another
+        # course's too: it is named, not removed
+        paths += [p for p in own if p.is_relative_to(root)]
+        removal.outside = [p for p in own if not p.is_relative_to(root) and os.path.lexists(p)]
     exchange = _exchange(root)
     if exchange is not None:
         place = exchange[0] / exchange[1]

@@ -103,7 +103,7 @@ def test_a_draft_that_raises_on_import_never_blocks_the_other_labs(tmp_path, cap
     assert cli.main(["labs", "student", str(tmp_path / "x"), "--lab", GOOD]) == 2
     assert f"no lab named {GOOD}" in capsys.readouterr().err
     assert cli.main(["labs", "student", str(tmp_path / "y"), "--course", str(elsewhere)]) == 2
-    assert "--course" in capsys.readouterr().err and not (tmp_path / "y").exists()
+    assert "not a course" in capsys.readouterr().err and not (tmp_path / "y").exists()
 
 
 def test_a_lab_whose_verify_failed_is_released_only_with_force(tmp_path, capsys):
@@ -217,6 +217,9 @@ def test_remove_a_graded_built_in_lab_from_the_course(tmp_path, capsys, monkeypa
     capsys.readouterr()
     assert cli.main(["course", "init", str(course)]) == 0
     assert not (course / "source" / lab).exists()
+    assert cli.main(["labs", "student", str(tmp_path / "s"), "--course", str(course),
+                     "--lab", lab]) == 2
+    assert f"no lab named {lab}" in capsys.readouterr().err
     assert cli.main(["labs", "remove", lab, "--course", str(course), "--yes"]) == 2
     assert "already in removed_labs" in capsys.readouterr().err
 
