@@ -736,7 +736,9 @@ def _labs_student(args) -> None:
                              "or nbgrader_config.py there); give the course folder, the one "
                              "`cobotlab course init` or `cobotlab labs new` wrote into")
         registry.use_course(course)
-    elif registry.course_root() is None:
+    elif registry.course_root() is None and registry.builtin_folder().is_dir():
+        # said, so a course's own labs are never left out unseen (a student's install has
+        # no lab sources at all, and the error below says so)
         print(f"cobotlab: no course found (no {registry.CONFIG_NAME} here or above, "
               f"${registry.COURSE_ENV} unset): writing the built-in labs only; pass --course "
               "DIR for a course's own labs", file=sys.stderr)
