@@ -38,12 +38,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["CONFIG_NAME", "COURSE_ENV", "NAME_PATTERN", "PRIVATE_DIR", "SCORING_FILE", "Lab",
-           "LabError", "all_labs", "builtin_folder", "builtin_names", "course_root",
-           "find_lab", "lab_folders", "lab_names", "loaded_specs", "notebook_packages",
-           "private_available", "public_scoring", "raised_at", "release_problem",
-           "removed_labs", "scoring", "source_folders", "spec_hash", "spec_path", "specs",
-           "use_course", "verification_note", "verification_path", "lab_digest"]
+__all__ = ["CONFIG_NAME", "COURSE_ENV", "LEFT_BEHIND", "NAME_PATTERN", "PRIVATE_DIR",
+           "SCORING_FILE", "Lab", "LabError", "all_labs", "builtin_folder", "builtin_names",
+           "course_root", "find_lab", "lab_digest", "lab_folders", "lab_names", "loaded_specs",
+           "notebook_packages", "private_available", "public_scoring", "raised_at",
+           "release_problem", "removed_labs", "scoring", "source_folders", "spec_hash",
+           "spec_path", "specs", "use_course", "verification_note", "verification_path"]
 
 CONFIG_NAME = "cobotlab.toml"
 COURSE_ENV = "COBOTLAB_COURSE"
