@@ -214,17 +214,27 @@ def carry_out(removal: Removal) -> list[str]:
         count = record.drop_csv_rows(root, GRADES_CSV, GRADE_COLUMNS,
                                      ("assignment", "student_id"), "assignment", name)
         done.append(f"removed {count} row(s) of {name} from {GRADES_CSV}")
+    failed = []
     for path in removal.paths:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)   # never follows a link inside
-        else:
-            path.unlink()
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)   # never follows a link inside
+            else:
+                path.unlink()
+        except OSError as exc:   # a student's files in a shared exchange, say: go on
+            failed.append(f"{path} ({exc.strerror or exc})")
+            continue
         done.append(f"removed {os.path.relpath(path, root)}")
     if removal.builtin:
         _add_removed(root, name)
         done.append(f"{registry.CONFIG_NAME}: {name} is in removed_labs (`course init` and "
                     "`labs student` leave it out)")
     registry.use_course(root)
+    if failed:
+        print("\n".join(done))
+        raise ValueError(f"removed everything else of {name}, but not {'; '.join(failed)}: "
+                         "delete these as a user who may (root, or the files' owner), or run "
+                         f"`cobotlab labs remove {name}` again once you can")
     return done
 
 
