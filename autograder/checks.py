@@ -303,9 +303,35 @@ def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
     return make_trials(spec, practice.practice_rng(seed), spec.practice_trials or spec.n_trials)
 
 
+# How a named mistake begins its message in FunctionResult.error_counts (the class report
+# counts the students who made each one by it).
+MISTAKE_NOTE = "this answer looks like a classic mistake: "
+
+
+def problem_errors(spec: FunctionSpec, trials: list[Trial],
+                   outcomes: list[TrialOutcome]) -> list[dict[str, tuple[float, float]]]:
+    """Each problem's ``{check: (error, tolerance)}`` as :func:`score_function` measures
+    them, in the check's unit (error inf: no usable answer); the degenerate inputs that must
+    raise are left out (their error is no distance)."""
+    out = []
+    for trial, outcome in zip(trials, outcomes):
+        if trial.raises is not None:
+            continue
+        measured = _measured(spec, outcome.value, trial)[0] if outcome.error is None else None
+        out.append({name: (row[0], row[1]) for name, row in
+                    _problem_rows(spec, trial, measured).items()})
+    return out
+
+
 def score_function(spec: FunctionSpec, trials: list[Trial],
-                   outcomes: list[TrialOutcome]) -> FunctionResult:
-    """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem."""
+                   outcomes: list[TrialOutcome], *, hints: bool = True) -> FunctionResult:
+    """Score a function's outcomes on ``trials``; a failed call earns nothing on that problem.
+
+    ``hints=False`` leaves out the "looks like a classic mistake" notes, which never change a
+    score: the fairness statistics of ``labs verify`` score thousands of draws and only count
+    points, and naming a mistake costs more than scoring it (every failed problem is compared
+    with each of the spec's mistakes and the truth's classic transforms).
+    """
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     errors: list[str] = []
@@ -360,10 +386,10 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             gated += 1
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
-        hint = _mistake_hint(spec, outcome.value, trial) if failed and measured is not None \
-            and trial.raises is None else None
+        hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
+            and measured is not None and trial.raises is None else None
         if hint is not None:
-            note(f"this answer looks like a classic mistake: {hint}", trial.label, first=True)
+            note(f"{MISTAKE_NOTE}{hint}", trial.label, first=True)
         for name, row in rows.items():
             per_check[name].append(row)
     if gated:

@@ -751,6 +751,51 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
     return None
 
 
+@dataclass
+class KeptSubmission:
+    """One submission as the last grade run left it, for a report: its problems and the
+    execution kept for it (None, and ``why`` says why, when there is none to use), and the
+    text of its frozen notebooks by file name (data only; nothing of it ran here)."""
+
+    problems: grading.Problems | None
+    execution: grading.Execution | None
+    notebooks: dict[str, str]
+    why: str | None = None
+
+
+def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
+    """{student: :class:`KeptSubmission`} of every submission of ``assignment`` in
+    ``course_dir/submitted``, frozen as a grade run freezes them and matched with the
+    executions the last grade run kept, as ``grade --rescore`` reads them (the same checks:
+    this submission's, run on the problems' inputs as the lab draws them now). Reads only:
+    no student code runs, nothing is recorded. Score one with
+    :func:`autograder.grading.score_execution`."""
+    root = Path(course_dir).resolve()
+    registry.use_course(root)
+    if assignment not in checks.SPECS:
+        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
+                         f"known assignments: {sorted(checks.SPECS)}")
+    secret = grading.load_secret(root)
+    run = GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "report",
+                   grading.Limits(), [], time.monotonic())
+    problems = grading.HiddenProblems(assignment, secret, None)
+    out: dict[str, KeptSubmission] = {}
+    with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
+        for sub in _freeze(root, assignment, Path(store), freeze.Caps()):
+            texts = {Path(p).name: Path(p).read_text(encoding="utf-8", errors="replace")
+                     for p in sub.notebooks}
+            if not (sub.accepted and sub.notebooks):
+                out[sub.student_id] = KeptSubmission(None, None, texts, "refused, or no "
+                                                     "notebook: it scored zero")
+                continue
+            done = Executed(submission=_submission_digest(sub))
+            why = _load_kept(run, problems, sub, done)
+            out[sub.student_id] = KeptSubmission(
+                problems.of(sub.student_id) if why is None else None, done.execution, texts,
+                why)
+    return out
+
+
 # ----------------------------------------------------------------- stage 5: score
 
 

@@ -228,18 +228,13 @@ def score_draws(spec: FunctionSpec, assignment: str, draws: range,
         for k in draws:
             student = student_id(k)
             trials = checks.make_trials(spec, rng_of(student))
-            for trial in trials:
-                # A hint never changes a score: without this, every failed problem of every
-                # mistake would run all the spec's mistakes again to name one.
-                if trial.mistakes is None:
-                    trial.mistakes = []
             for name, caller in callers.items():
                 s = stats[name]
                 if not s.correct and mistakes_stop is not None and k >= mistakes_stop:
                     continue
                 started = time.perf_counter()
                 outcomes = [caller(spec, t) for t in trials]
-                result = checks.score_function(spec, trials, outcomes)
+                result = checks.score_function(spec, trials, outcomes, hints=False)
                 lost = result.points < spec.points
                 worst = [_worst_check(spec, t, o) for t, o in zip(trials, outcomes)] \
                     if s.correct or (lost and s.first_loss is None) else []
@@ -333,14 +328,11 @@ class TrivialGate:
             per_trial.append({a.name: a for a in trivial.trivial_answers(spec, trial, others)})
         names = list(dict.fromkeys(n for answers in per_trial for n in answers))
         weight_sum = sum(c.weight for c in spec.checks) or 1.0
-        for trial in trials:
-            if trial.mistakes is None:   # a hint never changes a score (see score_draws)
-                trial.mistakes = []
         with np.errstate(all="ignore"):
             for name in names:
                 outcomes = [self._outcome(answers.get(name), trial)
                             for answers, trial in zip(per_trial, trials)]
-                result = checks.score_function(spec, trials, outcomes)
+                result = checks.score_function(spec, trials, outcomes, hints=False)
                 score = self.scores.setdefault(name, TrivialScore(name, draws=self.draws))
                 score.raises = any(a[name].raises is not None for a in per_trial if name in a)
                 score.points += result.points / spec.points if spec.points else 0.0

@@ -12,7 +12,9 @@ late penalty is points taken off the total, times are nbgrader's (naive UTC ``da
   :func:`create` makes the empty one of a new course.
 * Read from it: :func:`duedate`, :func:`results` (each student's cells, names, timestamp and
   penalty), :func:`require_assignment`, :func:`read_submissions` (a shard's copy, checked),
-  :func:`net_scores` and :func:`cells_and_comments` (what the benchmarks compare).
+  :func:`net_scores` and :func:`cells_and_comments` (what the benchmarks compare),
+  :func:`class_scores` (each submission's total, penalty and manual cells: the LMS export
+  and the class report).
 * Written to it from the trusted process: :func:`write_nbgrader_cells` (nbgrader's validated
   cell scores), :func:`write_cobotlab` (cobotlab's scores and findings; an instructor's
   manual score or comment is never touched, so it wins on every regrade),
@@ -39,7 +41,7 @@ from autograder.freeze import printable
 __all__ = ["CellScore", "problem", "backup", "restore", "create", "duedate", "results",
            "require_assignment", "read_submissions", "net_scores", "cells_and_comments",
            "write_nbgrader_cells", "write_cobotlab", "withdraw_scores", "set_duedate",
-           "template_cells", "read_scratch_scores"]
+           "template_cells", "read_scratch_scores", "class_scores"]
 
 
 @dataclass(frozen=True)
@@ -480,32 +482,52 @@ def read_scratch_scores(db: Path, assignment: str, student: str,
             for (nb, cell), top in sorted(known.items())], notes
 
 
-# --------------------------------------------------------------------------- a lab removed
+# --------------------------------------------------------------------------- the class's totals
 
 
-def assignment_submissions(root: Path, assignment: str) -> tuple[int, int] | None:
-    """(submissions, graded submissions) of ``assignment`` in ``root/gradebook.db``, read
-    with plain read-only SQL; None when there is no gradebook or it lacks the assignment. A
-    submission is graded when any of its cells holds an automatic or a manual score."""
+def class_scores(root: Path, assignment: str) -> dict:
+    """{student: {...}} of every submission of ``assignment`` in ``root/gradebook.db``, as an
+    LMS export or the class report needs them (read through nbgrader's API, nothing written).
+
+    Each entry: ``score`` (the total less the late penalty, rounded to 0.01, never below 0;
+    None when the submission is *ungraded*: some cell has neither an automatic nor a manual
+    score, as :func:`withdraw_scores` leaves it), ``raw_score`` (nbgrader's total, a manual
+    score counting over the automatic one), ``penalty``, ``max_score``, ``manual`` (the grade
+    ids with a manual score), ``timestamp`` and ``duedate`` (naive UTC ``datetime`` or None),
+    ``seconds_late`` (0 when on time), and ``first_name``, ``last_name``, ``email`` ("" when
+    unset). Raises ValueError when there is no gradebook or it lacks the assignment."""
     db = root / "gradebook.db"
     if not db.is_file():
-        return None
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=10)
-    try:
-        found = con.execute("SELECT id FROM assignment WHERE name = ?", (assignment,)).fetchone()
-        if found is None:
-            return None
-        submissions, graded = con.execute(
-            "SELECT count(DISTINCT submitted_assignment.id), count(DISTINCT CASE WHEN "
-            "grade.auto_score IS NOT NULL OR grade.manual_score IS NOT NULL THEN "
-            "submitted_assignment.id END) FROM submitted_assignment "
-            "LEFT JOIN submitted_notebook ON submitted_notebook.assignment_id = "
-            "submitted_assignment.id "
-            "LEFT JOIN grade ON grade.notebook_id = submitted_notebook.id "
-            "WHERE submitted_assignment.assignment_id = ?", (found[0],)).fetchone()
-    finally:
-        con.close()
-    return int(submissions), int(graded)
+        raise ValueError(f"{root} has no gradebook.db: is it a course made by `cobotlab course "
+                         "init`, graded with `cobotlab grade`?")
+    from nbgrader.api import Gradebook, MissingEntry
+
+    out: dict = {}
+    with Gradebook(f"sqlite:///{db}") as gb:
+        try:
+            gb.find_assignment(assignment)
+        except MissingEntry:
+            raise ValueError(f"{root}'s gradebook has no assignment {assignment!r}: check the "
+                             "name, or run `nbgrader generate_assignment` and `cobotlab grade`"
+                             ) from None
+        for sub in gb.assignment_submissions(assignment):
+            grades = [g for nb in sub.notebooks for g in nb.grades]
+            ungraded = any(g.auto_score is None and g.manual_score is None for g in grades)
+            raw = float(sub.score or 0.0)
+            penalty = float(sub.late_submission_penalty or 0.0)
+            st = sub.student
+            out[sub.student.id] = {
+                "score": None if ungraded else max(0.0, round(raw - penalty, 2)),
+                "raw_score": raw, "penalty": penalty, "max_score": float(sub.max_score or 0.0),
+                "manual": sorted(g.name for g in grades if g.manual_score is not None),
+                "timestamp": sub.timestamp, "duedate": sub.duedate,
+                "seconds_late": float(sub.total_seconds_late or 0.0),
+                "first_name": st.first_name or "", "last_name": st.last_name or "",
+                "email": st.email or ""}
+    return dict(sorted(out.items()))
+
+
+# --------------------------------------------------------------------------- a lab removed
 
 
 def remove_assignment(root: Path, assignment: str) -> bool:
@@ -524,4 +546,4 @@ def remove_assignment(root: Path, assignment: str) -> bool:
     return True
 
 
-__all__ += ["assignment_submissions", "remove_assignment"]
+__all__ += ["remove_assignment"]

@@ -298,6 +298,50 @@ def _build_parser() -> argparse.ArgumentParser:
     merge.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
     merge.add_argument("shards", metavar="SHARD", nargs="+", help="a graded copy of the course")
 
+    # Issue 40, parts 4 and 5: grades to the LMS and the class at a glance.
+    export = sub.add_parser(
+        "export", help="write a lab's grades as the LMS imports them (Canvas, Moodle, CSV)",
+        description=(
+            "Write the grades of ASSIGNMENT (the gradebook's after `cobotlab grade`: manual "
+            "scores over automatic ones, less the late penalty) as Canvas' gradebook import, "
+            "Moodle's CSV grade import, or a plain CSV, for the students of ROSTER (a CSV with "
+            "a student_id column and the LMS's identity columns: docs/instructors.md, Grades "
+            "to the LMS). A submission whose student is not in the roster is refused by name; "
+            "a roster row with no submission, or an ungraded one, gets an empty cell and is "
+            "named on stderr."))
+    export.add_argument("course_dir", metavar="COURSE", help="course directory")
+    export.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
+    export.add_argument("--format", required=True, choices=("canvas", "moodle", "csv"))
+    export.add_argument("--roster", required=True, metavar="CSV",
+                        help="student_id -> the LMS's identities, one row per student")
+    export.add_argument("--out", default=None, metavar="FILE",
+                        help="default COURSE/exports/ASSIGNMENT_FORMAT.csv")
+    export.add_argument("--title", default=None,
+                        help="the grade column's name (default: the assignment's)")
+    export.add_argument("--canvas-id", default=None, metavar="N",
+                        help="canvas: the Canvas assignment's id, so the column is 'TITLE (N)' "
+                             "and updates that assignment (without it Canvas makes a new one)")
+    export.add_argument("--moodle-id", default="email", choices=("email", "idnumber", "username"),
+                        help="moodle: the roster column Moodle maps users by (default email)")
+    export.add_argument("--missing", default="blank", choices=("blank", "zero"),
+                        help="a roster row with no submission: empty cell (default) or 0")
+    export.add_argument("--skip-unrostered", action="store_true",
+                        help="leave out (and name) students who submitted but are not in the "
+                             "roster, instead of refusing")
+    class_report = sub.add_parser(
+        "report", help="the class at a glance: an HTML page with figures and CSV files",
+        description=(
+            "Write COURSE/reports/ASSIGNMENT/index.html (and its figures and CSV files): the "
+            "score distribution, each function's and check's share of students who lost "
+            "credit, the named mistakes and who made them, each check's errors against its "
+            "tolerance, late and ungraded submissions, and pairs of students whose graded "
+            "functions are the same code up to names and formatting. Scores again, in this "
+            "process, from the executions the last grade run kept: no student code runs."))
+    class_report.add_argument("course_dir", metavar="COURSE", help="course directory")
+    class_report.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
+    class_report.add_argument("--out", default=None, metavar="DIR",
+                              help="default COURSE/reports/ASSIGNMENT")
+
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
     check = robot_sub.add_parser(
@@ -844,6 +888,14 @@ def main(argv: list[str] | None = None) -> int:
             put_interpreter_on_path()   # as for grade: nbgrader's gradebook needs `alembic`
             for shard in args.shards:
                 merge_shard(args.course_dir, args.assignment, shard)
+        elif args.command == "export":
+            from cobotlab.lms_export import run_export
+
+            run_export(args)
+        elif args.command == "report":
+            from cobotlab.class_report import run_report
+
+            run_report(args)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:

@@ -152,7 +152,7 @@ def plan_removal(name: str, course_dir=None) -> Removal:
         except OSError:
             pass
     removal.paths = list(dict.fromkeys(p for p in paths if p is not None and _there(p)))
-    removal.gradebook = gradebook.assignment_submissions(root, name)
+    removal.gradebook = _gradebook_counts(root, name)
     rows = _grade_rows(root, name)
     removal.grade_rows = len(rows)
     removal.scored_rows = sum(1 for row in rows if row.get("score", "") not in ("", None))
@@ -163,6 +163,16 @@ def plan_removal(name: str, course_dir=None) -> Removal:
         raise ValueError(f"{root} has no lab named {name!r} and nothing left of one"
                          f"{already}; the course's labs are {known}")
     return removal
+
+
+def _gradebook_counts(root: Path, name: str) -> tuple[int, int] | None:
+    """(submissions, graded submissions) of lab ``name`` in the course's gradebook, None
+    when it has none of it. Graded: a total nbgrader would show, or a manual score."""
+    try:
+        scores = gradebook.class_scores(root, name)
+    except ValueError:   # no gradebook, or no such assignment in it
+        return None
+    return len(scores), sum(1 for s in scores.values() if s["score"] is not None or s["manual"])
 
 
 def _grade_rows(root: Path, name: str) -> list[dict]:

@@ -55,6 +55,21 @@ def test_each_new_mistake_is_named_with_exactly_its_label(lab, name, func):
     assert len(named) == 1 and label in named[0], result.errors
 
 
+
+def test_without_hints_the_score_is_the_same_and_no_mistake_is_named():
+    """``labs verify`` scores its draws with hints=False: the same points, checks and errors
+    but for the classic-mistake line, which then is never computed."""
+    spec = checks.spec_for("fit_rigid", "lab1_flange")
+    trials = _ordinary_trials(spec, 3, 6)
+    outcomes = [checks.TrialOutcome(value=lab1._fit_uncentred(*t.args)) for t in trials]
+    named = checks.score_function(spec, trials, outcomes)
+    plain = checks.score_function(spec, trials, outcomes, hints=False)
+    assert any("classic mistake" in e for e in named.errors)
+    assert not any("classic mistake" in e for e in plain.errors)
+    assert (plain.points, plain.n_failed, plain.checks) == (named.points, named.n_failed,
+                                                            named.checks)
+    assert [e for e in named.errors if "classic mistake" not in e] == plain.errors
+
 def test_a_diverging_servo_law_is_not_told_to_check_the_gain():
     """The issue's case: a stacked error vector, deg/s or (w, v) all failed with only "check
     the sign of the gain"; the describe words are neutral and the feedback names each."""

@@ -75,6 +75,12 @@ def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
     assert (course / ".cobotlab" / "secret").read_text().strip() not in text
     if sandbox.capabilities().bwrap:
         assert "sandbox:rlimits_only" not in mine[0]["flags"]
+    # grades to the LMS (Moodle's import, by email) and the class at a glance
+    export = (course / "exports" / "lab0_frames_moodle.csv").read_text().splitlines()
+    assert export == ["email,lab0_frames", f"{getpass.getuser()}@example.edu,0"], export
+    report = course / "reports" / "lab0_frames"
+    assert "the class at a glance" in (report / "index.html").read_text()
+    assert getpass.getuser() in (report / "scores.csv").read_text()
 
 
 def test_nbgrader_from_the_venv_works_without_activating_it(tmp_path):

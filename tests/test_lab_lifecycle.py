@@ -206,7 +206,8 @@ def test_remove_a_graded_built_in_lab_from_the_course(tmp_path, capsys, monkeypa
         assert not os.path.lexists(gone), gone
     assert [p.name.split("+")[1] for p in inbound.iterdir()] == ["lab1_flange"]
     assert lab not in _gradebook_assignments(course)
-    assert gradebook.assignment_submissions(course, lab) is None
+    with pytest.raises(ValueError, match="has no assignment"):
+        gradebook.class_scores(course, lab)
     with open(course / GRADES_CSV) as f:
         rows = list(csv.DictReader(f))
     assert [(r["assignment"], r["student_id"]) for r in rows] == [("lab1_flange", "alice")]
