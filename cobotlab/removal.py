@@ -127,6 +127,8 @@ def _there(path: Path) -> bool:
 def plan_removal(name: str, course_dir=None) -> Removal:
     """What ``cobotlab labs remove NAME`` would remove from the course (nothing is touched).
     ValueError when the course has no lab and nothing left of one by that name."""
+    if not registry.NAME_PATTERN.match(name):   # it becomes a path below the course
+        raise ValueError(f"{name!r} is not a lab's name (a letter, then letters, digits or _)")
     root = _course(course_dir)
     builtin = name in registry.builtin_names()
     lab = registry.all_labs().get(name)
@@ -267,11 +269,14 @@ def run_remove(name: str, course_dir=None, yes: bool = False, ask=input,
         if not interactive:
             raise ValueError("labs remove asks before it deletes, and this run has no terminal "
                              "to ask on: nothing removed; pass --yes to remove without asking")
-        if removal.graded:
-            answer = ask(f"Type the lab's name ({name}) to remove it and its grades: ")
-            confirmed = answer.strip() == name
-        else:
-            confirmed = ask(f"Remove {name}? [y/N] ").strip().lower() in ("y", "yes")
+        try:
+            if removal.graded:
+                answer = ask(f"Type the lab's name ({name}) to remove it and its grades: ")
+                confirmed = answer.strip() == name
+            else:
+                confirmed = ask(f"Remove {name}? [y/N] ").strip().lower() in ("y", "yes")
+        except EOFError:   # Ctrl-D: no
+            confirmed = False
         if not confirmed:
             print("nothing removed")
             return 1

@@ -196,6 +196,10 @@ def test_remove_a_graded_built_in_lab_from_the_course(tmp_path, capsys, monkeypa
     assert "pass --yes" in captured.err
     # asked at a terminal: a graded lab wants its name typed; anything else removes nothing
     assert run_remove(lab, course, ask=lambda prompt: "y", interactive=True) == 1
+
+    def end_of_input(prompt):
+        raise EOFError
+    assert run_remove(lab, course, ask=end_of_input, interactive=True) == 1   # Ctrl-D: no
     assert sorted(str(p) for p in course.rglob("*")) == before
 
     assert cli.main(["labs", "remove", lab, "--course", str(course), "--yes"]) == 0
@@ -247,6 +251,10 @@ def test_remove_a_course_lab_that_does_not_load(tmp_path, capsys):
     assert "has no lab named 'no_such_lab'" in capsys.readouterr().err
     assert cli.main(["labs", "remove", GOOD, "--course", str(tmp_path), "--yes"]) == 2
     assert "is not a course" in capsys.readouterr().err
+    (course / "source" / "keep").mkdir()
+    assert cli.main(["labs", "remove", "../source", "--course", str(course), "--yes"]) == 2
+    assert "is not a lab's name" in capsys.readouterr().err
+    assert (course / "source" / "keep").is_dir()
 
 
 @pytest.mark.parametrize("text, error", [
