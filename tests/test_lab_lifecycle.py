@@ -28,7 +28,7 @@ GOOD, DRAFT, FAILED = "gauge_offset", "draft_lab", "failing_lab"
 
 
 def _stderr_lines(capsys) -> list[str]:
-    return [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    return _stderr_lines_of(capsys.readouterr().err)
 
 
 def _draft(course: Path) -> Path:
@@ -265,3 +265,47 @@ def test_removed_labs_names_only_built_in_labs(tmp_path, text, error):
     (tmp_path / registry.CONFIG_NAME).write_text(text)
     with pytest.raises(registry.LabError, match=error):
         registry.removed_labs(tmp_path)
+
+
+def _lock(folder: Path, locked: bool) -> None:
+    """Make ``folder``'s entries undeletable (or deletable again): immutable for root, who
+    ignores permissions (ext4's chattr), read-only for anyone else."""
+    import subprocess
+
+    if os.geteuid() == 0:
+        subprocess.run(["chattr", "+i" if locked else "-i", str(folder)], check=True)
+    else:
+        folder.chmod(0o555 if locked else 0o755)
+
+
+def test_what_remove_may_not_delete_is_named_and_the_rest_goes(tmp_path, capsys):
+    """A student's submission the instructor may not delete (one in a shared exchange, say;
+    here a collected one, planned before the lab's own folder): the rest of the lab goes, the
+    one left is named with the fix, and a second run finishes the job."""
+    course = tmp_path / "course"
+    new_lab(GOOD, course)
+    (course / "nbgrader_config.py").write_text(
+        "c = get_config()  # noqa: F821\nc.CourseDirectory.course_id = 'cobotlab'\n"
+        f"c.Exchange.root = {str(course / 'exchange')!r}\n")
+    inbound = course / "exchange" / "cobotlab" / "inbound" / f"dave+{GOOD}+2026-11-20 10:00 UTC"
+    entry = course / "submitted" / "dave" / GOOD
+    for folder in (inbound, entry):
+        folder.mkdir(parents=True)
+        (folder / f"{GOOD}.ipynb").write_text("{}")
+    _lock(entry, True)
+    try:
+        assert cli.main(["labs", "remove", GOOD, "--course", str(course), "--yes"]) == 2
+        captured = capsys.readouterr()
+        assert f"removed labs/{GOOD}" in captured.out and not (course / "labs" / GOOD).exists()
+        assert not inbound.exists()
+        (error,) = _stderr_lines_of(captured.err)
+        assert error.startswith(f"cobotlab: error: removed everything else of {GOOD}, but "
+                                f"not {entry} (") and "run `cobotlab labs remove" in error
+    finally:
+        _lock(entry, False)
+    assert cli.main(["labs", "remove", GOOD, "--course", str(course), "--yes"]) == 0
+    assert not entry.exists()
+
+
+def _stderr_lines_of(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.strip()]
