@@ -48,7 +48,7 @@ from autograder.feedback_release import (
 )
 from autograder.freeze import printable
 from autograder.outcomes import Flag, about_function
-from autograder.practice import build_practice, save_practice
+from autograder.practice import releasable, save_practice
 from autograder.safe_files import Refused, Why, move_aside, read_file
 from autograder.template import Template, TemplateUnavailable, imported_modules, leading_cells
 
@@ -88,7 +88,8 @@ c.GenerateFeedback.preprocessors = [
 '''
 
 
-def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobotlab") -> Path:
+def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobotlab",
+                force: bool = False, quiet: bool = False) -> Path:
     """Lay out an nbgrader course in ``course_dir`` with every lab: the built-in ones (or
     those in ``labs_dir``) and those of the folders its ``cobotlab.toml`` names.
 
@@ -101,6 +102,12 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     Existing config, sources, gradebook and secret are kept, so running it again after
     adding a lab is safe; only the course's own labs are copied again into ``source/``
     (their lab folder is where they are edited and verified). Returns the path.
+
+    A lab that does not load, or whose last ``cobotlab labs verify`` failed
+    (:func:`autograder.registry.release_problem`; ``force`` lets the latter through), is
+    skipped: nothing of it is written, every other lab is laid out, and one line on stderr
+    (unless ``quiet``) names it, why, and the fix. A course lab never verified, or edited
+    since, is laid out with a warning line.
     """
     root = Path(course_dir).resolve()
     registry.use_course(root)   # its cobotlab.toml names the instructor's own lab folders
@@ -110,10 +117,12 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
                          "or pass labs_dir=")
     sources = registry.source_folders(labs_dir)
     # Every lab's spec is loaded and its practice problems drawn before anything is written:
-    # a broken lab stops the init with its file named, not halfway through the course. The
-    # draws are cached per spec version (autograder.practice): the generators' closed loops
-    # and depth images take seconds, and a process laying out several courses pays once.
-    documents = {name: build_practice(name) for name in sources if name in checks.SPECS}
+    # a broken lab (an instructor's draft, say) is left out whole, with its file named, and
+    # never stops the others. The draws are cached per spec version (autograder.practice):
+    # the generators' closed loops and depth images take seconds, and a process laying out
+    # several courses pays once.
+    documents, skipped = releasable([n for n in sources if n in checks.SPECS], force)
+    sources = {name: folder for name, folder in sources.items() if name not in skipped}
     root.mkdir(parents=True, exist_ok=True)
     config = root / "nbgrader_config.py"
     if not config.exists():
@@ -142,6 +151,15 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
             # changed spec reaches the next release.
             save_practice(documents[name], target)
     grading.create_secret(root)
+    if not quiet:
+        for name, why in skipped.items():
+            kept = (f" (source/{name}/ keeps what an earlier `course init` wrote)"
+                    if (root / "source" / name).exists() else "")
+            print(f"cobotlab: skipped lab {name}{kept}: {why}", file=sys.stderr)
+        for name in sorted(set(sources) & own):
+            note = registry.verification_note(name)
+            if note:
+                print(f"cobotlab: warning: {note}", file=sys.stderr)
     return root
 
 

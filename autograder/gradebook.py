@@ -525,3 +525,25 @@ def class_scores(root: Path, assignment: str) -> dict:
                 "first_name": st.first_name or "", "last_name": st.last_name or "",
                 "email": st.email or ""}
     return dict(sorted(out.items()))
+
+
+# --------------------------------------------------------------------------- a lab removed
+
+
+def remove_assignment(root: Path, assignment: str) -> bool:
+    """Delete ``assignment`` from ``root/gradebook.db`` with every submission of it and
+    their scores and comments, through nbgrader's API (``Gradebook.remove_assignment``, one
+    transaction). Returns whether it was there."""
+    from nbgrader.api import MissingEntry
+
+    if not (root / "gradebook.db").is_file():
+        return False
+    with _open(root) as gb:
+        try:
+            gb.remove_assignment(assignment)
+        except MissingEntry:
+            return False
+    return True
+
+
+__all__ += ["remove_assignment"]

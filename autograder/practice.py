@@ -33,7 +33,7 @@ from autograder.inside import wire
 from autograder.spec_types import FunctionSpec, Trial, mistake_answers
 
 __all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "load_practice",
-           "practice_file_name", "practice_rng", "practice_trials",
+           "practice_file_name", "practice_rng", "practice_trials", "releasable",
            "save_practice", "write_practice"]
 
 # The seeds check() shows a student (autograder.checks re-exports both).
@@ -124,6 +124,26 @@ def build_practice(assignment: str, seeds=None) -> dict:
     return {"cobotlab_practice": FORMAT, "assignment": assignment, "seeds": list(seeds),
             "functions": {spec.name: {str(seed): list(_built(assignment, spec.name, seed))
                                       for seed in seeds} for spec in specs}}
+
+
+def releasable(names, force: bool = False) -> tuple[dict[str, dict], dict[str, str]]:
+    """({lab: practice data}, {lab: why it is skipped}) of the labs ``names`` that are to be
+    released (``course init``, ``labs student``): a lab that does not load, whose generators
+    raise, or whose last ``labs verify`` failed (unless ``force``) is skipped, with the
+    reason and the fix (:func:`autograder.registry.release_problem`), never stopping the
+    others."""
+    documents: dict[str, dict] = {}
+    skipped: dict[str, str] = {}
+    for name in names:
+        why = registry.release_problem(name, force=force)
+        if why is None:
+            try:
+                documents[name] = build_practice(name)
+            except registry.LabError as exc:
+                why = f"it does not load: {exc}"
+        if why is not None:
+            skipped[name] = why
+    return documents, skipped
 
 
 def write_practice(assignment: str, folder, seeds=None) -> Path:

@@ -6,7 +6,7 @@
   the same way.
 * :func:`write_csv` escapes cells a spreadsheet would run (:func:`csv_cell`),
   :func:`update_csv` replaces only the rows of this run and keeps the others (read through
-  :mod:`autograder.safe_files` too).
+  :mod:`autograder.safe_files` too); :func:`drop_csv_rows` removes a lab's rows.
 * :data:`RUN_MARKER` names the file a grading run leaves while it writes: a run interrupted
   half-way leaves it, and the next run sees it and acts on it.
 
@@ -26,7 +26,8 @@ from pathlib import Path
 from autograder import safe_files
 from autograder.freeze import printable
 
-__all__ = ["write_file", "remove_file", "write_csv", "update_csv", "csv_cell", "RUN_MARKER"]
+__all__ = ["write_file", "remove_file", "write_csv", "update_csv", "drop_csv_rows", "csv_cell",
+           "RUN_MARKER"]
 
 RUN_MARKER = "grading-in-progress"
 _CSV_CAP = 256 * 2**20   # grades.csv: about a million rows
@@ -105,19 +106,15 @@ def write_csv(root: Path, relative: str, columns: list[str], rows: list[dict]) -
     return write_file(root, relative, buffer.getvalue().encode("utf-8"))
 
 
-def update_csv(root: Path, relative: str, columns: list[str], rows: list[dict],
-               key: tuple[str, ...]) -> list[dict]:
-    """Merge ``rows`` into the CSV at ``root/relative`` and write it back atomically.
+def _ident(row: dict, key: tuple[str, ...]) -> tuple:
+    """A row's key, compared as written: old rows were escaped already."""
+    return tuple(str(csv_cell(row.get(k, ""))) for k in key)
 
-    A row already there with the same ``key`` columns is replaced; every other row is kept
-    as it was (columns it lacks stay empty, columns not in ``columns`` are dropped). Rows are
-    sorted by ``key``. Anything but a regular file there (a symlink, say) is not read, and
-    replaced as :func:`write_file` does; a regular file that is not readable CSV is moved
-    aside to ``<name>.unreadable-<time>`` rather than lost. Returns every row written.
-    """
-    def ident(row: dict) -> tuple:  # compared as written: old rows were escaped already
-        return tuple(str(csv_cell(row.get(k, ""))) for k in key)
 
+def _kept_rows(root: Path, relative: str, columns: list[str],
+               key: tuple[str, ...]) -> dict[tuple, dict]:
+    """{key: row} of the CSV at ``root/relative`` as :func:`update_csv` keeps it: {} when
+    there is none or it is not a regular file; one that is not readable CSV is moved aside."""
     kept: dict[tuple, dict] = {}
     data = None
     try:
@@ -133,12 +130,40 @@ def update_csv(root: Path, relative: str, columns: list[str], rows: list[dict],
             if reader.fieldnames is not None and not set(key) <= set(reader.fieldnames):
                 raise ValueError(f"no {'/'.join(key)} columns")  # None: an empty file
             for row in reader:
-                kept[ident(row)] = {k: row.get(k) or "" for k in columns}
+                kept[_ident(row, key)] = {k: row.get(k) or "" for k in columns}
         except (ValueError, UnicodeDecodeError, csv.Error):
             safe_files.move_aside(root, relative, f".unreadable-{int(time.time())}")
             kept = {}
+    return kept
+
+
+def update_csv(root: Path, relative: str, columns: list[str], rows: list[dict],
+               key: tuple[str, ...]) -> list[dict]:
+    """Merge ``rows`` into the CSV at ``root/relative`` and write it back atomically.
+
+    A row already there with the same ``key`` columns is replaced; every other row is kept
+    as it was (columns it lacks stay empty, columns not in ``columns`` are dropped). Rows are
+    sorted by ``key``. Anything but a regular file there (a symlink, say) is not read, and
+    replaced as :func:`write_file` does; a regular file that is not readable CSV is moved
+    aside to ``<name>.unreadable-<time>`` rather than lost. Returns every row written.
+    """
+    kept = _kept_rows(root, relative, columns, key)
     for row in rows:
-        kept[ident(row)] = row
+        kept[_ident(row, key)] = row
     merged = [kept[k] for k in sorted(kept)]
     write_csv(root, relative, columns, merged)
     return merged
+
+
+def drop_csv_rows(root: Path, relative: str, columns: list[str], key: tuple[str, ...],
+                  column: str, value: str) -> int:
+    """Remove the rows whose ``column`` is ``value`` from the CSV at ``root/relative`` (read
+    and written back as :func:`update_csv` does; nothing is written when no row matches).
+    Returns how many were removed."""
+    kept = _kept_rows(root, relative, columns, key)
+    gone = [k for k, row in kept.items() if row.get(column, "") == str(csv_cell(value))]
+    if gone:
+        for k in gone:
+            del kept[k]
+        write_csv(root, relative, columns, [kept[k] for k in sorted(kept)])
+    return len(gone)

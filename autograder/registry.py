@@ -38,12 +38,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["CONFIG_NAME", "COURSE_ENV", "NAME_PATTERN", "PRIVATE_DIR", "SCORING_FILE", "Lab",
-           "LabError", "all_labs", "builtin_folder", "builtin_names", "course_root",
-           "find_lab", "lab_folders", "lab_names", "loaded_specs", "notebook_packages",
-           "private_available", "public_scoring", "raised_at", "scoring", "source_folders",
-           "spec_hash", "spec_path", "specs", "use_course", "verification_note",
-           "verification_path"]
+__all__ = ["CONFIG_NAME", "COURSE_ENV", "LEFT_BEHIND", "NAME_PATTERN", "PRIVATE_DIR",
+           "SCORING_FILE", "Lab", "LabError", "all_labs", "builtin_folder", "builtin_names",
+           "course_root", "find_lab", "lab_digest", "lab_folders", "lab_names", "loaded_specs",
+           "notebook_packages", "private_available", "public_scoring", "raised_at",
+           "release_problem", "removed_labs", "scoring", "source_folders", "spec_hash",
+           "spec_path", "specs", "use_course", "verification_note", "verification_path"]
 
 CONFIG_NAME = "cobotlab.toml"
 COURSE_ENV = "COBOTLAB_COURSE"
@@ -114,7 +114,7 @@ def course_root() -> Path | None:
     return None
 
 
-SETTINGS = ("lab_folders", "notebook_packages")
+SETTINGS = ("lab_folders", "notebook_packages", "removed_labs")
 
 
 def _config(root: Path) -> dict:
@@ -133,7 +133,8 @@ def _config(root: Path) -> dict:
     except tomllib.TOMLDecodeError as exc:
         raise LabError(f"{path}: not valid TOML ({exc}); write for example "
                        'lab_folders = ["labs"]') from None
-    for key, example in (("lab_folders", '["labs"]'), ("notebook_packages", '["sympy"]')):
+    for key, example in (("lab_folders", '["labs"]'), ("notebook_packages", '["sympy"]'),
+                         ("removed_labs", '["lab4_stereo"]')):
         value = config.get(key, [])
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             raise LabError(f"{path}: {key} must be a list of names, for example "
@@ -149,6 +150,23 @@ def lab_folders(root: Path) -> list[Path]:
     """The lab folders ``root/cobotlab.toml`` names (absolute), or [] without the file."""
     return [(root / Path(f).expanduser()).resolve()
             for f in _config(root).get("lab_folders", [])]
+
+
+def removed_labs(root: Path | None) -> list[str]:
+    """The built-in labs the course at ``root`` does without (``removed_labs`` of its
+    ``cobotlab.toml``, written by ``cobotlab labs remove``): neither ``course init`` nor
+    ``labs student`` lays them out, and the course has no lab of that name. LabError names
+    one that is not a built-in lab (a course's own lab is removed with its folder)."""
+    if root is None:
+        return []
+    names = list(_config(root).get("removed_labs", []))
+    builtin = set(builtin_names())
+    for name in names:
+        if name not in builtin:
+            raise LabError(f"{root / CONFIG_NAME}: removed_labs names {name!r}, which is not a "
+                           f"built-in lab ({', '.join(sorted(builtin))}); remove it from the "
+                           "list (a course's own lab leaves with its folder)")
+    return names
 
 
 def notebook_packages() -> tuple[str, ...]:
@@ -233,11 +251,12 @@ def all_labs() -> dict[str, Lab]:
     global _table
     if _table is None:
         folder = builtin_folder()
-        table = {name: Lab(name, folder / name if (folder / name).is_dir() else None)
-                 for name in builtin_names()}
         root = course_root()
+        gone = set(removed_labs(root))
+        table = {name: Lab(name, folder / name if (folder / name).is_dir() else None)
+                 for name in builtin_names() if name not in gone}
         for name, lab in (_course_labs(root) if root is not None else {}).items():
-            if name in table:
+            if name in table or name in gone:   # a removed built-in lab keeps its name
                 raise LabError(f"{lab.folder}: {name} is the name of a built-in lab; rename "
                                "the folder, its notebook and its spec")
             table[name] = lab
@@ -269,8 +288,9 @@ def source_folders(builtin_dir=None) -> dict[str, Path]:
     folder = Path(builtin_dir) if builtin_dir is not None else builtin_folder()
     found = {}
     if folder.is_dir():
+        gone = set(removed_labs(course_root()))
         found = {p.name: p for p in sorted(folder.iterdir())
-                 if p.is_dir() and any(p.glob("*.ipynb"))}
+                 if p.is_dir() and any(p.glob("*.ipynb")) and p.name not in gone}
     for name, lab in all_labs().items():
         if not lab.builtin and lab.folder is not None:
             found[name] = lab.folder
@@ -424,27 +444,69 @@ def verification_path(name: str) -> Path:
     return (course_root() or Path.cwd()) / ".cobotlab" / "verified" / f"{name}.json"
 
 
+def _verification(name: str) -> tuple[Path, dict | None, bool]:
+    """(where lab ``name``'s verify record is, the record or None, whether it was made of the
+    lab as it is now). A record holds ``spec_hash`` and, since verify recorded it,
+    ``lab_digest`` (the notebook and its data too): both must match, so an edit of any file
+    after verify makes the lab unverified."""
+    import json
+
+    path = verification_path(name)
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return path, None, False
+    if not isinstance(record, dict):
+        return path, None, False
+    current = record.get("spec_hash") == spec_hash(name) and (
+        "lab_digest" not in record or record["lab_digest"] == lab_digest(name))
+    return path, record, current
+
+
 def verification_note(name: str) -> str | None:
     """None when lab ``name`` was verified as it is now, else a warning saying what to run.
     The built-in labs are verified by the project (docs/benchmarks/grading_fairness.md)
     unless their files were changed locally and verified since."""
-    import json
-
-    path = verification_path(name)
-    current = spec_hash(name)
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, ValueError):
+    path, record, current = _verification(name)
+    if record is None:
         if find_lab(name).builtin:
             return None
         return (f"{name} was never verified: run `cobotlab labs verify {name}` before grading "
                 "it (it shows whether correct code can lose credit on the hidden problems)")
-    if not isinstance(record, dict) or record.get("spec_hash") != current:
+    if not current:
         return (f"{name} changed since it was last verified ({path}): run `cobotlab labs "
                 f"verify {name}` again")
     if not record.get("passed"):
         return f"{name} failed its last verification ({path}): see its report and fix the lab"
     return None
+
+
+def release_problem(name: str, force: bool = False) -> str | None:
+    """Why lab ``name`` must not be released (laid out by ``course init``, written by ``labs
+    student``), as one sentence with the fix; None when it may be. Two reasons: its files
+    fail to load (its scoring, its private spec, or its generators drawing the practice
+    problems: the caller draws those, see :func:`autograder.practice.build_practice`), or
+    its last ``cobotlab labs verify`` failed and the lab has not changed since (an edited
+    lab is unverified: it may be released, with :func:`verification_note`'s warning).
+    ``force`` releases a lab that failed verify; one that does not load never is."""
+    try:
+        scoring(name)
+        specs(name)
+    except LabError as exc:
+        return f"it does not load: {exc}"
+    path, record, current = _verification(name)
+    if force or record is None or not current or record.get("passed"):
+        return None
+    findings = record.get("findings") or [{}]
+    first = findings[0].get("message", "") if isinstance(findings[0], dict) else ""
+    first = " ".join(str(first).split())
+    if len(first) > 200:
+        first = first[:197] + "..."
+    more = f" (and {len(findings) - 1} more)" if len(findings) > 1 else ""
+    where = find_lab(name).folder or name
+    return (f"it failed `cobotlab labs verify` ({path}: {first or 'see the report'}{more}); "
+            f"fix the lab and run `cobotlab labs verify {where}` again, or pass --force to "
+            "release it as it is")
 
 
 def loaded_specs() -> dict[str, tuple]:
@@ -460,4 +522,28 @@ def spec_hash(name: str) -> str:
     digest = hashlib.sha256()
     for path in (scoring_file, spec_path(name)):
         digest.update(path.read_bytes() if path is not None and path.is_file() else b"-")
+    return digest.hexdigest()[:16]
+
+
+# Left in a lab folder by a kernel, an editor or `check()`, not part of the lab.
+LEFT_BEHIND = ("practice_*.json.gz", "__pycache__", "*_results", ".ipynb_checkpoints")
+
+
+def lab_digest(name: str) -> str:
+    """A digest of everything of lab ``name`` that ``labs verify`` checks (16 hex digits):
+    :func:`spec_hash` and every file of its folder (the notebook and its data) but what
+    :data:`LEFT_BEHIND` names. ``labs verify`` records it; :func:`verification_note` and
+    :func:`release_problem` compare it, so a lab edited after verify is unverified."""
+    import fnmatch
+
+    lab = find_lab(name)
+    digest = hashlib.sha256(spec_hash(name).encode())
+    if lab.folder is not None and lab.folder.is_dir():
+        for path in sorted(lab.folder.rglob("*")):
+            relative = path.relative_to(lab.folder)
+            if any(fnmatch.fnmatch(part, pattern) for part in relative.parts
+                   for pattern in LEFT_BEHIND) or not path.is_file():
+                continue
+            digest.update(relative.as_posix().encode("utf-8", "surrogateescape") + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()[:16]

@@ -36,8 +36,8 @@ SKELETON = Path(__file__).resolve().parent / "templates" / "skeleton"
 DEFAULT_LAB_FOLDER = "labs"
 
 # Left behind by a run or an editor, not part of the lab (practice data is rebuilt from the
-# new lab's own spec when it is released).
-_NOT_COPIED = ("practice_*.json.gz", "__pycache__", "*_results", ".ipynb_checkpoints")
+# new lab's own spec when it is released); nor of its digest (registry.lab_digest).
+_NOT_COPIED = registry.LEFT_BEHIND
 
 _CONFIG_TEXT = f"""\
 # cobotlab course settings. lab_folders: the folders (relative to this file) that hold the

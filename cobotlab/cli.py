@@ -131,7 +131,26 @@ def _build_parser() -> argparse.ArgumentParser:
     student.add_argument("--lab", action="append", default=None, metavar="LAB",
                          help="only this lab (repeat for several; default: every lab)")
     student.add_argument("--force", action="store_true",
-                         help="replace notebooks already in DIR (they may hold a student's work)")
+                         help="replace notebooks already in DIR (they may hold a student's "
+                              "work), and write labs whose last `labs verify` failed")
+    _course_option(student, "the course whose own labs are written too")
+    remove = labs_sub.add_parser(
+        "remove",
+        help="remove a lab from the course: its folders, gradebook entry and grades",
+        description=(
+            "Remove lab NAME from the course: nbgrader's source/, release/, submitted/, "
+            "autograded/ and feedback/ folders of it (and its exchange outbound/inbound "
+            "entries), its assignment in gradebook.db with every score, its rows of grades.csv, "
+            "cobotlab's feedback, kept executions and verify record; for a course's own lab its "
+            "folder and private spec too. A built-in lab stays in the package: it is added to "
+            "removed_labs in the course's cobotlab.toml. Shows the plan and asks first."
+        ),
+    )
+    remove.add_argument("name", metavar="NAME", help="the lab (its nbgrader assignment name)")
+    _course_option(remove, "the course to remove it from")
+    remove.add_argument("--yes", action="store_true",
+                        help="remove without asking (for scripts; without it, a run with no "
+                             "terminal is refused)")
     new = labs_sub.add_parser(
         "new",
         help="start a lab of your own in a course repository: from a skeleton, or a copy of a lab",
@@ -192,6 +211,9 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     init.add_argument("dir", metavar="DIR", help="course directory (created if needed)")
+    init.add_argument("--force", action="store_true",
+                      help="lay out labs whose last `cobotlab labs verify` failed too (a lab "
+                           "that does not load is always left out)")
     init.add_argument("--exchange", default=None, metavar="PATH",
                       help="nbgrader's exchange folder (default DIR/exchange; created). On a "
                            "JupyterHub, a folder every student's server mounts at this path")
@@ -761,6 +783,38 @@ def _labs_new(name: str, course_dir, from_lab) -> None:
         print(f"  {number}. {step}")
 
 
+def _course_option(parser, what: str) -> None:
+    """``--course COURSE`` of the lab commands that work on one course, found as git finds
+    its repository when not given."""
+    parser.add_argument("--course", default=None, metavar="COURSE",
+                        help=f"{what} (default: that of $COBOTLAB_COURSE, else the nearest "
+                             "cobotlab.toml at or above the current folder)")
+
+
+def _labs_student(args) -> None:
+    """``cobotlab labs student``: the course named, or found from here (said when none is)."""
+    from autograder import registry
+    from cobotlab.labs import write_student_labs
+
+    if args.course is not None:
+        from pathlib import Path
+
+        course = Path(args.course).expanduser().resolve()
+        if not any((course / f).is_file() for f in (registry.CONFIG_NAME, "nbgrader_config.py")):
+            raise ValueError(f"--course {args.course}: not a course (no {registry.CONFIG_NAME} "
+                             "or nbgrader_config.py there); give the course folder, the one "
+                             "`cobotlab course init` or `cobotlab labs new` wrote into")
+        registry.use_course(course)
+    elif registry.course_root() is None and registry.builtin_folder().is_dir():
+        # said, so a course's own labs are never left out unseen (a student's install has
+        # no lab sources at all, and the error below says so)
+        print(f"cobotlab: no course found (no {registry.CONFIG_NAME} here or above, "
+              f"${registry.COURSE_ENV} unset): writing the built-in labs only; pass --course "
+              "DIR for a course's own labs", file=sys.stderr)
+    for path in write_student_labs(args.dir, labs=args.lab, force=args.force):
+        print(f"wrote {path}")
+
+
 def _grade(args) -> None:
     from autograder.course import grade_course
     from autograder.scratch import put_interpreter_on_path
@@ -828,10 +882,11 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "data" and args.data_command == "import":
             _data_import(args)
         elif args.command == "labs" and args.labs_command == "student":
-            from cobotlab.labs import write_student_labs
+            _labs_student(args)
+        elif args.command == "labs" and args.labs_command == "remove":
+            from cobotlab.removal import run_remove
 
-            for path in write_student_labs(args.dir, labs=args.lab, force=args.force):
-                print(f"wrote {path}")
+            return run_remove(args.name, args.course, yes=args.yes)
         elif args.command == "labs" and args.labs_command == "new":
             _labs_new(args.name, args.dir, args.from_lab)
         elif args.command == "labs" and args.labs_command == "verify":
@@ -843,7 +898,7 @@ def main(argv: list[str] | None = None) -> int:
             from autograder.course import init_course
             from cobotlab.authoring import write_gitignore
 
-            course = init_course(args.dir, exchange=args.exchange)
+            course = init_course(args.dir, exchange=args.exchange, force=args.force)
             print(f"course laid out in {course}")
             # the secret it just drew, and the grades to come, must never reach a repository
             if write_gitignore(course):

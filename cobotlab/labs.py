@@ -104,7 +104,8 @@ def release_notebook(path):
     return nb
 
 
-def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> list[Path]:
+def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False,
+                       quiet: bool = False) -> list[Path]:
     """Write the student version of every lab (or of ``labs``) into ``dest``; return the paths.
 
     ``dest/<lab>/<lab>.ipynb`` is the release notebook of ``labs_dir/<lab>/`` (default: the
@@ -112,7 +113,13 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
     its own folder) and the lab's practice data (``practice_<lab>.json.gz``, what its
     ``check()`` cells score on); ``dest/README.md`` says how to start. An existing notebook
     is never overwritten unless ``force``: it may hold a student's work.
+
+    A lab that does not load, whose notebook nbgrader cannot release, or whose last ``labs
+    verify`` failed (unless ``force``) is skipped with one line on stderr (unless ``quiet``)
+    naming it, why and the fix; the others are written. ValueError when none is left.
     """
+    import sys
+
     import nbformat
 
     from autograder import checks, practice
@@ -123,26 +130,39 @@ def write_student_labs(dest, labs_dir=None, labs=None, force: bool = False) -> l
     if unknown:
         raise ValueError(f"no lab named {', '.join(unknown)}; the labs are "
                          f"{', '.join(sources)}")
-    dest = Path(dest)
-    planned = {}
+    data, skipped = practice.releasable([n for n in names if n in checks.SCORING], force)
+    released = {}   # all of a lab or nothing of it, before anything is written
     for name in names:
-        for source in sorted(sources[name].glob("*.ipynb")):
-            planned[source] = dest / name / source.name
+        if name in skipped:
+            continue
+        try:
+            released[name] = {source: release_notebook(source)
+                              for source in sorted(sources[name].glob("*.ipynb"))}
+        except ValueError as exc:
+            skipped[name] = f"nbgrader cannot release its notebook: {exc}"
+    names = [n for n in names if n not in skipped]
+    if not names:
+        raise ValueError("no lab left to write: " + "; ".join(
+            f"{name}: {why}" for name, why in skipped.items()))
+    dest = Path(dest)
+    planned = {source: dest / name / source.name
+               for name in names for source in released[name]}
     existing = [str(p) for p in planned.values() if p.exists()]
     if existing and not force:
         verb = "already exists" if len(existing) == 1 else "already exist"
         raise FileExistsError(f"{', '.join(existing)} {verb} and may hold your work; write "
                               "into a new folder, or pass --force to replace them")
-    released = {source: release_notebook(source) for source in planned}  # all or nothing
-    data = {name: practice.build_practice(name) for name in names if name in checks.SCORING}
     written = []
     for name in names:
         shutil.copytree(sources[name], dest / name, ignore=_SKIP, dirs_exist_ok=True)
         if name in data:
             practice.save_practice(data[name], dest / name)
-    for source, target in planned.items():
-        nbformat.write(released[source], target)
-        written.append(target)
+        for source, notebook in released[name].items():
+            nbformat.write(notebook, planned[source])
+            written.append(planned[source])
     listing = "\n".join(f"- `{name}/`" for name in names)
     (dest / "README.md").write_text(_README.format(labs=listing))
+    if not quiet:
+        for name, why in skipped.items():
+            print(f"cobotlab: skipped lab {name}: {why}", file=sys.stderr)
     return written

@@ -31,7 +31,9 @@ tolerance) as a notebook cell: the inputs as numpy literals, the call, the measu
 The default N is the smallest number of draws whose 0 losses bound the loss rate below 1e-3
 (95 % Clopper-Pearson); ``--draws 10000`` is for a release. The JSON report (default
 ``.cobotlab/verified/<lab>.json``, beside the private specs) holds the hash of the lab's
-scoring and spec, which ``cobotlab grade`` compares before it grades.
+scoring and spec and the digest of all its files, which ``cobotlab grade`` and ``course init``
+compare: a lab edited after verify is unverified, one whose last verify failed is not
+released (:func:`autograder.registry.release_problem`).
 """
 
 from __future__ import annotations
@@ -85,13 +87,16 @@ class Report:
     functions: list[dict] = field(default_factory=list)
     seconds: float = 0.0
     warnings: list[Finding] = field(default_factory=list)   # shown, never a failure
+    lab_digest: str = ""   # registry.lab_digest: an edit of any of the lab's files after
+    #                        verify makes it unverified (course init and grade compare it)
 
     @property
     def passed(self) -> bool:
         return not self.findings
 
     def to_json(self) -> dict:
-        return {"lab": self.lab, "spec_hash": self.spec_hash, "draws": self.draws,
+        return {"lab": self.lab, "spec_hash": self.spec_hash, "lab_digest": self.lab_digest,
+                "draws": self.draws,
                 "passed": self.passed, "findings": [asdict(f) for f in self.findings],
                 "warnings": [asdict(f) for f in self.warnings],
                 "functions": self.functions, "seconds": round(self.seconds, 1)}
@@ -406,6 +411,7 @@ def verify_lab(name: str, draws: int | None = None, progress: bool = True,
     report = Report(name, "", draws)
     try:
         report.spec_hash = registry.spec_hash(name)
+        report.lab_digest = registry.lab_digest(name)
         registry.scoring(name)
         specs = registry.specs(name)
     except registry.LabError as exc:
