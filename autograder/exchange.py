@@ -405,7 +405,8 @@ class PrivateCollect(_Private, default.ExchangeCollect):
     link, a pipe or a device), so a student's folder cannot hand over anything else."""
 
     def init_src(self):
-        from nbgrader.api import Gradebook, MissingEntry
+        # Instructors' side only (never in a student's server): the one gradebook reader.
+        import autograder.gradebook as gradebook
 
         self.inbound_path = self._course_folder(INBOUND)
         if not os.access(self.inbound_path, os.R_OK | os.X_OK):
@@ -441,11 +442,7 @@ class PrivateCollect(_Private, default.ExchangeCollect):
                                  "at %s: a forged time? (a late submission named as on time)",
                                  path, stamped, changed.isoformat(sep=" "))
             latest.setdefault(sid, []).append(record)
-        with Gradebook(self.coursedir.db_url, self.coursedir.course_id) as gb:
-            try:
-                self.duedate = gb.find_assignment(assignment).duedate
-            except MissingEntry:
-                self.duedate = None
+        self.duedate = gradebook.duedate(Path(self.coursedir.root), assignment)
         self.src_records = []
         for records in latest.values():
             records = self._sort_by_timestamp(records)
