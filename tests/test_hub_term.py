@@ -48,12 +48,12 @@ import pytest
 import yaml
 from test_browser_lab import (
     CHROMIUM,
-    CHROMIUM_ARGS,
     LAB_SETTINGS,
     NOTEBOOK,
     PAGE_STATE_JS,
     _free_port,
     _wait_for_run,
+    launch_chromium,
 )
 from test_course_install import _link_tree, cobotlab_wheel
 
@@ -359,16 +359,11 @@ def hub():
 
 @pytest.fixture(scope="module")
 def browser():
-    from playwright.sync_api import sync_playwright
+    from playwright import sync_api
 
     assert CHROMIUM.is_file(), f"{CHROMIUM} missing: make test installs chromium"
-    with sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True,
-                                              args=CHROMIUM_ARGS)
-        try:
-            yield chromium
-        finally:
-            chromium.close()
+    with launch_chromium(sync_api) as chromium:
+        yield chromium
 
 
 class Person:
