@@ -654,6 +654,9 @@ def test_a_term_in_chromium(hub, browser):
         csp = students[s1].page.request.get(f"{hub.url}/user/{s1}/lab").headers.get(
             "content-security-policy", "")
         assert "frame-ancestors 'none'" in csp, csp
+        # the grading service is the formgrade group's alone
+        refused = students[s1].page.request.get(f"{hub.url}{Instructor.FORMGRADER}/")
+        assert refused.status == 403, (refused.status, refused.url)
         for student in students.values():
             student.open_assignments()
             student.fetch()
