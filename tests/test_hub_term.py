@@ -396,7 +396,7 @@ class Person:
             return (page or self.page).wait_for_function(condition, timeout=timeout_s * 1000,
                                                          polling=250, **kwargs)
         except PlaywrightTimeout:
-            self.fail(f"{what} did not happen in {timeout_s:.0f} s", page)
+            self.fail(f"no {what} within {timeout_s:.0f} s", page)
 
     def log_in(self, next_url: str = "") -> None:
         """The hub's login page, this account's Unix password: starts the server (no wait)."""
@@ -411,8 +411,8 @@ class Person:
         self.wait("() => document.querySelector('#jp-main-dock-panel') && [...document"
                   ".querySelectorAll('.lm-MenuBar-itemLabel')].some(e => e.textContent === "
                   "'Nbgrader')",
-                  f"the server of {self.name} did not start or JupyterLab did not load: "
-                  f"the login", SPAWN_TIMEOUT_S)
+                  "JupyterLab with its Nbgrader menu after the login (the user's server, "
+                  "which the hub starts)", SPAWN_TIMEOUT_S)
         assert f"/user/{self.name}/lab" in self.page.url, self.page.url
         self.shot("jupyterlab")
 
@@ -469,7 +469,7 @@ class Student(Person):
         row.locator(".assignment-notebooks-link").click()
         row.locator(".nested_list_item a", has_text=ASSIGNMENT).click()
         self.wait("([js]) => { const s = eval(js)(); return s && s.kernel === 'idle' "
-                  "&& s.prompts.length > 0; }", "lab 0's notebook open with its kernel idle",
+                  "&& s.prompts.length > 0; }", "lab 0's notebook with its kernel started",
                   SPAWN_TIMEOUT_S, arg=[PAGE_STATE_JS])
         self.shot("notebook")
 
@@ -507,7 +507,8 @@ class Student(Person):
     def save(self) -> None:
         self.menu("File", "docmanager:save")
         self.wait("() => !document.querySelector('.lm-TabBar-tab.jp-mod-current.jp-mod-dirty')",
-                  "File > Save Notebook", STEP_TIMEOUT_S)
+                  "end of File > Save Notebook (the tab still marked unsaved)",
+                  STEP_TIMEOUT_S)
 
     def submit(self) -> None:
         self.page.locator(ASSIGNMENTS_TAB).click()
@@ -528,7 +529,7 @@ class Student(Person):
         self.page.keyboard.press("Shift+Enter")
         self.wait("""([js, n]) => { const s = eval(js)();
                        return s && s.kernel === 'idle' && s.prompts.some(p => p === `[${n}]:`); }""",
-                  "invert_pose's cell and its test cell run again", KERNEL_TIMEOUT_S,
+                  "second run of invert_pose's cell and its test cell", KERNEL_TIMEOUT_S,
                   arg=[PAGE_STATE_JS, before + 2])
         self.shot("fixed")
 
@@ -605,7 +606,7 @@ class Instructor(Person):
         row = self.page.locator("tr", has=self.page.locator("td a", has_text=ASSIGNMENT)).first
         row.locator(f".{column} a").click()
         self.wait("() => document.querySelector('#success-modal.in, #error-modal.in')",
-                  f"formgrader's {what}", STEP_TIMEOUT_S * 4)
+                  f"dialog after formgrader's {what}", STEP_TIMEOUT_S * 4)
         self.shot(column)
         error = self.page.locator("#error-modal.in")
         if error.count():
