@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean system-packages student-labs student-wheel
+.PHONY: demo test lint bench clean system-packages student-labs student-wheel hub-proxy
 
 # Reinstall only when the dependency list changes; the package itself is installed editable.
 # The tests also exercise the real-robot drivers against fakes and the RealSense SDK against its
@@ -18,13 +18,29 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 # libusb for pyrealsense2; chromium for the real-browser run of a lab; bubblewrap for the
-# grader's sandbox around student code.
-SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap
+# grader's sandbox around student code; for the course hub's test (docs/hub.md): nodejs for
+# configurable-http-proxy, and patchelf to give every account a copy of the venv's Python
+# when it sits under a home folder they cannot enter (pyenv's).
+SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap nodejs patchelf
 system-packages:
 	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); \
 	  else echo "note: sudo apt-get install $(SYSTEM_PACKAGES) to run the RealSense and browser tests"; fi; \
 	fi
+
+# JupyterHub's proxy, from npm, into a folder of this checkout (tests/test_hub_term.py runs
+# it from there); the version docs/hub.md installs. npm comes with nodejs from NodeSource;
+# Debian's nodejs needs its npm package.
+HUB_PROXY_VERSION := 5.3.0
+HUB_PROXY := .tools/chp/node_modules/configurable-http-proxy/package.json
+hub-proxy: $(HUB_PROXY)
+$(HUB_PROXY): Makefile
+	@if ! command -v npm >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ]; then DEBIAN_FRONTEND=noninteractive apt-get install -y -qq npm; \
+	  else echo "note: sudo apt-get install npm for the hub test"; fi; \
+	fi
+	npm install --silent --no-audit --no-fund --prefix .tools/chp configurable-http-proxy@$(HUB_PROXY_VERSION)
+	@touch $(HUB_PROXY)
 
 demo: $(STAMP)
 	$(VENV)/bin/cobotlab demo
@@ -36,7 +52,7 @@ demo: $(STAMP)
 # means spending less CPU. Grading limits count CPU seconds: the extra load changes no grade.
 # --no-loadscope-reorder: xdist would start the files with the most tests first, which puts
 # the one-test grading files (minutes each) last; tests/conftest.py puts slow files first.
-test: $(STAMP) system-packages
+test: $(STAMP) system-packages hub-proxy
 	$(PY) -m pytest -n 3 --dist loadfile --no-loadscope-reorder -q
 
 lint: $(STAMP)
@@ -55,4 +71,4 @@ student-wheel: $(STAMP)
 	$(PY) -m pip wheel --no-deps student/ -w dist/
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out .pytest_cache .tools

@@ -14,6 +14,7 @@ used.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -221,13 +222,11 @@ def _copy_cleared(source: Path, target: Path) -> int:
 # --------------------------------------------------------------------------- fixtures
 
 
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip(
-        "playwright.sync_api", reason="needs the Python package playwright (pip install playwright)")
-    if not (CHROMIUM.is_file() and os.access(CHROMIUM, os.X_OK)):
-        pytest.skip(f"needs Debian's Chromium at {CHROMIUM} (apt-get install chromium)")
-    # A fresh, empty profile: Playwright gives each launch a new temporary user-data-dir.
+@contextlib.contextmanager
+def launch_chromium(sync_api):
+    """Debian's Chromium under Playwright (``sync_api``: playwright.sync_api), with
+    CHROMIUM_ARGS. A fresh, empty profile: Playwright gives each launch a new temporary
+    user-data-dir. tests/test_hub_term.py launches it the same way."""
     with sync_api.sync_playwright() as playwright:
         chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True,
                                               args=CHROMIUM_ARGS)
@@ -235,6 +234,16 @@ def browser():
             yield chromium
         finally:
             chromium.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip(
+        "playwright.sync_api", reason="needs the Python package playwright (pip install playwright)")
+    if not (CHROMIUM.is_file() and os.access(CHROMIUM, os.X_OK)):
+        pytest.skip(f"needs Debian's Chromium at {CHROMIUM} (apt-get install chromium)")
+    with launch_chromium(sync_api) as chromium:
+        yield chromium
 
 
 @pytest.fixture(scope="module")
