@@ -95,7 +95,8 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
 
     Writes ``nbgrader_config.py`` (``course_id``, the course root, and nbgrader's exchange:
     ``exchange``, default ``course_dir/exchange``, created world-writable as nbgrader
-    requires), copies each ``labs/<name>/`` (notebook and data, no saved outputs) to
+    requires, unless root made it a private exchange with ``cobotlab course exchange``:
+    then its modes are kept and the config names its classes, docs/exchange.md), copies each ``labs/<name>/`` (notebook and data, no saved outputs) to
     ``source/<name>/``, creates an empty ``gradebook.db`` (so nbgrader run from the virtual
     environment without activating it never needs ``alembic`` on ``$PATH``), and the
     grading secret in ``.cobotlab/secret`` (mode 0600; not copied into any assignment).
@@ -128,9 +129,16 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     if not config.exists():
         exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
         exchange_dir.mkdir(parents=True, exist_ok=True)
-        os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets other modes)
-        config.write_text(_CONFIG.format(root=str(root), exchange=str(exchange_dir),
-                                         course_id=course_id))
+        text = _CONFIG.format(root=str(root), exchange=str(exchange_dir), course_id=course_id)
+        from autograder import exchange as private
+
+        if private.layout_problem(exchange_dir, course_id) is None:
+            # root laid out a private exchange here (`cobotlab course exchange`): keep its
+            # modes, and release and collect with its classes
+            text += private.config_block(exchange_dir, course_id)
+        else:
+            os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
+        config.write_text(text)
     if not (root / "gradebook.db").exists():
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         gradebook.create(root, course_id)

@@ -65,7 +65,7 @@ PROXY = REPO / ".tools" / "chp" / "node_modules" / ".bin" / "configurable-http-p
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 PREFIX = "hubt_"
-GRADER, INSTRUCTOR = f"{PREFIX}grader", f"{PREFIX}instr"
+GRADER, INSTRUCTOR, STAFF_GROUP = f"{PREFIX}grader", f"{PREFIX}instr", f"{PREFIX}staff"
 STUDENTS = tuple(f"{PREFIX}s{i}" for i in (1, 2, 3))
 HUB_TIMEOUT_S = 30        # the hub, from start to answering /hub/health
 SPAWN_TIMEOUT_S = 60      # a user's server, from login to JupyterLab on the page
@@ -235,6 +235,7 @@ def _remove_accounts() -> None:
             except (OSError, ProcessLookupError):
                 pass
         subprocess.run(["userdel", "--remove", name], capture_output=True, timeout=60)
+    subprocess.run(["groupdel", STAFF_GROUP], capture_output=True, timeout=60)
 
 
 class Hub:
@@ -250,7 +251,7 @@ class Hub:
             "COURSE_ID": "cobotlab", "ENV": str(self.env), "PROXY": str(PROXY),
             "HUB_DIR": str(base / "srv" / "hub"), "COURSE_DIR": str(base / "srv" / "course"),
             "EXCHANGE": str(base / "nbgrader" / "exchange"), "GRADER": GRADER,
-            "INSTRUCTORS": INSTRUCTOR, "TAS": "",
+            "STAFF_GROUP": STAFF_GROUP, "INSTRUCTORS": INSTRUCTOR, "TAS": "",
             "STAFF": str(base / "staff.txt"), "ROSTER": str(base / "roster.txt"),
             "DEADLINE": "2099-01-01 00:00:00 UTC",
             "HUB_IP": "127.0.0.1", "HUB_PORT": str(self.port),
@@ -696,6 +697,20 @@ def test_a_term_in_chromium(hub, browser):
         time.sleep(1.1)   # the late one's timestamp is strictly after
         students[s3].save()
         students[s3].submit()
+
+        # each submission went into its student's own folder of the private exchange, which
+        # no other student can enter; nor can one reach another's server or the hub's record
+        inbound = Path(hub.settings["EXCHANGE"]) / "cobotlab" / "inbound"
+        assert sorted(p.name for p in inbound.iterdir()) == sorted(STUDENTS)
+        assert {n: len(list((inbound / n).iterdir())) for n in STUDENTS} == \
+            {s1: 1, s2: 2, s3: 1}
+        assert all((inbound / n).stat().st_mode & 0o7777 == 0o2750 for n in STUDENTS)
+        for path in (f"/user/{s2}/api/contents", f"/user/{s2}/files/{ASSIGNMENT}",
+                     f"/hub/api/users/{s2}"):
+            answer = students[s1].page.request.get(f"{hub.url}{path}", max_redirects=0)
+            assert answer.status in (302, 403, 404), (path, answer.status)
+            assert s2 not in (answer.headers.get("location") or "").split("?")[0], \
+                (path, answer.headers)
 
         # collect, grade, feedback
         teacher.formgrader_action("collect", "Collect")

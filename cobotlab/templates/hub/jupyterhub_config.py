@@ -50,14 +50,18 @@ for name in (GRADER, *INSTRUCTORS, *TAS, *STUDENTS):
 # THE ONE PLACE that says how assignments travel between students and the course. Every
 # server (each student's, the grading service's) reads the nbgrader_config.py written here,
 # through JUPYTER_CONFIG_PATH; the course's own nbgrader_config.py (from `cobotlab course init
-# --exchange`) names the same folder. Today: nbgrader's default exchange, one shared folder
-# (mode 0777, sticky) that every account reaches at the same path.
+# --exchange`) names the same folder and classes. The exchange is cobotlab's private one
+# (autograder.exchange, docs/exchange.md): root laid it out with `cobotlab course exchange`,
+# one inbound and one feedback folder per student, so no student can list, read, replace or
+# delete another's submission or feedback.
+from autograder.exchange import config_block, layout_problem  # noqa: E402
+
 EXCHANGE_ROOT = setting("exchange_root")
-NBGRADER_EXCHANGE_CONFIG = f"""\
-c = get_config()  # noqa: F821
-c.CourseDirectory.course_id = {COURSE_ID!r}
-c.Exchange.root = {EXCHANGE_ROOT!r}
-"""
+NOT_PRIVATE = layout_problem(EXCHANGE_ROOT, COURSE_ID)
+if NOT_PRIVATE:
+    raise SystemExit(f"{SETTINGS_FILE}: exchange_root: {NOT_PRIVATE}")
+NBGRADER_EXCHANGE_CONFIG = "c = get_config()  # noqa: F821\n" + config_block(EXCHANGE_ROOT,
+                                                                               COURSE_ID)
 # ------------------------------------------------------------------ end of the exchange
 
 # What every server reads besides the user's own ~/.jupyter: nbgrader's exchange settings,
