@@ -21,6 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import nbformat
+from jupyter_client.manager import KernelManager
 from nbclient import NotebookClient
 
 from autograder import grading, registry
@@ -171,8 +172,13 @@ def execute_source(assignment: str, timeout_s: int = 180) -> nbformat.NotebookNo
     nb = nbformat.read(path, as_version=4)
     assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), \
         "the source notebook must be saved without outputs"
-    NotebookClient(nb, timeout=timeout_s, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()
+    with tempfile.TemporaryDirectory(prefix="cobotlab-kernel-") as sockets:
+        # IPC sockets, not TCP ports: a port the kernel manager picked free can be taken by
+        # another test's server before the kernel binds it ("Address already in use")
+        km = KernelManager(kernel_name="python3", transport="ipc",
+                           ip=str(Path(sockets) / "kernel"))
+        NotebookClient(nb, km=km, timeout=timeout_s, kernel_name="python3",
+                       resources={"metadata": {"path": str(path.parent)}}).execute()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
               if o.output_type == "error"]
     assert not errors, errors

@@ -163,9 +163,10 @@ def test_student_pyproject_keeps_up_with_the_main_one():
                             if k in PACKAGES and k != "cobotlab"}
     included = student["tool"]["setuptools"]["packages"]["find"]["include"]
     assert sorted(included) == sorted(f"{name}*" for name in PACKAGES)
-    # The private side (generators, truths, answer functions) stays out; the rest is kept.
+    # The private side (generators, truths, answer functions) stays out, and so do the
+    # instructors' templates (the hub's config, `labs new`'s skeleton); the rest is kept.
     excluded = student["tool"]["setuptools"]["packages"]["find"]["exclude"]
-    assert sorted(excluded) == ["autograder.specs", "autograder.specs.*"]
+    assert sorted(excluded) == ["autograder.specs", "autograder.specs.*", "cobotlab.templates*"]
 
 
 def _lab_imports() -> set[str]:
