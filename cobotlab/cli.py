@@ -815,7 +815,12 @@ def _labs_student(args) -> None:
         print(f"wrote {path}")
 
 
-def _grade(args) -> None:
+NOT_GRADED_EXIT = 3
+"""`cobotlab grade`'s exit status when the grader itself failed on some submission (no
+score recorded for it; the next run grades it again): a script or a cron job must notice."""
+
+
+def _grade(args) -> int:
     from autograder.course import grade_course
     from autograder.scratch import put_interpreter_on_path
 
@@ -850,18 +855,20 @@ def _grade(args) -> None:
     try:
         workers = args.workers if args.workers is not None else (
             cluster.slots() if cluster is not None else 1)
-        grade_course(args.course_dir, args.assignment, workers=workers,
-                     run_nbgrader=not args.no_nbgrader, nbgrader_kernel=args.nbgrader_kernel,
-                     nbgrader_timeout_s=args.nbgrader_timeout,
-                     students=_student_ids(args.students),
-                     progress=None if args.no_progress else progress,
-                     fresh=args.fresh, nonce=args.replay, cluster=cluster,
-                     template=not args.no_template, rescore=args.rescore)
+        rows = grade_course(
+            args.course_dir, args.assignment, workers=workers,
+            run_nbgrader=not args.no_nbgrader, nbgrader_kernel=args.nbgrader_kernel,
+            nbgrader_timeout_s=args.nbgrader_timeout, students=_student_ids(args.students),
+            progress=None if args.no_progress else progress, fresh=args.fresh,
+            nonce=args.replay, cluster=cluster, template=not args.no_template,
+            rescore=args.rescore)
     finally:
         if bar is not None:
             bar.close()
         if cluster is not None:
             cluster.close()
+    # a row the grader could not grade has no raw score (course.grade_row)
+    return NOT_GRADED_EXIT if any(row["raw_score"] == "" for row in rows) else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -918,7 +925,9 @@ def main(argv: list[str] | None = None) -> int:
                       "(/etc/jupyter/nbgrader_config.py):\n"
                       + exchange.config_block(args.root, args.course))
         elif args.command == "grade":
-            _grade(args)
+            status = _grade(args)
+            if status:
+                return status
         elif args.command == "merge":
             from autograder.scratch import put_interpreter_on_path
             from autograder.shards import merge_shard

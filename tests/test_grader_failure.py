@@ -16,6 +16,7 @@ from nbgrader.api import Gradebook, MissingEntry
 
 from autograder import checks, grading, sandbox
 from autograder.course import grade_course
+from cobotlab.cli import NOT_GRADED_EXIT, main
 
 ASSIGNMENT = "lab0_frames"
 
@@ -109,9 +110,12 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     assert all(v for v in _cobotlab_cells(course, "broken").values())
 
     # Each worker a new interpreter in a new sandbox (a template's forks use no worker_jail:
-    # its own failure is the next test's)
-    rows = {r["student_id"]: r for r in grade_course(
-        course, ASSIGNMENT, workers=2, run_nbgrader=True, template=False)}
+    # its own failure is the next test's); through the command, whose exit status tells a
+    # script that a submission is left ungraded
+    status = main(["grade", str(course), ASSIGNMENT, "--workers", "2", "--no-template",
+                   "--no-progress"])
+    assert status == NOT_GRADED_EXIT == 3
+    rows = kit.read_grades(course)
     out = capsys.readouterr().out
     assert len(probes) == 1, "the sandbox was probed more than once in one run"
     first = fault.broken[0]
