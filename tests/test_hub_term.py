@@ -23,6 +23,7 @@ zero-to-jupyterhub chart's values schema (tests/z2jh_4.4.0/, vendored).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import importlib.metadata
 import json
@@ -220,6 +221,19 @@ def _course_environment(path: Path) -> Path:
     return path
 
 
+def _kill_processes_of(uid: int) -> int:
+    """SIGKILL every process running as ``uid``; how many there were."""
+    found = 0
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and entry.stat().st_uid == uid:
+                os.kill(int(entry.name), signal.SIGKILL)
+                found += 1
+        except (OSError, ProcessLookupError):
+            pass
+    return found
+
+
 def _remove_accounts() -> None:
     """Our accounts, their processes (by pid: each is one this test started, as that user)
     and their homes."""
@@ -228,13 +242,13 @@ def _remove_accounts() -> None:
             uid = pwd.getpwnam(name).pw_uid
         except KeyError:
             continue
-        for entry in Path("/proc").iterdir():
-            try:
-                if entry.name.isdigit() and entry.stat().st_uid == uid:
-                    os.kill(int(entry.name), signal.SIGKILL)
-            except (OSError, ProcessLookupError):
-                pass
-        subprocess.run(["userdel", "--remove", name], capture_output=True, timeout=60)
+        deadline = time.monotonic() + 10
+        while _kill_processes_of(uid) and time.monotonic() < deadline:
+            time.sleep(0.1)   # userdel refuses a user whose process is not yet reaped
+        done = subprocess.run(["userdel", "--remove", name], capture_output=True, text=True,
+                              timeout=60)
+        if done.returncode not in (0, 12):   # 12: the home could not be removed (already gone)
+            raise AssertionError(f"userdel {name} failed: {done.stderr.strip()}")
     subprocess.run(["groupdel", STAFF_GROUP], capture_output=True, timeout=60)
 
 
@@ -351,9 +365,13 @@ def hub():
         yield hub
     finally:
         # the accounts' servers first: the hub then finds them gone, rather than stopping
-        # each one politely (20 s or more at the end of every run)
-        _remove_accounts()
+        # each one politely (20 s or more at the end of every run); it reaps them as it
+        # stops, and only then will userdel take their accounts
+        for name in (GRADER, INSTRUCTOR, *STUDENTS):
+            with contextlib.suppress(KeyError):
+                _kill_processes_of(pwd.getpwnam(name).pw_uid)
         hub.stop()
+        _remove_accounts()
         shutil.rmtree(base, ignore_errors=True)
 
 
