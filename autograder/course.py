@@ -96,8 +96,8 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     Writes ``nbgrader_config.py`` (``course_id``, the course root, and nbgrader's exchange:
     ``exchange``, default ``course_dir/exchange``, created world-writable as nbgrader
     requires, unless root made it a private exchange with ``cobotlab course exchange``:
-    then its modes are kept and the config names its classes, docs/exchange.md), copies each ``labs/<name>/`` (notebook and data, no saved outputs) to
-    ``source/<name>/``, creates an empty ``gradebook.db`` (so nbgrader run from the virtual
+    then its modes are kept and the config names its classes, docs/exchange.md), copies
+    each ``labs/<name>/`` (notebook and data, no saved outputs) to ``source/<name>/``, creates an empty ``gradebook.db`` (so nbgrader run from the virtual
     environment without activating it never needs ``alembic`` on ``$PATH``), and the
     grading secret in ``.cobotlab/secret`` (mode 0600; not copied into any assignment).
     Existing config, sources, gradebook and secret are kept, so running it again after
@@ -403,18 +403,24 @@ class GradeRun:
     started: float
 
 
+def _course_and_secret(course_dir, assignment: str) -> tuple[Path, str]:
+    """(the course's root, its grading secret), its labs registered, ``assignment`` one of
+    them; ValueError names the known ones."""
+    root = Path(course_dir).resolve()
+    registry.use_course(root)
+    if assignment not in checks.SPECS:
+        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
+                         f"known assignments: {sorted(checks.SPECS)}")
+    return root, grading.load_secret(root)
+
+
 def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce,
            quiet: bool, cluster, rescore: bool) -> GradeRun:
     """Check the request, recover from an interrupted run, refuse a concurrent one, back up
     the gradebook; the run's shared values."""
-    root = Path(course_dir).resolve()
-    registry.use_course(root)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    if assignment not in checks.SPECS:
-        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
-                         f"known assignments: {sorted(checks.SPECS)}")
-    secret = grading.load_secret(root)
+    root, secret = _course_and_secret(course_dir, assignment)
     if fresh and nonce:
         raise ValueError("fresh=True draws new problems; nonce= replays a fresh run's: pass "
                          "one of them")
@@ -778,12 +784,7 @@ def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
     this submission's, run on the problems' inputs as the lab draws them now). Reads only:
     no student code runs, nothing is recorded. Score one with
     :func:`autograder.grading.score_execution`."""
-    root = Path(course_dir).resolve()
-    registry.use_course(root)
-    if assignment not in checks.SPECS:
-        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
-                         f"known assignments: {sorted(checks.SPECS)}")
-    secret = grading.load_secret(root)
+    root, secret = _course_and_secret(course_dir, assignment)
     run = GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "report",
                    grading.Limits(), [], time.monotonic())
     problems = grading.HiddenProblems(assignment, secret, None)
