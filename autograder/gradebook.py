@@ -19,7 +19,8 @@ late penalty is points taken off the total, times are nbgrader's (naive UTC ``da
   cell scores), :func:`write_cobotlab` (cobotlab's scores and findings; an instructor's
   manual score or comment is never touched, so it wins on every regrade),
   :func:`withdraw_scores` (a submission the grader could not grade keeps no automatic
-  score). The late penalty is computed here, from the course's own rule.
+  score), :func:`remove_assignment` (`cobotlab labs remove`). The late penalty is computed
+  here, from the course's own rule.
 * The throwaway gradebooks of :mod:`autograder.scratch`: :func:`set_duedate` and
   :func:`template_cells` on the template cobotlab makes itself, :func:`read_scratch_scores`
   on one written next to student code (plain read-only SQL, validated values only).
@@ -41,7 +42,8 @@ from autograder.freeze import printable
 __all__ = ["CellScore", "problem", "backup", "restore", "create", "duedate", "results",
            "require_assignment", "read_submissions", "net_scores", "cells_and_comments",
            "write_nbgrader_cells", "write_cobotlab", "withdraw_scores", "set_duedate",
-           "template_cells", "read_scratch_scores", "class_scores"]
+           "template_cells", "read_scratch_scores", "class_scores",
+           "remove_assignment"]
 
 
 @dataclass(frozen=True)
@@ -545,5 +547,3 @@ def remove_assignment(root: Path, assignment: str) -> bool:
             return False
     return True
 
-
-__all__ += ["remove_assignment"]
