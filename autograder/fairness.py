@@ -37,7 +37,14 @@ __all__ = ["Caller", "DrawStats", "Loss", "TrivialGate", "TrivialScore", "TRIVIA
            "score_draws", "student_id", "trivial_gate"]
 
 Caller = Callable[[FunctionSpec, Trial], TrialOutcome]
-"""Runs the function under test on one problem: ``caller(spec, trial) -> TrialOutcome``."""
+"""Runs the function under test on one problem: ``caller(spec, trial) -> TrialOutcome``. A
+caller may also have ``many(spec, trials) -> list[TrialOutcome]``, a draw's problems at once
+(a sandboxed caller's one round trip): :func:`score_draws` then uses it."""
+
+
+def _outcomes(caller: Caller, spec: FunctionSpec, trials: list[Trial]) -> list[TrialOutcome]:
+    many = getattr(caller, "many", None)
+    return many(spec, trials) if many is not None else [caller(spec, t) for t in trials]
 
 
 def in_process(func) -> Caller:
@@ -233,7 +240,7 @@ def score_draws(spec: FunctionSpec, assignment: str, draws: range,
                 if not s.correct and mistakes_stop is not None and k >= mistakes_stop:
                     continue
                 started = time.perf_counter()
-                outcomes = [caller(spec, t) for t in trials]
+                outcomes = _outcomes(caller, spec, trials)
                 result = checks.score_function(spec, trials, outcomes, hints=False)
                 lost = result.points < spec.points
                 worst = [_worst_check(spec, t, o) for t, o in zip(trials, outcomes)] \

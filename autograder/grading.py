@@ -758,7 +758,43 @@ class Worker:
                                "substitutes": substitutes or {}},
                               WALL_STRETCH * wall + 2.0, self.limits.reply_kb * 1024,
                               limits=(timeout_s, wall, f"a call of {name}"))
+        return self._outcome(reply, time.monotonic() - started, forbidden_names)
+
+    def call_many(self, name: str, calls: list[tuple[tuple, dict | None]], timeout_s: float,
+                  forbidden_names=()) -> list[checks.TrialOutcome] | None:
+        """Each of ``calls`` ((args, stand-in tables)) as :meth:`call` would make it, in one
+        round trip; the outcomes up to the first that timed out. None when the batch cannot
+        stand for single calls: a reply that is not a batch, or a call that failed at its
+        wall clock rather than its CPU timer (only a single call can be judged starved:
+        make those calls one by one). A hang or death raises WorkerFailure, as for a call."""
+        wall = self.limits.wall_factor * timeout_s
+        started = time.monotonic()
+        reply = self._request({"op": "calls", "name": name, "timeout": timeout_s, "wall": wall,
+                               "forbidden": list(forbidden_names),
+                               "calls": [{"args": list(args), "substitutes": tables or {}}
+                                         for args, tables in calls]},
+                              len(calls) * (WALL_STRETCH * wall + 2.0),
+                              len(calls) * self.limits.reply_kb * 1024)
+        replies = reply.get("replies")
+        if reply.get("ok") is not True or not isinstance(replies, list) \
+                or not 0 < len(replies) <= len(calls) \
+                or not all(isinstance(r, dict) for r in replies):
+            return None
+        if any(r.get("ok") is not True and r.get("failure") == "timed_out"
+               and r.get("limit") != "cpu" for r in replies):
+            return None
         elapsed = time.monotonic() - started
+        outcomes = []
+        for r in replies:
+            seconds = r.get("seconds")
+            seconds = float(seconds) if isinstance(seconds, (int, float)) \
+                and 0 <= seconds <= elapsed else elapsed
+            outcomes.append(self._outcome(r, seconds, forbidden_names))
+        return outcomes
+
+    def _outcome(self, reply: dict, elapsed: float, forbidden_names) -> checks.TrialOutcome:
+        """The outcome one call's ``reply`` reports (its forbidden routines go to
+        ``tripped``); ``elapsed``: the call's wall-clock seconds."""
         tripped = reply.get("forbidden")
         if isinstance(tripped, list):
             self.tripped.update(str(t)[:80] for t in tripped[:8]
@@ -1028,17 +1064,20 @@ class NotebookRunner:
     indices of nbgrader's test cells, run on the first load only; ``routines``: the
     forbidden routines the worker takes hold of before any cell runs; ``cpu_s``: the
     worker's lifetime CPU limit (default: loading plus every function's trials, for
-    ``execution``'s assignment)."""
+    ``execution``'s assignment). ``batch_calls``: make a function's problems in one round trip
+    (``labs verify``'s thousands of reference calls); a batch that met a time-out, a wall
+    clock or a dead worker is made again call by call on a freshly loaded worker, so for a
+    function that keeps no state between calls :meth:`run` returns the same either way."""
 
     def __init__(self, cells, limits: Limits, execution: Execution | None = None,
                  tests: set[int] = frozenset(), cgroup=None, template=None, routines=(),
-                 cpu_s: int | None = None, run_tests: bool = False):
+                 cpu_s: int | None = None, run_tests: bool = False, batch_calls: bool = False):
         run = execution if execution is not None else Execution(student_id="", assignment="")
         if cpu_s is None:
             cpu_s = limits.worker_cpu_s(_specs(run.assignment))
         self.cells, self.limits, self.execution, self.tests = cells, limits, run, set(tests)
         self.cgroup, self.template, self.routines, self.cpu_s = cgroup, template, routines, cpu_s
-        self.run_tests = run_tests
+        self.run_tests, self.batch_calls = run_tests, batch_calls
         self.worker: Worker | None = None
         self.skip: set[int] = set()
         # over every restart, not since the start: a worker that dies late must still be
@@ -1087,6 +1126,10 @@ class NotebookRunner:
         each call within its CPU limit; after a time-out, or a call that stopped the worker,
         the rest are skipped, and past ``deadline`` (monotonic) nothing more runs. Raises
         :class:`GraderError` when the machine starved a call (the caller tries again)."""
+        if self.batch_calls and spec.drive is None and len(trials) > 1 and deadline == math.inf:
+            batched = self._batched(spec, trials)
+            if batched is not None:
+                return batched
         outcomes: list[checks.TrialOutcome] = []
         failure: checks.TrialOutcome | None = None   # what every later problem gets
         tripped: set[str] = set()
@@ -1126,6 +1169,28 @@ class NotebookRunner:
                     error=f"skipped: an earlier problem stopped the worker ({exc})",
                     failure=Failure(Failed.SKIPPED, cause=Cause.WORKER_STOPPED))
                 self.close()
+        return outcomes, tripped
+
+    def _batched(self, spec: checks.FunctionSpec, trials: list[checks.Trial]):
+        """:meth:`run`'s result from one round trip, or None where only single calls give
+        it: a call that timed out or found no function (the loop's skips follow from single
+        calls), a wall clock met (only a single call can be judged starved) or a worker that
+        died (which call killed it is not known). The worker is then stopped, so the calls
+        made again one by one meet a freshly loaded notebook, as the batch did not."""
+        try:
+            w = self.loaded()
+            calls = [(t.args, spec.substitutes(t.args) if spec.substitutes else None)
+                     for t in trials]
+            outcomes = w.call_many(spec.name, calls, self.limits.call_limit_s(spec),
+                                   spec.forbidden)
+        except WorkerFailure:
+            self.close()
+            return None
+        tripped = set(w.tripped)
+        w.tripped.clear()
+        if outcomes is None or len(outcomes) < len(trials):
+            self.close()
+            return None
         return outcomes, tripped
 
     def close(self) -> None:

@@ -347,7 +347,7 @@ class SandboxedReference:
         self.tripped: set[str] = set()
         # A day of CPU: the worker answers thousands of problems, and this is the author's
         # code. Each call's tripwire still sees the spec's forbidden routines.
-        self.runner = grading.NotebookRunner(self.cells, limits, cpu_s=86400)
+        self.runner = grading.NotebookRunner(self.cells, limits, cpu_s=86400, batch_calls=True)
         self.runner.loaded()
         self.load_errors = [f"cell {r.get('index')}: {r.get('error')}"
                             for r in self.runner.load_report if not r.get("ok")]
@@ -356,16 +356,22 @@ class SandboxedReference:
     def worker(self):
         return self.runner.worker
 
-    def __call__(self, spec: FunctionSpec, trial: Trial, retries: int = 1) -> checks.TrialOutcome:
+    def __call__(self, spec: FunctionSpec, trial: Trial) -> checks.TrialOutcome:
+        (outcome,) = self.many(spec, [trial])
+        return outcome
+
+    def many(self, spec: FunctionSpec, trials: list[Trial], retries: int = 1
+             ) -> list[checks.TrialOutcome]:
+        """The reference's outcomes on ``trials`` (one round trip where it can be)."""
         try:
-            (outcome,), tripped = self.runner.run(spec, [trial])
+            outcomes, tripped = self.runner.run(spec, trials)
         except grading.GraderError:   # a busy machine starved it: not the reference's loss
             self.runner.close()
             if retries:
-                return self(spec, trial, retries - 1)
+                return self.many(spec, trials, retries - 1)
             raise
         self.tripped |= tripped
-        return outcome
+        return outcomes
 
     def close(self) -> None:
         self.runner.close()
@@ -472,12 +478,20 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     def rng_of(student: str):
         return grading.problem_rng(SECRET, None, lab, student, spec.name)
 
-    def watched(spec_, trial):
-        if not seen_practice and _fingerprint(spec_, trial) in practice:
-            seen_practice.append(trial.label)
-        return reference(spec_, trial)
+    class Watched:
+        """The reference, watched for a hidden problem that is a practice problem."""
 
-    callers = {"reference": watched}
+        def __call__(self, spec_, trial):
+            (outcome,) = self.many(spec_, [trial])
+            return outcome
+
+        def many(self, spec_, trials):
+            for trial in trials:
+                if not seen_practice and _fingerprint(spec_, trial) in practice:
+                    seen_practice.append(trial.label)
+            return reference.many(spec_, trials)
+
+    callers = {"reference": Watched()}
     callers.update((m.label, fairness.in_process(m.func)) for m in spec.code_mistakes)
     totals: dict[str, fairness.DrawStats] = {}
     worst_draw, worst_margin = None, -math.inf

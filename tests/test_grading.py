@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from autograder import checks, grading
+from autograder.outcomes import Failed
 from autograder.inside import wire
 from robots import geometry as geo
 from solutions.registration import fit_rigid
@@ -543,3 +544,85 @@ def test_check_shows_a_table_in_jupyter_and_returns_nothing():
     page = checks._html_report(result)
     assert "<table>" in page and "invert_pose: 3 / 3 points" in page
     assert checks.check(_reference("invert_pose"), "invert_pose") is None
+
+
+# invert_pose whose behaviour is keyed on its input, so that single calls and a batch meet
+# each problem with the same behaviour: it answers, raises, returns what is not an array, or
+# reaches the routine the lab forbids; with LOOPS or DIES some problems time out or kill
+# the worker.
+KEYED = """
+import os
+import numpy as np
+from robots import geometry
+LOOPS = DIES = False
+def invert_pose(T):
+    kind = int(abs(T[0, 3]) * 1e6) % 6
+    if kind == 0:
+        raise ValueError("keyed")
+    if kind == 1:
+        return {"not": "an array"}
+    if kind == 2:
+        return geometry.invert(T)
+    if kind == 3 and LOOPS:
+        while True:
+            pass
+    if kind == 4 and DIES:
+        os.kill(os.getpid(), 9)
+    out = np.eye(4); out[:3, :3] = T[:3, :3].T; out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+"""
+
+
+def _seen(outcome) -> tuple:
+    import re
+
+    # how a killed worker's end reads ("killed", "exit code 137") depends on whether
+    # bubblewrap had noticed its child's death before the grader stopped it: a race of
+    # the two processes, not of the calls
+    error = outcome.error and re.sub(r"worker process stopped \([^;]*;", "worker process "
+                                     "stopped (...;", outcome.error)
+    value = outcome.value
+    value = np.round(np.asarray(value, float), 12).tolist() if isinstance(value, list) \
+        else value
+    failure = outcome.failure
+    return (repr(value), error,
+            None if failure is None else (failure.kind, failure.cause, failure.limit_s))
+
+
+@pytest.mark.parametrize("misbehaves", ["", "LOOPS = True", "DIES = True"])
+def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
+    """`labs verify` makes a draw's problems in one round trip; values, errors, failures,
+    skips and the tripwire's findings are those of one call each, and a batch that meets a
+    time-out or a dead worker is made again call by call."""
+    spec = checks.SPECS["lab0_frames"][0]
+    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=0.5, load_timeout_s=30)
+    cells = [KEYED, misbehaves]
+    singles = []
+    monkeypatch.setattr(grading.Worker, "call", lambda self, *a, _call=grading.Worker.call,
+                        **k: singles.append(a[0]) or _call(self, *a, **k))
+    kinds = set()
+    for seed in range(2):
+        trials = checks.make_trials(spec, np.random.default_rng(seed))
+        kinds |= {int(abs(t.args[0][0, 3]) * 1e6) % 6 for t in trials}
+        seen = {}
+        for batch in (False, True):
+            singles.clear()
+            runner = grading.NotebookRunner(cells, limits, cpu_s=600, batch_calls=batch)
+            try:
+                outcomes, tripped = runner.run(spec, trials)
+            finally:
+                runner.close()
+            seen[batch] = ([_seen(o) for o in outcomes], tripped)
+            if batch and not misbehaves:
+                assert singles == [], "the batch was made call by call"
+            if batch and misbehaves:
+                assert singles, "a batch that met a time-out or death must be made again"
+        assert seen[True] == seen[False], (misbehaves, seed)
+        results, tripped = seen[False]
+        errors = {r[2][0] for r in results if r[2] is not None}
+        if not misbehaves:
+            assert "robots.geometry.invert" in tripped and Failed.RAISED in errors
+        else:
+            assert ({Failed.TIMED_OUT, Failed.SKIPPED} if "LOOPS" in misbehaves
+                    else {Failed.WORKER_STOPPED, Failed.SKIPPED}) <= errors, errors
+    assert {0, 2, 3, 4, 5} <= kinds

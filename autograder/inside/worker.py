@@ -20,7 +20,11 @@ routines graded functions must not call (:class:`autograder.inside.tripwire.Guar
 "substitutes": {name: [[args, value], ...]}}`` calls a function by name, those routines
 poisoned and a tripwire on them (calls seen are reported as ``"forbidden"`` in the reply;
 the grader's own static scan is the authoritative rule, the report can only add to it),
-with the stand-ins of :mod:`autograder.inside.standin`; ``{"op": "quit"}``.
+with the stand-ins of :mod:`autograder.inside.standin`; ``{"op": "calls", "name": f,
+"calls": [{"args": [...], "substitutes": {...}}, ...], "timeout": s, "wall": w,
+"forbidden": [...]}`` makes those calls one after another, each as a "call" (its own limits),
+and replies ``{"ok": true, "replies": [...]}``, stopping after a call that timed out;
+``{"op": "quit"}``.
 """
 
 from __future__ import annotations
@@ -380,37 +384,61 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             reply["stdout"], reply["stderr"] = out.take(), err.take()
             send(rep_fd, reply)
         elif op == "call":
-            name = str(request.get("name"))
-            func = namespace.get(name)
-            if not callable(func):
-                send(rep_fd, {"ok": False, "error": f"no function named {name} is defined",
-                              "failure": "not_found"})
-                continue
-            args = request.get("args", [])
-            names = [str(n) for n in request.get("forbidden", [])]
-            watch = tripwire_of(names, guard=guard)
-            started, cpu_started = time.monotonic(), time.process_time()
-            try:
-                with standin.substituted(namespace, _tables(request)), watch:
-                    value = _run_guarded(lambda: _settled(func(*args)), *_limits_of(request))
-                reply = {"ok": True, "value": value}
-            except _Unsendable as exc:
-                reply = {"ok": False, "error": f"returned a value that is not an array or "
-                                               f"number ({exc})", "failure": "unusable"}
-            except BaseException as exc:  # noqa: BLE001
-                reply = _failure(exc)
-            if watch.hits:
-                reply["forbidden"] = sorted(watch.hits)
-            reply["seconds"] = time.monotonic() - started
-            reply["cpu_seconds"] = time.process_time() - cpu_started
-            reply["output_chars"] = out.total + err.total
+            reply = _called(namespace, request, request.get("args", []),
+                            _tables(request), guard, out, err, tripwire_of)
             try:
                 send(rep_fd, reply)
             except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
                 send(rep_fd, {"ok": False, "error": f"returned a value that is not an array "
                                                     f"or number ({exc})", "failure": "unusable"})
+        elif op == "calls":
+            # One round trip for many calls of one function (``labs verify``'s thousands of
+            # reference calls); each call keeps its own limits, tripwire and stand-ins, and
+            # the batch stops after a call that timed out, as the grader's loop would.
+            replies = []
+            for entry in request.get("calls", []):
+                entry = entry if isinstance(entry, dict) else {}
+                replies.append(_called(namespace, request, entry.get("args", []),
+                                       _tables(entry), guard, out, err, tripwire_of))
+                if replies[-1].get("failure") in ("timed_out", "not_found"):
+                    break
+            try:
+                send(rep_fd, {"ok": True, "replies": replies})
+            except (wire.WireError, TypeError, ValueError, OverflowError) as exc:
+                send(rep_fd, {"ok": False, "error": f"a batch reply could not be sent ({exc})"})
         else:
             send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
+
+
+def _called(namespace: dict, request: dict, args, tables: dict, guard, out, err,
+            tripwire_of) -> dict:
+    """The reply to one call of ``request["name"]`` on ``args`` (a "call" request, or one
+    entry of a "calls" batch): the value or the failure, the forbidden routines it reached,
+    its seconds and CPU seconds."""
+    name = str(request.get("name"))
+    func = namespace.get(name)
+    if not callable(func):
+        return {"ok": False, "error": f"no function named {name} is defined",
+                "failure": "not_found"}
+    args = args if isinstance(args, list) else []
+    names = [str(n) for n in request.get("forbidden", [])]
+    watch = tripwire_of(names, guard=guard)
+    started, cpu_started = time.monotonic(), time.process_time()
+    try:
+        with standin.substituted(namespace, tables), watch:
+            value = _run_guarded(lambda: _settled(func(*args)), *_limits_of(request))
+        reply = {"ok": True, "value": value}
+    except _Unsendable as exc:
+        reply = {"ok": False, "error": f"returned a value that is not an array or "
+                                       f"number ({exc})", "failure": "unusable"}
+    except BaseException as exc:  # noqa: BLE001 - a student's function may raise anything
+        reply = _failure(exc)
+    if watch.hits:
+        reply["forbidden"] = sorted(watch.hits)
+    reply["seconds"] = time.monotonic() - started
+    reply["cpu_seconds"] = time.process_time() - cpu_started
+    reply["output_chars"] = out.total + err.total
+    return reply
 
 
 # --------------------------------------------------------------------------- template mode
