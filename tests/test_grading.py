@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from autograder import checks, grading
-from autograder.outcomes import Failed
 from autograder.inside import wire
+from autograder.outcomes import Failed
 from robots import geometry as geo
 from solutions.registration import fit_rigid
 
