@@ -177,8 +177,14 @@ def execute_source(assignment: str, timeout_s: int = 180) -> nbformat.NotebookNo
         # another test's server before the kernel binds it ("Address already in use")
         km = KernelManager(kernel_name="python3", transport="ipc",
                            ip=str(Path(sockets) / "kernel"))
-        NotebookClient(nb, km=km, timeout=timeout_s, kernel_name="python3",
-                       resources={"metadata": {"path": str(path.parent)}}).execute()
+        try:
+            NotebookClient(nb, km=km, timeout=timeout_s, kernel_name="python3",
+                           resources={"metadata": {"path": str(path.parent)}}).execute()
+        finally:
+            # a client given its kernel manager leaves the kernel running: left, it outlived
+            # the test with its sockets gone and spent a tenth of a core until the suite ended
+            if km.has_kernel:
+                km.shutdown_kernel(now=True)
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
               if o.output_type == "error"]
     assert not errors, errors
