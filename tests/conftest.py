@@ -45,3 +45,49 @@ def _built_once_for_the_whole_run(tmp_path_factory):
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
     course_kit.BUILT_ONCE_DIR = shared / "built-once"
+
+
+def _kernels_under(pid: int) -> list[int]:
+    """The Jupyter kernels among ``pid``'s descendants."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat", "rb") as f:
+                    parents[int(entry)] = int(f.read().rsplit(b")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                pass
+    ours, grew = {pid}, True
+    while grew:
+        found = {p for p, parent in parents.items() if parent in ours} - ours
+        ours |= found
+        grew = bool(found)
+    kernels = []
+    for p in ours - {pid}:
+        try:
+            with open(f"/proc/{p}/cmdline", "rb") as f:
+                if b"ipykernel_launcher" in f.read():
+                    kernels.append(p)
+        except OSError:
+            pass
+    return kernels
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_kernel_outlives_its_file():
+    """A kernel a test file started is stopped by the end of that file: a leaked one (a
+    NotebookClient given its own kernel manager does not stop it) kept spending CPU for
+    the rest of the run, slowing every later test."""
+    import signal
+    import time
+
+    yield
+    deadline = time.monotonic() + 10   # a kernel asked to stop may take a moment
+    while (left := _kernels_under(os.getpid())) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    for pid in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert not left, f"this file's tests left {len(left)} Jupyter kernel(s) running"
