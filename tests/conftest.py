@@ -49,21 +49,10 @@ def _built_once_for_the_whole_run(tmp_path_factory):
 
 def _kernels_under(pid: int) -> list[int]:
     """The Jupyter kernels among ``pid``'s descendants."""
-    parents = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat", "rb") as f:
-                    parents[int(entry)] = int(f.read().rsplit(b")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                pass
-    ours, grew = {pid}, True
-    while grew:
-        found = {p for p, parent in parents.items() if parent in ours} - ours
-        ours |= found
-        grew = bool(found)
+    from autograder import sandbox
+
     kernels = []
-    for p in ours - {pid}:
+    for p in sandbox._descendants(pid):
         try:
             with open(f"/proc/{p}/cmdline", "rb") as f:
                 if b"ipykernel_launcher" in f.read():
