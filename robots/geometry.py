@@ -29,7 +29,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 #: Rotation blocks with max |R^T R - I| up to this pass validation unchanged.
 ORTHONORMAL_TOL = 1e-6
@@ -72,6 +71,8 @@ __all__ = [
     "rotvec_from_pose",
     "pose_from_quat_xyzw",
     "quat_xyzw_from_pose",
+    "quat_xyzw_from_rotation",
+    "slerp_rotations",
     "pose_from_rpy",
     "rpy_from_pose",
     "pose_from_euler_zyx",
@@ -670,13 +671,68 @@ def pose_from_quat_xyzw(quat_xyzw, t=None) -> np.ndarray:
         [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]]), t)
 
 
+def _scipy_rotation():
+    """scipy's ``Rotation``, imported on first use: importing ``scipy.spatial`` costs about
+    0.5 s of CPU (its k-d trees and sparse matrices come with it), which every ``import
+    robots`` and every simulated workcell paid (each student kernel, each grading worker) for
+    the conversions to Euler angles below, the only users here."""
+    from scipy.spatial.transform import Rotation
+    return Rotation
+
+
+def quat_xyzw_from_rotation(R) -> np.ndarray:
+    """(4,) unit quaternion (x, y, z, w) with w >= 0 of a (3, 3) rotation matrix.
+
+    Shepperd's method: the quaternion component of largest magnitude is taken from the
+    trace or the largest diagonal entry, the other three from sums and differences of the
+    off-diagonal entries, so no division is by a small number at any angle. The inverse of
+    ``pose_from_quat_xyzw``; a block that is not orthonormal to 1e-9 is projected onto SO(3)
+    first."""
+    if type(R) is not np.ndarray or R.dtype is not _F64:
+        R = as_real_array(R, "R")
+    if R.shape != (3, 3):
+        raise ValueError(f"quat_xyzw_from_rotation needs a (3, 3) rotation R, got shape "
+                         f"{R.shape}")
+    entries = _exact_rotation_entries(R)
+    if entries is None:
+        entries = _exact_rotation_entries(project_to_so3(R, "R"))
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = entries
+    trace = m00 + m11 + m22
+    largest = max(trace, m00, m11, m22)
+    if largest == trace:
+        w = 0.5 * math.sqrt(1.0 + trace)
+        k = 0.25 / w
+        x, y, z = (m21 - m12) * k, (m02 - m20) * k, (m10 - m01) * k
+    elif largest == m00:
+        x = 0.5 * math.sqrt(1.0 + m00 - m11 - m22)
+        k = 0.25 / x
+        w, y, z = (m21 - m12) * k, (m01 + m10) * k, (m02 + m20) * k
+    elif largest == m11:
+        y = 0.5 * math.sqrt(1.0 - m00 + m11 - m22)
+        k = 0.25 / y
+        w, x, z = (m02 - m20) * k, (m01 + m10) * k, (m12 + m21) * k
+    else:
+        z = 0.5 * math.sqrt(1.0 - m00 - m11 + m22)
+        k = 0.25 / z
+        w, x, y = (m10 - m01) * k, (m02 + m20) * k, (m12 + m21) * k
+    sign = -1.0 if w < 0 else 1.0
+    norm = sign * math.sqrt(x * x + y * y + z * z + w * w)
+    return np.array([x / norm, y / norm, z / norm, w / norm])
+
+
+def slerp_rotations(R0, R1, fractions) -> np.ndarray:
+    """(N, 3, 3) rotations a fraction s of the way from R0 to R1 along the shortest arc,
+    ``R0 @ exp(s * log(R0^T R1))``, one for each s in ``fractions`` (0 gives R0, 1 gives R1)."""
+    R0 = as_rotation(R0, "R0")
+    step = rotvec_from_rotation(R0.T @ as_rotation(R1, "R1"))
+    fractions = np.asarray(fractions, dtype=float).reshape(-1)
+    return np.stack([R0 @ rotation_from_rotvec(s * step) for s in fractions.tolist()])
+
+
 def quat_xyzw_from_pose(T) -> tuple[np.ndarray, np.ndarray]:
     """(unit quaternion in (x, y, z, w) order with w >= 0, translation in metres) of a pose."""
     T = as_pose(T)
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    if q[3] < 0:
-        q = -q
-    return q, T[:3, 3].copy()
+    return quat_xyzw_from_rotation(T[:3, :3]), T[:3, 3].copy()
 
 
 def _euler_angles(names, values, degrees: bool) -> list:
@@ -703,14 +759,25 @@ def pose_from_rpy(roll, pitch, yaw, t=None, degrees: bool = False) -> np.ndarray
 
     Radians unless ``degrees=True``; an angle above 2 pi in radians warns (degrees?), NaN
     or inf raises ``ValueError``."""
-    angles = _euler_angles(("roll", "pitch", "yaw"), (roll, pitch, yaw), degrees)
-    rot = Rotation.from_euler("xyz", angles, degrees=degrees)
-    return _pose_from_rotation(rot.as_matrix(), t)
+    roll, pitch, yaw = _euler_angles(("roll", "pitch", "yaw"), (roll, pitch, yaw), degrees)
+    return _pose_from_rotation(_rotation_from_rpy(roll, pitch, yaw, degrees), t)
+
+
+def _rotation_from_rpy(roll: float, pitch: float, yaw: float, degrees: bool) -> np.ndarray:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, multiplied out."""
+    if degrees:
+        roll, pitch, yaw = math.radians(roll), math.radians(pitch), math.radians(yaw)
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
 
 
 def rpy_from_pose(T, degrees: bool = False) -> np.ndarray:
     """(roll, pitch, yaw) such that ``pose_from_rpy(roll, pitch, yaw)`` has T's rotation."""
-    return Rotation.from_matrix(as_pose(T)[:3, :3]).as_euler("xyz", degrees=degrees)
+    return _scipy_rotation().from_matrix(as_pose(T)[:3, :3]).as_euler("xyz", degrees=degrees)
 
 
 def pose_from_euler_zyx(yaw, pitch, roll, t=None, degrees: bool = False) -> np.ndarray:
@@ -719,14 +786,13 @@ def pose_from_euler_zyx(yaw, pitch, roll, t=None, degrees: bool = False) -> np.n
     The same rotation as ``pose_from_rpy(roll, pitch, yaw)``; offered because drivers such as
     Aubo's report (rz, ry, rx) in ZYX order.
     """
-    angles = _euler_angles(("yaw", "pitch", "roll"), (yaw, pitch, roll), degrees)
-    rot = Rotation.from_euler("ZYX", angles, degrees=degrees)
-    return _pose_from_rotation(rot.as_matrix(), t)
+    yaw, pitch, roll = _euler_angles(("yaw", "pitch", "roll"), (yaw, pitch, roll), degrees)
+    return _pose_from_rotation(_rotation_from_rpy(roll, pitch, yaw, degrees), t)
 
 
 def euler_zyx_from_pose(T, degrees: bool = False) -> np.ndarray:
     """(yaw, pitch, roll), intrinsic Z-Y'-X'', of a pose's rotation."""
-    return Rotation.from_matrix(as_pose(T)[:3, :3]).as_euler("ZYX", degrees=degrees)
+    return _scipy_rotation().from_matrix(as_pose(T)[:3, :3]).as_euler("ZYX", degrees=degrees)
 
 
 # --------------------------------------------------------------------------- errors and averages

@@ -32,9 +32,15 @@ from pathlib import Path
 import numpy as np
 import pybullet as p
 import pybullet_data
-from scipy.spatial.transform import Rotation, Slerp
 
-from robots.geometry import as_pose, invert, pose_from_quat_xyzw, quat_xyzw_from_pose
+from robots.geometry import (
+    as_pose,
+    invert,
+    pose_from_quat_xyzw,
+    quat_xyzw_from_pose,
+    quat_xyzw_from_rotation,
+    slerp_rotations,
+)
 from robots.interfaces import UnreachableError
 from sim_backends.ik import KinematicModel, pose_error
 
@@ -330,8 +336,7 @@ class SimArm:
         dist = float(np.linalg.norm(target[:3, 3] - start[:3, 3]))
         angle = np.radians(pose_error(start, target)[1])
         n = max(1, int(np.ceil(max(dist / LINEAR_STEP_M, angle / LINEAR_STEP_RAD))))
-        slerp = Slerp([0.0, 1.0], Rotation.from_matrix([start[:3, :3], target[:3, :3]]))
-        rotations = slerp(np.arange(1, n + 1) / n).as_matrix()  # one call: scipy's is slow
+        rotations = slerp_rotations(start[:3, :3], target[:3, :3], np.arange(1, n + 1) / n)
         path, q_prev = [], start_q
         for k in range(1, n + 1):
             s = k / n
@@ -422,7 +427,7 @@ class SimArm:
             world_T_flange = self.world_T_flange()
             for body, flange_T_body in self._attached.items():
                 T = world_T_flange @ flange_T_body
-                pos, quat = T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_quat()
+                pos, quat = T[:3, 3], quat_xyzw_from_rotation(T[:3, :3])
                 p.resetBasePositionAndOrientation(body, list(pos), list(quat), physicsClientId=c)
                 p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
 

@@ -20,9 +20,14 @@ from pathlib import Path
 
 import numpy as np
 import pybullet as p
-from scipy.spatial.transform import Rotation
 
-from robots.geometry import as_pose, pose_from_quat_xyzw, rotation_angle_deg, rotvec_from_rotation
+from robots.geometry import (
+    as_pose,
+    pose_from_quat_xyzw,
+    quat_xyzw_from_rotation,
+    rotation_angle_deg,
+    rotvec_from_rotation,
+)
 from robots.interfaces import UnreachableError
 
 __all__ = ["POSITION_TOL_M", "ROTATION_TOL_DEG", "KinematicModel", "pose_error"]
@@ -187,7 +192,7 @@ class KinematicModel:
     def _pybullet_guess(self, target: np.ndarray, seed: np.ndarray) -> np.ndarray:
         full = self._full_q.copy()
         full[self._cols] = seed
-        quat = Rotation.from_matrix(target[:3, :3]).as_quat()
+        quat = quat_xyzw_from_rotation(target[:3, :3])
         sol = p.calculateInverseKinematics(
             self.body, self.flange, list(target[:3, 3]), list(quat),
             lowerLimits=list(self._full_lo), upperLimits=list(self._full_hi),

@@ -22,9 +22,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pybullet as p
-from scipy.spatial.transform import Rotation
 
-from robots.geometry import as_pose, compose, invert, make_pose, pose_from_rpy
+from robots.geometry import (
+    as_pose,
+    compose,
+    invert,
+    make_pose,
+    pose_from_rpy,
+    quat_xyzw_from_rotation,
+)
 
 # Square names come from the student-facing helpers (robots never imports sim_backends).
 from robots.perception import FILES, square_index, square_name
@@ -69,7 +75,7 @@ def pose_of_body(client: int, body: int) -> np.ndarray:
 def set_pose_of_body(client: int, body: int, world_T_body) -> None:
     """Teleport a body's base frame to a world pose (and zero its velocity)."""
     T = as_pose(world_T_body, "world_T_body")
-    quat = Rotation.from_matrix(T[:3, :3]).as_quat()
+    quat = quat_xyzw_from_rotation(T[:3, :3])
     p.resetBasePositionAndOrientation(body, T[:3, 3].tolist(), quat.tolist(),
                                       physicsClientId=client)
     p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=client)
@@ -109,7 +115,7 @@ def add_target(client: int, target: Target, world_T_target, thickness: float = 0
         w, h = target.size
         centre_print = np.array([w / 2, h / 2, thickness / 2, 1.0])
         target_T_print = invert(target.print_T_target)
-        quat = Rotation.from_matrix(target_T_print[:3, :3]).as_quat()
+        quat = quat_xyzw_from_rotation(target_T_print[:3, :3])
         col = p.createCollisionShape(
             p.GEOM_BOX, halfExtents=[w / 2, h / 2, thickness / 2],
             collisionFramePosition=(target_T_print @ centre_print)[:3].tolist(),
@@ -118,7 +124,7 @@ def add_target(client: int, target: Target, world_T_target, thickness: float = 0
         )
     body = p.createMultiBody(
         mass, col, vis, world_T_target[:3, 3].tolist(),
-        Rotation.from_matrix(world_T_target[:3, :3]).as_quat().tolist(),
+        quat_xyzw_from_rotation(world_T_target[:3, :3]).tolist(),
         physicsClientId=client,
     )
     tex = p.loadTexture(str(png), physicsClientId=client)
@@ -253,7 +259,7 @@ def _piece_body(client: int, kind: str, colour: str, world_T_piece, mass=0.03,
     T = as_pose(world_T_piece, "world_T_piece")
     # Inertial frame at the base centre (low and stable); the link frame is the piece frame.
     body = p.createMultiBody(mass, col, vis, T[:3, 3].tolist(),
-                             Rotation.from_matrix(T[:3, :3]).as_quat().tolist(),
+                             quat_xyzw_from_rotation(T[:3, :3]).tolist(),
                              baseInertialFramePosition=[0, 0, 0], physicsClientId=client)
     p.changeDynamics(body, -1, lateralFriction=0.9, spinningFriction=0.01,
                      rollingFriction=0.001, physicsClientId=client)

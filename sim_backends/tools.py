@@ -13,9 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 import pybullet as p
-from scipy.spatial.transform import Rotation
 
-from robots.geometry import as_pose, invert, make_pose, pose_from_quat_xyzw
+from robots.geometry import (
+    as_pose,
+    invert,
+    make_pose,
+    pose_from_quat_xyzw,
+    quat_xyzw_from_rotation,
+)
 from robots.interfaces import Gripper, Pointer, Robot, SuctionCup
 from sim_backends.arms import URDF_DIR, SimArm
 
@@ -92,7 +97,7 @@ class _Holder:
 
 
 def _quat(T: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(T[:3, :3]).as_quat()
+    return quat_xyzw_from_rotation(T[:3, :3])
 
 
 def _mount_tool_body(arm: SimArm, urdf_name: str) -> int:

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as p
-from scipy.spatial.transform import Rotation
 
 from robots.geometry import (
     compose,
@@ -46,6 +45,7 @@ from robots.geometry import (
     make_pose,
     pose_from_rotvec,
     pose_from_rpy,
+    quat_xyzw_from_rotation,
     transform_points,
 )
 from robots.interfaces import Intrinsics, UnreachableError, Workcell
@@ -565,7 +565,7 @@ def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.n
                               rgbaColor=[0.06, 0.06, 0.07, 1.0], physicsClientId=client)
     col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, collisionFramePosition=below,
                                  physicsClientId=client)
-    quat = Rotation.from_matrix(world_T_rectangle[:3, :3]).as_quat()
+    quat = quat_xyzw_from_rotation(world_T_rectangle[:3, :3])
     p.createMultiBody(0, col, vis, world_T_rectangle[:3, 3].tolist(), quat.tolist(),
                       physicsClientId=client)
     return world_T_rectangle

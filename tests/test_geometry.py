@@ -99,6 +99,30 @@ def test_fast_conversions_agree_with_scipy_at_every_branch(angle):
         assert geo.rotation_angle_deg(R[None])[0] == pytest.approx(np.degrees(angle), abs=1e-12)
         q = Rotation.from_matrix(R).as_quat()
         np.testing.assert_allclose(geo.pose_from_quat_xyzw(3.0 * q)[:3, :3], R, atol=2e-15)
+        # each of Shepperd's four branches meets these (trace or a diagonal entry largest)
+        mine = geo.quat_xyzw_from_rotation(R)
+        assert mine[3] >= 0.0
+        np.testing.assert_allclose(mine, q if q[3] >= 0 else -q, atol=1e-15)
+
+
+@pytest.mark.parametrize("angle", EDGE_ANGLES)
+def test_slerp_follows_scipys_shortest_arc_at_every_branch(angle):
+    from scipy.spatial.transform import Slerp
+
+    rng = np.random.default_rng(11)
+    fractions = np.linspace(0.0, 1.0, 9)
+    for _ in range(10):
+        R0 = Rotation.random(random_state=rng).as_matrix()
+        axis = rng.normal(size=3)
+        R1 = R0 @ Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
+        mine = geo.slerp_rotations(R0, R1, fractions)
+        np.testing.assert_allclose(mine[0], R0, atol=1e-15)
+        np.testing.assert_allclose(mine[-1], R1, atol=2e-15)
+        if angle < np.pi:   # at 180 deg either way round is a shortest arc
+            scipys = Slerp([0.0, 1.0], Rotation.from_matrix([R0, R1]))(fractions).as_matrix()
+            np.testing.assert_allclose(mine, scipys, atol=1e-14)
+        steps = [geo.rotation_angle_deg(a.T @ b) for a, b in zip(mine[:-1], mine[1:])]
+        np.testing.assert_allclose(steps, np.degrees(angle) / 8, atol=1e-9)
 
 
 def test_stacked_rotvecs_equal_the_single_conversion_at_every_branch():
