@@ -1,9 +1,26 @@
-"""Shared pytest settings: a deterministic hypothesis profile (reproducible CI runs), slow
-test files collected first, and one folder per run for what is built once and shared."""
+"""Shared pytest settings: one BLAS and OpenCV thread per process, a deterministic
+hypothesis profile (reproducible CI runs), slow test files collected first, and one folder
+per run for what is built once and shared."""
 import os
+import sys
+import warnings
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+# ``make test`` runs three pytest workers on two cores, and each starts kernels, graders and
+# command lines of its own: the machine is saturated for the whole run. A multi-threaded
+# BLAS there makes every numpy call wait for its threads, one of which is always descheduled
+# (OpenBLAS's threads spin until all are done): a simulation test took 34 s of wall clock
+# and 17.5 s of CPU with OpenBLAS's default two threads beside another busy process, 17 s and
+# 12.6 s with one. Set before anything imports numpy (which reads them once), inherited by
+# every process a test starts; a variable already set is left as it is.
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
+              "OPENCV_FOR_THREADS_NUM"):
+    os.environ.setdefault(_name, "1")
+if "numpy" in sys.modules:   # a plugin imported it first: this process keeps its threads
+    warnings.warn("numpy was imported before tests/conftest.py set one BLAS thread: this "
+                  "pytest process runs its BLAS multi-threaded", stacklevel=1)
 
 settings.register_profile(
     "cobotlab", max_examples=200, deadline=None, derandomize=True,

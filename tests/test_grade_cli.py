@@ -75,6 +75,14 @@ def _still_running(seen: dict[int, str]) -> list[str]:
     return left
 
 
+def as_a_terminal_starts_it() -> None:
+    """``preexec_fn`` for a command a test will interrupt: SIGINT at its default action, as
+    for a terminal's foreground job. A shell without job control starts its background jobs
+    with SIGINT ignored, which every child inherits and Python then keeps (no
+    KeyboardInterrupt): a suite started that way would see the CLI ignore its Ctrl-C."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt_once_running(cli: subprocess.Popen, runner: str, seen: dict[int, str]) -> str:
     """Wait until a process named ``runner`` runs below the grading CLI (the notebook is
     then inside its sleep), send the CLI alone SIGINT, as a terminal's Ctrl-C reaches it,
@@ -113,7 +121,8 @@ def test_ctrl_c_stops_nbgrader_its_kernel_and_every_sandbox(released, tmp_path, 
     env = {k: v for k, v in os.environ.items() if k != "COBOTLAB_GRADING_SECRET"}
     cli = subprocess.Popen([sys.executable, "-m", "cobotlab.cli", "grade", str(course),
                             ASSIGNMENT, "--no-progress", *([option] if option else [])],
-                           cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                           cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           preexec_fn=as_a_terminal_starts_it)
     seen: dict[int, str] = {}
     err = interrupt_once_running(cli, runner, seen)
     assert cli.returncode == 130, err[-2000:]

@@ -52,7 +52,7 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 from test_course_install import _link_tree, cobotlab_wheel
-from test_grade_cli import _still_running, interrupt_once_running
+from test_grade_cli import _still_running, as_a_terminal_starts_it, interrupt_once_running
 
 from autograder import checks, sandbox
 
@@ -381,7 +381,8 @@ def test_ctrl_c_stops_every_process_in_the_fallback(ta, option, runner):
     argv = [ta.env_dir / "bin" / "cobotlab", "grade", course, ASSIGNMENT, "--no-progress",
             *([option] if option else [])]
     cli = subprocess.Popen(ta.argv(argv, userns=False), cwd=ta.work, env=ta.env,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           preexec_fn=as_a_terminal_starts_it)
     seen: dict[int, str] = {}
     try:
         err = interrupt_once_running(cli, runner, seen)
