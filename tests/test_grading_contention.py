@@ -163,15 +163,21 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
 
 LAB = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
-# A correct notebook whose invert_pose cell needs 1.5 s of CPU before it defines the
-# function (8 s allowed, 16 s of wall clock: a tenth of the core is enough, so a busy
-# machine around the test does not starve it; beside the hog's twenty processes without
-# a share of its own it got a twentieth): stopped, it leaves invert_pose undefined.
+# A correct notebook whose invert_pose cell needs 0.75 s of CPU before it defines the
+# function, and refuses to define it when that took more than 7 s of wall clock: it needs a
+# tenth of the core, so a busy machine around the test does not starve it. Beside the hog's
+# twenty busy processes it gets half the core with a share per submission, a twenty-first
+# without: stopped, it leaves invert_pose undefined. (The grader's own wall clock would not
+# tell the two apart: the seconds a cell waited for a CPU are added back to it.) A cell
+# before it waits until the hog's crowd is running.
+WAIT_FOR_THE_HOG = "import time\ntime.sleep(2.0)\n"
 NEEDS_CPU = """\
-import time
-_start = time.process_time()
-while time.process_time() - _start < 1.5:
+_wall, _cpu = time.monotonic(), time.process_time()
+while time.process_time() - _cpu < 0.75:
     pass
+_wall = time.monotonic() - _wall
+if _wall > 7.0:
+    raise RuntimeError(f"starved: 0.75 s of CPU took {_wall:.1f} s of wall clock")
 """
 
 
@@ -182,18 +188,22 @@ def test_a_correct_submission_beside_a_cpu_hog_scores_full_marks(tmp_path):
     """tests/adversarial/cpu_hog.py (a bounded crowd of busy processes) and a correct
     notebook graded at once, ``--workers 2`` on one core, with a notebook whose function
     sleeps (charged its time-out as ever). Without a CPU share per submission the correct
-    notebook's cell met its wall clock and the function it defines scored 0."""
+    notebook gets a twenty-first of the core, its cell refuses to define invert_pose and
+    the function scores 0 (checked by running this test with the share switched off)."""
     course = kit.released_course(tmp_path, LAB)
     reference = kit.solution_sources(LAB, FUNCTIONS)
     kit.submit(course, LAB, "correct",
-               replace=dict(reference, invert_pose=NEEDS_CPU + reference["invert_pose"]))
+               replace=dict(reference, invert_pose=NEEDS_CPU + reference["invert_pose"]),
+               extra=WAIT_FOR_THE_HOG)
     hog = kit.corpus(LAB)["cpu_hog"]
     kit.submit_case(course, LAB, "cpu_hog", hog)
     sleeps = reference["invert_pose"].replace("    R = ", "    time.sleep(100)\n    R = ", 1)
     assert sleeps != reference["invert_pose"]
     kit.submit(course, LAB, "sleeper", replace=dict(reference, invert_pose=sleeps),
                extra="import time\n")
-    limits = grading.Limits(cell_timeout_s=8, call_timeout_s=2, load_timeout_s=60,
+    # 4 s of CPU a cell (8 s of wall clock): the sleeper's three test cells and the hog's
+    # sleeping cells each wait that long, so the hog's crowd spins that long too.
+    limits = grading.Limits(cell_timeout_s=4, call_timeout_s=2, load_timeout_s=60,
                             wall_factor=2)
     with _one_core():
         rows = grading_rows(course, limits)
