@@ -209,15 +209,19 @@ def test_check_on_practice_data_gives_the_same_table(lab, practice_dir, monkeypa
     seen = 0
     for spec in checks.SPECS[lab]:
         assert table[spec.name][0].name == "notebook solution"
-        for variant in table[spec.name]:
-            for seeds in (checks.PUBLIC_SEEDS, checks.KERNEL_SEEDS):
+        for k, variant in enumerate(table[spec.name]):
+            # Both seed sets go through the same encoding and the same scoring: the solution
+            # and the first other variant meet both, the rest the public seeds only (the
+            # kernel seeds' problems of every function are compared one by one above).
+            for seeds in ((checks.PUBLIC_SEEDS, checks.KERNEL_SEEDS) if k < 2
+                          else (checks.PUBLIC_SEEDS,)):
                 what = f"{lab}.{spec.name} ({variant.name}) on seeds {seeds}"
                 before = _before(spec, variant.func, seeds)
                 after = checks.evaluate(variant.func, spec.name, seeds, lab, reference=True)
                 _assert_same(before, after, what)
                 seen += 1
         assert practice.load_practice(lab).source.startswith(str(practice_dir))
-    assert seen >= 2 * 3 * len(checks.SPECS[lab])
+    assert seen >= 5 * len(checks.SPECS[lab])
 
 
 # --------------------------------------------------------------------------- no answer code
