@@ -680,6 +680,12 @@ def _scipy_rotation():
     return Rotation
 
 
+# DESIGN.md builds the pose math on scipy's Rotation. The simulator's conversions below are
+# written out instead, as the rotation-vector ones above are for speed: importing
+# scipy.spatial costs ~0.5 s of CPU in every process that connects the simulator (each
+# student kernel, each grading worker). tests/test_geometry.py holds them to scipy's at every
+# branch; the inverse Euler conversions, which need scipy's gimbal-lock handling, stay on it.
+
 def quat_xyzw_from_rotation(R) -> np.ndarray:
     """(4,) unit quaternion (x, y, z, w) with w >= 0 of a (3, 3) rotation matrix.
 
