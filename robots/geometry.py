@@ -585,20 +585,27 @@ def _rotation_from_components(x: float, y: float, z: float, theta: float) -> np.
         [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)]])
 
 
+def _rotation_entries(R, caller: str) -> list:
+    """The entries of a (3, 3) rotation as floats, for the plain-float conversions; a block
+    that is not orthonormal to 1e-9 is projected onto SO(3) first. ``caller`` names the
+    function in the error for a wrong shape."""
+    if type(R) is not np.ndarray or R.dtype is not _F64:
+        R = as_real_array(R, "R")
+    if R.shape != (3, 3):
+        raise ValueError(f"{caller} needs a (3, 3) rotation R, got shape {R.shape}")
+    entries = _exact_rotation_entries(R)
+    if entries is None:
+        entries = _exact_rotation_entries(project_to_so3(R, "R"))
+    return entries
+
+
 def rotvec_from_rotation(R) -> np.ndarray:
     """(3,) rotation vector (radians, angle in [0, pi]) of a (3, 3) rotation.
 
     A block that is not orthonormal to 1e-9 is projected onto SO(3) first (as scipy's
     ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector.
     """
-    if type(R) is not np.ndarray or R.dtype is not _F64:
-        R = as_real_array(R, "R")
-    if R.shape != (3, 3):
-        raise ValueError(f"rotvec_from_rotation needs a (3, 3) rotation R, got shape {R.shape}")
-    entries = _exact_rotation_entries(R)
-    if entries is None:
-        entries = _exact_rotation_entries(project_to_so3(R, "R"))
-    (a, b, c), (d, e, f), (g, h, i) = entries
+    (a, b, c), (d, e, f), (g, h, i) = _rotation_entries(R, "rotvec_from_rotation")
     wx, wy, wz = h - f, c - g, d - b  # 2 sin(theta) * axis
     sin = math.sqrt(wx * wx + wy * wy + wz * wz) / 2.0
     cos = (a + e + i - 1.0) / 2.0
@@ -694,15 +701,8 @@ def quat_xyzw_from_rotation(R) -> np.ndarray:
     off-diagonal entries, so no division is by a small number at any angle. The inverse of
     ``pose_from_quat_xyzw``; a block that is not orthonormal to 1e-9 is projected onto SO(3)
     first."""
-    if type(R) is not np.ndarray or R.dtype is not _F64:
-        R = as_real_array(R, "R")
-    if R.shape != (3, 3):
-        raise ValueError(f"quat_xyzw_from_rotation needs a (3, 3) rotation R, got shape "
-                         f"{R.shape}")
-    entries = _exact_rotation_entries(R)
-    if entries is None:
-        entries = _exact_rotation_entries(project_to_so3(R, "R"))
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = entries
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = _rotation_entries(
+        R, "quat_xyzw_from_rotation")
     trace = m00 + m11 + m22
     largest = max(trace, m00, m11, m22)
     if largest == trace:
