@@ -66,17 +66,12 @@ def _built_once_for_the_whole_run(tmp_path_factory):
 
 def _kernels_under(pid: int) -> list[int]:
     """The Jupyter kernels among ``pid``'s descendants."""
+    import course_kit
+
     from autograder import sandbox
 
-    kernels = []
-    for p in sandbox._descendants(pid):
-        try:
-            with open(f"/proc/{p}/cmdline", "rb") as f:
-                if b"ipykernel_launcher" in f.read():
-                    kernels.append(p)
-        except OSError:
-            pass
-    return kernels
+    return [p for p in sandbox._descendants(pid)
+            if "ipykernel_launcher" in course_kit.cmdline(p)]
 
 
 @pytest.fixture(scope="module", autouse=True)

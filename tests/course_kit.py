@@ -28,6 +28,14 @@ from autograder import grading, registry
 from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
 
 
+def cmdline(pid: int) -> str:
+    """``pid``'s command line, its arguments joined by spaces ("" once it has ended)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
 def source_notebook(assignment: str) -> Path:
     """The source notebook of a built-in lab, or of the current course's own lab."""
     lab = registry.find_lab(assignment)

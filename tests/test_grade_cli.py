@@ -59,19 +59,12 @@ def _descendants(root: int) -> dict[int, str]:
     return found
 
 
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
-
-
 def _still_running(seen: dict[int, str]) -> list[str]:
     left = []
     for pid, start in seen.items():
         info = _stat(pid)
         if info is not None and info[2] == start and info[1] != "Z":
-            left.append(f"{pid} {_cmdline(pid)[:120]}")
+            left.append(f"{pid} {kit.cmdline(pid)[:120]}")
     return left
 
 
@@ -93,7 +86,7 @@ def interrupt_once_running(cli: subprocess.Popen, runner: str, seen: dict[int, s
         sleeper = None
         while sleeper is None and time.monotonic() < deadline and cli.poll() is None:
             seen.update(_descendants(cli.pid))
-            sleeper = next((p for p in seen if runner in _cmdline(p)), None)
+            sleeper = next((p for p in seen if runner in kit.cmdline(p)), None)
             time.sleep(0.3)
         assert sleeper is not None, (f"{runner} never started",
                                      cli.poll(), cli.stderr.read() if cli.poll() else "")
