@@ -375,9 +375,25 @@ FOOL_NBGRADER = ("sys_modules", "numpy_patch", "kernel_patch")
 WEDGE_NBGRADER = ("forge_protocol",)
 
 
-# Graded once in the corpus batch, forked from the template only: a pass costs 25 s of CPU,
-# all of it its cells and calls looping until their limits stop them. A cold worker's
-# time-outs are tested on their own (tests/test_grading_contention.py, both ways).
+def full_corpus() -> bool:
+    """True when COBOTLAB_FULL_CORPUS=1 (benchmarks/adversarial_corpus.py sets it): the
+    corpus is graded in full in every mode the suite repeats it in (each lab 0 case also
+    started cold, as the unprivileged user, and on labs 3-5). A suite run grades every case
+    once on lab 0 and repeats the slices below, the cases each repetition can tell apart."""
+    return os.environ.get("COBOTLAB_FULL_CORPUS") == "1"
+
+
+# The cases whose grade a template's forks could change, graded cold too in a suite run:
+# they patch what the forks share with the template (sys.modules, numpy, the kernel, the
+# exception hook, the frames on the stack), start threads, fill memory whose pages a fork
+# shares, forge replies on the pipe the template opened, or hunt for secrets in what the
+# forks inherit. The others never meet the template's state.
+REGRADED_COLD = ("exception_handler", "forbidden_thread", "forge_protocol", "kernel_patch",
+                 "memory_bomb", "numpy_patch", "secret_hunt", "stack_peek", "sys_modules")
+# Graded once in the corpus batch, forked from the template only, even in the full corpus: a
+# pass costs 25 s of CPU, all of it its cells and calls looping until their limits stop them.
+# A cold worker's time-outs are tested on their own (tests/test_grading_contention.py, both
+# ways).
 NOT_REGRADED_COLD = ("infinite_loop",)
 
 
@@ -404,6 +420,7 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     course = fresh_course(released, tmp_path)
     cases = {n: c for n, c in corpus(lab).items() if n in names}
     assert sorted(cases) == sorted(names), "unknown or non-notebook cases"
+    assert set(REGRADED_COLD) <= set(corpus(lab)), "a renamed case: update REGRADED_COLD"
     for name, case in cases.items():
         submit(course, lab, name, replace=case["replace"], extra=case["extra"],
                mangle=case["mangle"])
@@ -421,17 +438,20 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
                             wall_factor=2)
     # Graded twice: each worker forked from a template (the default) and each a new
-    # interpreter; the template must change no score and no flag. Not twice: the cases
-    # that only burn their CPU limits (NOT_REGRADED_COLD).
+    # interpreter; the template must change no score and no flag. Twice: the reference and
+    # the cases the template could change (REGRADED_COLD; all with full_corpus()), never
+    # those that only burn their CPU limits (NOT_REGRADED_COLD).
     cold = fresh_course(course, tmp_path / "cold")
-    for name in NOT_REGRADED_COLD:
-        shutil.rmtree(cold / "submitted" / name, ignore_errors=True)
+    for name in cases:
+        if name in NOT_REGRADED_COLD or not (full_corpus() or name in REGRADED_COLD):
+            shutil.rmtree(cold / "submitted" / name)
     rows = grade_course(course, lab, workers=2, limits=limits, quiet=True)
     cold_rows = grade_course(cold, lab, workers=2, limits=limits, quiet=True, template=False)
     assert "template: the interpreter" in (course / ".cobotlab" / "last_run.log").read_text()
-    forked = {r["student_id"]: (r["score"], r["flags"]) for r in rows
-              if r["student_id"] not in NOT_REGRADED_COLD}
     started_cold = {r["student_id"]: (r["score"], r["flags"]) for r in cold_rows}
+    assert "reference" in started_cold and len(started_cold) > 1, sorted(started_cold)
+    forked = {r["student_id"]: (r["score"], r["flags"]) for r in rows
+              if (cold / "submitted" / r["student_id"]).is_dir()}
     differ = {k for k in set(forked) | set(started_cold) if forked.get(k) != started_cold.get(k)}
     assert not differ, [(k, forked.get(k), started_cold.get(k), log_lines(course, k),
                          log_lines(cold, k)) for k in sorted(differ)]

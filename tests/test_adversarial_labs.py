@@ -10,14 +10,13 @@ to say about a blank and are left to tests/test_course_cycle.py.
 
 nbgrader is not run: the flags checked are those of the independent grader's own scan.
 
-Each case runs on one of the three labs (in turn, by name), so every attack meets a lab
-other than lab 0 once per suite run (tests/test_course_cycle.py runs them all on lab 0);
-``COBOTLAB_FULL_CORPUS=1`` runs every case on every lab.
+A suite run grades the attacks whose grading depends on the lab (LAB_SLICE), each on one of
+the three labs in turn, by name; every case meets lab 0 in tests/test_corpus_batch_*.py.
+``COBOTLAB_FULL_CORPUS=1`` (benchmarks/adversarial_corpus.py) runs every case on every lab.
 """
 
 from __future__ import annotations
 
-import os
 import re
 
 import course_kit as kit
@@ -38,10 +37,18 @@ LABS = {
                    "base_T_cam_from_flanges", "rectangle_pose"),
 }
 CORRECT_ANSWERS_ONLY = {"mangled"}
+# What a lab changes about an attack: hostile values and replaced bodies meet the lab's own
+# checks and scoring (huge_values, nan_and_shapes, raises, forbidden_alias), patched modules
+# meet the libraries the lab's checks call (numpy_patch, sys_modules), the jail hides the
+# lab's own source notebook and solutions (reader_source_notebook, import_solutions), and
+# the lab's replies cross the pipe the forger writes to (forge_protocol). The other attacks
+# act on the grader the same way whatever the lab.
+LAB_SLICE = ("forbidden_alias", "forge_protocol", "huge_values", "import_solutions",
+             "nan_and_shapes", "numpy_patch", "raises", "reader_source_notebook", "sys_modules")
 # Short limits skip the lab's simulator cells (they need the blanks anyway) and make the
-# hangs cheap (about 85 s for labs 3 and 4 on 2 cores, against 130 s with 3 s / 2 s limits;
-# lab 5 takes its third of the cases, so the file costs about the same with three labs);
-# no score here depends on them, every one must be the blank's zero.
+# hangs cheap (a third of the corpus on labs 3 and 4 took about 85 s on 2 cores, against
+# 130 s with 3 s / 2 s limits); no score here depends on them, every one must be the
+# blank's zero.
 # Sleepers are cut at 2x their limit: the attack is tested here, not the clock.
 LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
                         wall_factor=2)
@@ -76,10 +83,10 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     cases = {n: c for n, c in kit.corpus().items()
              if n not in CORRECT_ANSWERS_ONLY and c["layer"] == "notebook"}
     assert len(cases) >= 12 and sum(len(_scan_flags(c)) for c in cases.values()) >= 7
-    if os.environ.get("COBOTLAB_FULL_CORPUS") != "1":   # this lab's half of the cases
+    assert set(LAB_SLICE) <= set(cases), "a renamed case: update LAB_SLICE"
+    if not kit.full_corpus():   # this lab's third of the slice
         share = sorted(LABS).index(assignment)
-        cases = {n: c for i, (n, c) in enumerate(sorted(cases.items()))
-                 if i % len(LABS) == share}
+        cases = {n: cases[n] for i, n in enumerate(sorted(LAB_SLICE)) if i % len(LABS) == share}
     for name, case in cases.items():
         kit.submit(course, assignment, name, replace=_retarget(case, functions),
                    extra=case["extra"], mangle=case["mangle"])

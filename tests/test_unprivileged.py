@@ -4,8 +4,8 @@ CI runs as root; an instructor grades as their own user on a course server. This
 that user (``cobotlab-ta``, created once and reused), gives it a Python it can execute, and
 runs the real command line as it (``setpriv --reuid --regid --init-groups``):
 
-* **with user namespaces** (this machine's default): the lab 0 adversarial corpus through
-  ``cobotlab grade`` on a course the user laid out and owns must score as it does for root
+* **with user namespaces** (this machine's default): lab 0 adversarial cases through
+  ``cobotlab grade`` on a course the user laid out and owns must score as they do for root
   (each case's score bounds and flags, the reference full marks, a blank 0), under
   bubblewrap's user-namespace path (no root to drop from: ``--unshare-user``);
 * **without** (``user.max_user_namespaces`` set to 0 in a user namespace of the user's own,
@@ -20,19 +20,21 @@ the same version (the same ABI), outside every private folder, holding this envi
 libraries as hard links (tests/test_course_install.py's helpers) and cobotlab from a wheel
 built from the working tree: a regular install, as on a course server.
 
-Graded as the user: the notebook-layer cases of the lab 0 corpus but one (the three that
-fool nbgrader's own kernel in a first run with ``--nbgrader-kernel``, so that its
-cross-check flags them, as tests/test_corpus_batch_a.py does for root), six course, host
-and layout cases of tests/test_grading_flow.py's slice (the gradebook, files outside the
-scratch space, a symlinked notebook, a symlinked folder, the answer key, the keyrings:
-the user's login token in the grader's session keyring), the victim they aim at, the
-reference and a blank. tests/test_grading_keyrings.py and the worker part of
-tests/test_grading_contention.py also run as the user. Left to the root tests:
-``infinite_loop``, which costs over a minute of CPU at the command line's default time
-limits (``cobotlab grade`` has no option to lower them) and meets only per-process timers
-(the cell and call CPU timers, RLIMIT_CPU), the same for any user; ``memory_bomb`` stays, as
-without a cgroup its per-process limits are all that hold. The rest of the flow slice
-attacks the course through the paths graded here.
+Graded as the user: the notebook-layer cases of the lab 0 corpus whose grade the sandbox
+decides (SANDBOX_CASES, and the three that fool nbgrader's own kernel, in a first run with
+``--nbgrader-kernel`` so that its cross-check flags them, as tests/test_corpus_batch_a.py
+does for root), six course, host and layout cases of tests/test_grading_flow.py's slice
+(the gradebook, files outside the scratch space, a symlinked notebook, a symlinked folder,
+the answer key, the keyrings: the user's login token in the grader's session keyring), the
+victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
+(benchmarks/adversarial_corpus.py) every notebook-layer case but one is graded as the user.
+tests/test_grading_keyrings.py and the worker part of tests/test_grading_contention.py also
+run as the user. Left to the root tests, even in the full corpus: ``infinite_loop``, which
+costs over a minute of CPU at the command line's default time limits (``cobotlab grade``
+has no option to lower them) and meets only per-process timers (the cell and call CPU
+timers, RLIMIT_CPU), the same for any user; ``memory_bomb`` stays, as without a cgroup its
+per-process limits are all that hold. The rest of the flow slice attacks the course
+through the paths graded here.
 """
 
 from __future__ import annotations
@@ -64,6 +66,12 @@ FUNCTIONS = tuple(s.name for s in checks.SPECS[ASSIGNMENT])
 KERNEL_CASES = kit.FOOL_NBGRADER
 # Graded by root only (see above): it costs its time limits, the same for every user.
 ROOT_ONLY = ("infinite_loop",)
+# The notebook-layer cases whose grade depends on the sandbox: what the jail shows (the
+# solutions, the source notebook, the grader's secrets), its limits without a cgroup
+# (memory, threads), the reply pipe. The rest (values, the source scan, floods, a mangled
+# notebook) grade the same under any sandbox: tests/test_corpus_batch_b.py grades them.
+SANDBOX_CASES = ("forbidden_thread", "forge_protocol", "importlib_solutions", "memory_bomb",
+                 "reader_source_notebook", "secret_hunt")
 # Of tests/test_grading_flow.py's course, host and layout slice: one attack per path.
 FLOW_CASES = ("gradebook_overwrite", "write_outside", "symlink_notebook", "symlink_folder",
               "import_solutions", "keyring")
@@ -257,8 +265,10 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     cases = kit.corpus(ASSIGNMENT)
     notebook = sorted(n for n, c in cases.items()
                       if c["layer"] == "notebook" and n not in ROOT_ONLY)
-    assert len(notebook) >= 15 and set(KERNEL_CASES) <= set(notebook)
+    assert len(notebook) >= 15 and set(KERNEL_CASES) | set(SANDBOX_CASES) <= set(notebook)
     assert set(FLOW_CASES) <= set(cases)
+    if not kit.full_corpus():
+        notebook = sorted({*KERNEL_CASES, *SANDBOX_CASES})
     names = sorted(set(notebook) | set(FLOW_CASES))
     course = ta.course(ta.work / "released", "course")
     folders = _hand_in(ta, course, cases, names)
