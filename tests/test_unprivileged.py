@@ -28,13 +28,12 @@ does for root), six course, host and layout cases of tests/test_grading_flow.py'
 the answer key, the keyrings: the user's login token in the grader's session keyring), the
 victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
 (benchmarks/adversarial_corpus.py) every notebook-layer case but one is graded as the user.
-tests/test_grading_keyrings.py and the worker part of tests/test_grading_contention.py also
-run as the user. Left to the root tests, even in the full corpus: ``infinite_loop``, which
-costs over a minute of CPU at the command line's default time limits (``cobotlab grade``
-has no option to lower them) and meets only per-process timers (the cell and call CPU
-timers, RLIMIT_CPU), the same for any user; ``memory_bomb`` stays, as without a cgroup its
-per-process limits are all that hold. The rest of the flow slice attacks the course
-through the paths graded here.
+tests/test_grading_keyrings.py also runs as the user. Left to the root tests, even in the
+full corpus: ``infinite_loop``, which costs over a minute of CPU at the command line's
+default time limits (``cobotlab grade`` has no option to lower them) and meets only
+per-process timers (the cell and call CPU timers, RLIMIT_CPU), the same for any user;
+``memory_bomb`` stays, as without a cgroup its per-process limits are all that hold. The
+rest of the flow slice attacks the course through the paths graded here.
 """
 
 from __future__ import annotations
@@ -340,21 +339,21 @@ def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     assert "forbidden:robots.geometry.invert" in grades["geometry_invert"]["flags"]
 
 
-# Run as the user, against its installed cobotlab: with no cgroup of its own, each
-# submission's CPU is read from its worker process. Not the template's forks: bubblewrap's
-# --disable-userns leaves the user's template no user namespace to fork a sandbox into, so
-# the user's grading starts every submission cold.
-AS_THE_USER = ("test_grading_keyrings.py", "test_grading_contention.py")
-NOT_AS_THE_USER = "not correct_submission and not template_fork"
+# Run as the user, against its installed cobotlab: the keys of the user's own login
+# session and user keyring. Not the template's forks: bubblewrap's --disable-userns leaves
+# the user's template no user namespace to fork a sandbox into, so the user's grading starts
+# every submission cold. tests/test_grading_contention.py is not repeated as the user: its
+# cold worker runs without a cgroup as root too (the submission's CPU read from its
+# processes, its wait for a CPU from their schedstat, as in the user's grading), and
+# bubblewrap's user-namespace path, the one difference, is the corpus test's above.
+AS_THE_USER = ("test_grading_keyrings.py",)
+NOT_AS_THE_USER = "not template_fork"
 
 
 @pytest.mark.timeout(300)
-def test_keyrings_and_a_busy_core_as_the_user(ta):
+def test_keyrings_as_the_user(ta):
     """tests/test_grading_keyrings.py (cold worker and nbgrader's kernel jail: the user's
-    own keys, in any session, unlisted) and the worker part of
-    tests/test_grading_contention.py (a starved cell or call is the grader's failure, a
-    sleeping one or one crowded out by its own processes the student's), run by the
-    user."""
+    own keys, in any session, unlisted), run by the user."""
     tests = ta.base / "tests"
     tests.mkdir(exist_ok=True)
     for name in (*AS_THE_USER, "course_kit.py", "conftest.py"):
