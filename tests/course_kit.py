@@ -90,19 +90,30 @@ def built_once(name: str, build: Callable[[Path], None]) -> Path:
     return folder
 
 
-def _release(course: Path, assignment: str) -> None:
-    init_course(course)
+def initialized_course(root: Path) -> Path:
+    """A new course under ``root`` (``root/course``) as `init_course` lays it out: a copy of
+    the one it laid out once in this test run (built_once; its practice files alone cost
+    about 5 s of CPU). Like init_course, it makes the course the one this process loads
+    labs from."""
+    master = built_once("initialized", lambda folder: init_course(folder / "course")) / "course"
+    course = fresh_course(master, root)
+    registry.use_course(course)
+    return course
+
+
+def _release(folder: Path, assignment: str) -> None:
+    course = initialized_course(folder)
     nbgrader(course, "generate_assignment", assignment)
 
 
 def released_course(root: Path, assignment: str) -> Path:
     """A new course under ``root`` (``root/course``) with ``assignment`` generated
-    (released): a copy of the course that `init_course` and nbgrader's
-    ``generate_assignment`` made once in this test run (built_once), so that the dozen test
-    files grading lab 0 pay for one release, not one each. Like init_course, it makes the
-    course the one this process loads labs from."""
+    (released): a copy of the course that nbgrader's ``generate_assignment`` made once in
+    this test run (built_once) from a copy of :func:`initialized_course`, so that the dozen
+    test files grading lab 0 pay for one release, not one each. Like init_course, it makes
+    the course the one this process loads labs from."""
     master = built_once(f"released-{assignment}",
-                        lambda folder: _release(folder / "course", assignment)) / "course"
+                        lambda folder: _release(folder, assignment)) / "course"
     course = fresh_course(master, root)
     registry.use_course(course)
     return course

@@ -12,6 +12,7 @@ import os
 import sqlite3
 import time
 
+import course_kit as kit
 import pytest
 
 from autograder import freeze, gradebook, record
@@ -190,9 +191,9 @@ ACCEPTED = ("ana", "'=ben")
 
 
 def test_every_refused_folder_gets_a_row_of_its_own_and_accepted_rows_stay(tmp_path, capsys):
-    from autograder.course import grade_course, init_course
+    from autograder.course import grade_course
 
-    course = init_course(tmp_path / "course")
+    course = kit.initialized_course(tmp_path)
     for student in ACCEPTED:   # handed in nothing to run: no student code in this test
         (_hand_in(course, student) / "timestamp.txt").write_text("2026-11-20 10:00:00 UTC")
     grade_course(course, ASSIGNMENT, quiet=True)
