@@ -21,9 +21,9 @@ libraries as hard links (tests/test_course_install.py's helpers) and cobotlab fr
 built from the working tree: a regular install, as on a course server.
 
 Graded as the user: the notebook-layer cases of the lab 0 corpus whose grade the sandbox
-decides (SANDBOX_CASES, and the three that fool nbgrader's own kernel, in a first run with
-``--nbgrader-kernel`` so that its cross-check flags them, as tests/test_corpus_batch_a.py
-does for root), six course, host and layout cases of tests/test_grading_flow.py's slice
+decides (SANDBOX_CASES, and one that fools nbgrader's own kernel, in a first run with
+``--nbgrader-kernel`` so that its cross-check flags it, as tests/test_corpus_batch_a.py
+does for root with all three), six course, host and layout cases of tests/test_grading_flow.py's slice
 (the gradebook, files outside the scratch space, a symlinked notebook, a symlinked folder,
 the answer key, the keyrings: the user's login token in the grader's session keyring), the
 victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
@@ -60,9 +60,12 @@ from autograder import checks, sandbox
 USER = "cobotlab-ta"
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = tuple(s.name for s in checks.SPECS[ASSIGNMENT])
-# The cases that fool nbgrader's own kernel: graded with it (--nbgrader-kernel), so that its
-# cross-check has something to disagree with.
-KERNEL_CASES = kit.FOOL_NBGRADER
+# A case that fools nbgrader's own kernel, graded with it (--nbgrader-kernel), so that its
+# cross-check has something to disagree with: what is new as the user is the kernel's jail,
+# which one case meets; each of the three fools the kernel its own way, and
+# tests/test_corpus_batch_a.py grades all three with it as root (and so does the full
+# corpus here).
+KERNEL_CASES = kit.FOOL_NBGRADER if kit.full_corpus() else ("kernel_patch",)
 # Graded by root only (see above): it costs its time limits, the same for every user.
 ROOT_ONLY = ("infinite_loop",)
 # The notebook-layer cases whose grade depends on the sandbox: what the jail shows (the
