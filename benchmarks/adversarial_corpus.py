@@ -17,7 +17,7 @@ machine's busy time while it ran, read from /proc/stat: run it on an otherwise i
 machine) for the slice and for the full corpus. With ``--repeat N`` each is run N times and
 the CPU the slice saves is given with a bootstrap 95 % interval.
 
-    .venv/bin/python benchmarks/adversarial_corpus.py             # ~25 min on 2 cores, as root
+    .venv/bin/python benchmarks/adversarial_corpus.py             # ~12 min on 2 cores, as root
     .venv/bin/python benchmarks/adversarial_corpus.py --only full --tests batch_b
 """
 
