@@ -40,7 +40,6 @@ import ipaddress
 import json
 import re
 import shutil
-import tempfile
 import threading
 import uuid
 from pathlib import Path
@@ -76,7 +75,9 @@ def spec_digest(assignment: str) -> str:
 
 
 def _worker_reply(payload: dict) -> dict:
-    folder = tempfile.mkdtemp(prefix="cobotlab-cluster-")
+    # what a worker killed mid-task on this machine left (its finally never ran)
+    sandbox.remove_stale_folders()
+    folder = sandbox.private_folder("cobotlab-cluster-")
     try:
         paths = []
         for name, data in payload["notebooks"]:

@@ -1139,7 +1139,7 @@ def _begin_run(root: Path, private: Path) -> list[str]:
         else:
             notes.append("the previous run was interrupted; gradebook.db checked: "
                          + (problem or "ok"))
-    removed = sandbox.remove_stale_scratch()
+    removed = sandbox.remove_stale_scratch() + sandbox.remove_stale_folders()
     if removed:
         notes.append(f"removed {removed} scratch folder(s) left by an interrupted run")
     problem = gradebook.problem(root / "gradebook.db")

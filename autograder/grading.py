@@ -48,7 +48,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -526,7 +525,7 @@ class Worker:
         self._cgroup, self._student = cgroup, None
         budget = budget or LoadBudget.of(limits)
         started = time.monotonic()
-        self.workdir = tempfile.mkdtemp(prefix="cobotlab-worker-")
+        self.workdir = str(sandbox.private_folder("cobotlab-worker-"))
         self._stderr = open(os.path.join(self.workdir, ".worker-stderr"), "w+b")
         self.load_report: list[dict] = []
         self.tripped: set[str] = set()

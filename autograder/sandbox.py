@@ -40,7 +40,8 @@ from pathlib import Path
 from autograder.inside import syscalls
 
 __all__ = ["Capabilities", "Jail", "Cgroup", "ScratchDir", "capabilities", "command", "mode",
-           "SANDBOX_UID", "remove_stale_scratch", "Interrupted", "stop_all",
+           "SANDBOX_UID", "remove_stale_scratch", "private_folder", "remove_stale_folders",
+           "Interrupted", "stop_all",
            "stopping", "allow_starts", "fallback_warning"]
 
 # The unprivileged user student code runs as when the grader itself is root.
@@ -784,6 +785,60 @@ def remove_stale_scratch() -> int:
                 shutil.rmtree(target, ignore_errors=True)
                 count += 1
     return count
+
+
+# The temporary folders a grading process makes for itself (a worker's pipes and stderr, a
+# cluster task's copy of the student's notebook), named for it by private_folder.
+PRIVATE_PREFIXES = ("cobotlab-worker-", "cobotlab-cluster-")
+
+
+def private_folder(prefix: str) -> Path:
+    """A new temporary folder (mode 700) named ``<prefix><pid>-<random>`` for this process,
+    so that a later run can tell when its owner is gone (:func:`remove_stale_folders`)."""
+    import tempfile
+
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+
+
+def remove_stale_folders() -> int:
+    """Remove this user's :data:`PRIVATE_PREFIXES` folders in the temporary folder whose
+    owning process is gone: a grader or a Dask worker killed before its clean-up (SIGKILL,
+    the OOM killer, a preempted node) leaves them, one of them with a copy of a student's
+    notebook. A folder whose pid is alive, or reused by another process, is kept. Safe to
+    call at any start; returns how many were removed."""
+    import tempfile
+
+    top = Path(tempfile.gettempdir())
+    removed = 0
+    try:
+        entries = list(os.scandir(top))
+    except OSError:
+        return 0
+    for entry in entries:
+        prefix = next((p for p in PRIVATE_PREFIXES if entry.name.startswith(p)), None)
+        if prefix is None:
+            continue
+        owner = entry.name[len(prefix):].split("-")[0]
+        try:
+            mine = entry.is_dir(follow_symlinks=False) and \
+                entry.stat(follow_symlinks=False).st_uid == os.geteuid()
+        except OSError:
+            continue
+        if mine and owner.isdigit() and not _running(int(owner)):
+            shutil.rmtree(entry.path, ignore_errors=True)
+            removed += not os.path.lexists(entry.path)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie (a killed process its parent has not reaped yet is gone)."""
+    if not process_alive(pid):
+        return False
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state not in ("Z", "X")
 
 
 def process_alive(pid: int) -> bool:

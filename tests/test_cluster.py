@@ -14,8 +14,10 @@ from __future__ import annotations
 import json
 import os
 import signal
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import course_kit as kit
 import pytest
@@ -277,7 +279,7 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
                     time.sleep(0.5)   # well inside its sandboxed run
                     worker, key = busy[0]
                     os.kill(pids[worker], signal.SIGKILL)
-                    killed = key
+                    killed, killed_pid = key, pids[worker]
                 time.sleep(0.1)
             grading_thread.join(timeout=400)
         finally:
@@ -287,6 +289,11 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
             Client(dask.scheduler_address, timeout=5, set_as_default=False)
     assert "error" not in outcome, outcome.get("error")
     assert killed is not None, "no task was seen running to kill its worker"
+    # what the killed worker's task left in the temporary folder (its sandbox's folder, its
+    # copy of the student's notebook) was removed by the task that ran next on the machine
+    left = [str(p) for prefix in sandbox.PRIVATE_PREFIXES
+            for p in Path(tempfile.gettempdir()).glob(f"{prefix}{killed_pid}-*")]
+    assert not left, left
 
     rows = outcome["rows"]
     ids = [r["student_id"] for r in rows]
