@@ -729,10 +729,8 @@ class ScratchDir:
     """
 
     def __init__(self, size_mb: int, prefix: str = "cobotlab-scratch-"):
-        import tempfile
-
         # The owner's pid in the name: a later run removes the folder only once it is dead.
-        self.path = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+        self.path = private_folder(prefix)
         self.size_limited = False
         caps = capabilities()
         if os.geteuid() == 0 and shutil.which("mount"):
@@ -777,8 +775,8 @@ def remove_stale_scratch() -> int:
         fields = line.split()
         if len(fields) > 2 and fields[0] == _SCRATCH_FS and fields[2] == "tmpfs":
             target = fields[1].encode().decode("unicode_escape")
-            owner = Path(target).name.removeprefix("cobotlab-scratch-").split("-")[0]
-            if owner.isdigit() and process_alive(int(owner)):
+            owner = _owner_pid(Path(target).name, "cobotlab-scratch-")
+            if owner is not None and process_alive(owner):
                 continue
             if subprocess.run(["umount", "-l", target], capture_output=True,
                               check=False).returncode == 0:
@@ -818,16 +816,23 @@ def remove_stale_folders() -> int:
         prefix = next((p for p in PRIVATE_PREFIXES if entry.name.startswith(p)), None)
         if prefix is None:
             continue
-        owner = entry.name[len(prefix):].split("-")[0]
+        owner = _owner_pid(entry.name, prefix)
         try:
             mine = entry.is_dir(follow_symlinks=False) and \
                 entry.stat(follow_symlinks=False).st_uid == os.geteuid()
         except OSError:
             continue
-        if mine and owner.isdigit() and not _running(int(owner)):
+        if mine and owner is not None and not _running(owner):
             shutil.rmtree(entry.path, ignore_errors=True)
             removed += not os.path.lexists(entry.path)
     return removed
+
+
+def _owner_pid(name: str, prefix: str) -> int | None:
+    """The pid a ``<prefix><pid>-<random>`` folder (private_folder's naming) is named for;
+    None when its name holds none."""
+    owner = name.removeprefix(prefix).split("-")[0]
+    return int(owner) if owner.isdigit() else None
 
 
 def _running(pid: int) -> bool:

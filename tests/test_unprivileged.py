@@ -23,10 +23,10 @@ built from the working tree: a regular install, as on a course server.
 Graded as the user: the notebook-layer cases of the lab 0 corpus whose grade the sandbox
 decides (SANDBOX_CASES, and one that fools nbgrader's own kernel, in a first run with
 ``--nbgrader-kernel`` so that its cross-check flags it, as tests/test_corpus_batch_a.py
-does for root with all three), six course, host and layout cases of tests/test_grading_flow.py's slice
-(the gradebook, files outside the scratch space, a symlinked notebook, a symlinked folder,
-the answer key, the keyrings: the user's login token in the grader's session keyring), the
-victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
+does for root with all three), six course, host and layout cases of
+tests/test_grading_flow.py's slice (the gradebook, files outside the scratch space, a
+symlinked notebook, a symlinked folder, the answer key, the keyrings: the user's login
+token in the grader's session keyring), the victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
 (benchmarks/adversarial_corpus.py) every notebook-layer case but one is graded as the user.
 tests/test_grading_keyrings.py also runs as the user. Left to the root tests, even in the
 full corpus: ``infinite_loop``, which costs over a minute of CPU at the command line's
