@@ -88,3 +88,21 @@ def test_names_are_judged_by_their_diagnosis_not_their_fix():
     median = "the median was taken: the RMS is the root of the mean square"
     assert mistake_naming.is_right_name(by_id["rmse_median"], median)
     assert not mistake_naming.is_right_name(by_id["rmse_std"], median)
+
+
+def test_the_doc_keeps_its_baseline_through_later_runs(tmp_path, monkeypatch):
+    monkeypatch.setattr(mistake_naming, "DOC", tmp_path / "mistake_naming.md")
+    mistake = SLICE[0]
+    rows = [mistake_naming.Row(mistake, [mistake_naming.score(mistake, checks.PUBLIC_SEEDS)])]
+    first = mistake_naming.report(rows, 1, 1.0, "first run")
+    mistake_naming.write_doc(first, 1, as_baseline=False)   # no baseline yet: this one
+    later = mistake_naming.report(rows, 1, 2.0, "later run")
+    mistake_naming.write_doc(later, 1, as_baseline=False)
+    text = mistake_naming.DOC.read_text()
+    baseline = text[text.index("## Baseline"):text.index("## The last run")]
+    assert "`first run`" in baseline and "| lab0_frames | 1 |" in baseline
+    assert "`later run`" in text[text.index("## The last run"):]
+    assert mistake.id in text[text.index("## The last run"):]   # its row
+    mistake_naming.write_doc(later, 1, as_baseline=True)
+    text = mistake_naming.DOC.read_text()
+    assert "`first run`" not in text

@@ -151,6 +151,13 @@ def residuals_divided_by_n(dst_T_src, src, dst):
     return np.linalg.norm(src @ R.T + t - dst, axis=1) / len(src)
 
 
+@mistake("per_point_residuals", "units m/mm", "I divided by 1000 to get metres, but the "
+         "points were in metres already")
+def residuals_divided_by_1000(dst_T_src, src, dst):
+    R, t = dst_T_src[:3, :3], dst_T_src[:3, 3]
+    return np.linalg.norm(src @ R.T + t - dst, axis=1) / 1000.0
+
+
 # --------------------------------------------------------------------------- per_axis_rmse
 
 

@@ -267,3 +267,11 @@ def translation_residual_row_vector(A, B, X):
     R_X, t_X = X[:3, :3], X[:3, 3]
     return float(np.mean([np.sum((Ak[:3, :3] @ t_X + Ak[:3, 3] - Bk[:3, 3] @ R_X - t_X) ** 2)
                           for Ak, Bk in zip(A, B)]))
+
+
+@mistake("translation_residual", "root or not", "I averaged the lengths ||r_k||, not their "
+         "squares ||r_k||^2")
+def translation_residual_norm_not_squared(A, B, X):
+    R_X, t_X = X[:3, :3], X[:3, 3]
+    return float(np.mean([np.linalg.norm(Ak[:3, :3] @ t_X + Ak[:3, 3] - R_X @ Bk[:3, 3] - t_X)
+                          for Ak, Bk in zip(A, B)]))

@@ -139,6 +139,13 @@ def reproject_depth_without_focal(u, v, d, Q):
     return np.array([X / W, Y / W, 1.0 / W])
 
 
+@mistake("reproject", "units m/mm", "I divided the point by 1000 to get metres, but Q's "
+         "baseline is in metres already")
+def reproject_divided_by_1000(u, v, d, Q):
+    X, Y, Z, W = np.asarray(Q, dtype=float) @ np.array([u, v, d, 1.0])
+    return np.array([X, Y, Z]) / W / 1000.0
+
+
 # --------------------------------------------------------------------------- hand_to_eye
 
 
