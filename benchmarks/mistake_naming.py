@@ -21,8 +21,9 @@ check the verdict. A name equal to the words of one of the spec's code mistakes 
 problem is counted as named "by a code mistake", any other as named "by a rule".
 
 The goal (issue 52, Required 4): at least 90 % named, none misnamed, every one losing credit.
-Shares per lab carry a 95 % interval: Clopper-Pearson over the lab's mistakes for one draw,
-a bootstrap over the mistakes (the draws of one mistake are not independent) for several.
+Shares per lab carry a 95 % Clopper-Pearson interval over the lab's mistakes (for several
+draws, of the mean of each mistake's share of draws: the draws of one mistake are not
+independent of each other).
 
     .venv/bin/python benchmarks/mistake_naming.py              # draw 0 (check()), ~15 s
     .venv/bin/python benchmarks/mistake_naming.py --draws 10   # 10 draws, ~1.5 min
@@ -58,7 +59,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import mistake_corpus  # noqa: E402
 
 from autograder import checks, practice  # noqa: E402
-from autograder.fairness import clopper_pearson  # noqa: E402
+from autograder.fairness import mean_interval  # noqa: E402
 
 DOC = ROOT / "docs" / "benchmarks" / "mistake_naming.md"
 GOAL_NAMED = 0.90
@@ -160,21 +161,13 @@ def score(mistake: mistake_corpus.Mistake, seeds) -> Draw:
 # --------------------------------------------------------------------------- statistics
 
 
-def interval(values: list[float], n_draws: int, rng: np.random.Generator) -> tuple[float, float]:
-    """95 % interval of the mean of per-mistake shares ``values``: Clopper-Pearson when each
-    is one draw's 0 or 1, else a percentile bootstrap over the mistakes."""
-    if not values:
-        return (float("nan"), float("nan"))
-    if n_draws == 1:
-        return clopper_pearson(int(round(sum(values))), len(values))
-    v = np.asarray(values)
-    means = v[rng.integers(0, len(v), (2000, len(v)))].mean(axis=1)
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
-
-
-def cell(values: list[float], n_draws: int, rng) -> str:
-    """'k (share, [low, high])': k the count over the mistakes (summed shares)."""
-    low, high = interval(values, n_draws, rng)
+def cell(values: list[float], n_draws: int) -> str:
+    """'k (share, [low, high])' of the per-mistake shares ``values`` (each in [0, 1]): k their
+    sum, a count of mistakes, and the 95 % Clopper-Pearson interval of their mean (with a
+    fractional count for several draws, ``fairness.mean_interval``: a share in [0, 1] spreads
+    less than a 0/1 outcome of the same mean). The mistakes, not the draws, are the sample:
+    one mistake's draws are not independent of each other."""
+    low, high = mean_interval(sum(values), len(values))
     total = sum(values)
     count = f"{total:.0f}" if n_draws == 1 else f"{total:.1f}"
     return f"{count} ({100 * total / len(values):.0f} %, [{100 * low:.0f}, {100 * high:.0f}])"
@@ -184,19 +177,20 @@ def cell(values: list[float], n_draws: int, rng) -> str:
 
 
 def lab_table(rows: list[Row], n_draws: int) -> list[str]:
-    rng = np.random.default_rng(52)
-    head = ("| lab | n | loses credit | named right | misnamed | unnamed | named by a code "
-            "mistake / by a rule |")
+    head = ("| lab | n | loses credit | named right | misnamed | unnamed | named right by a "
+            "code mistake / by a rule |")
     lines = [head, "|" + "---|" * 7]
     groups = [(lab, [r for r in rows if r.mistake.lab == lab]) for lab in mistake_corpus.LABS]
     groups = [(lab, rs) for lab, rs in groups if rs] + [("all", rows)]
     for lab, rs in groups:
-        named = [d for r in rs for d in r.draws if d.outcome == "named"]
-        by_code = sum(d.by_code for d in named)
+        by_code = sum(np.mean([d.outcome == "named" and d.by_code for d in r.draws])
+                      for r in rs)
+        by_rule = sum(r.share("named") for r in rs) - by_code
+        count = "{:.0f} / {:.0f}" if n_draws == 1 else "{:.1f} / {:.1f}"
         lines.append(
-            f"| {lab} | {len(rs)} | {cell([r.loses_share for r in rs], n_draws, rng)} | "
-            + " | ".join(cell([r.share(o) for r in rs], n_draws, rng) for o in OUTCOMES)
-            + f" | {by_code} / {len(named) - by_code} |")
+            f"| {lab} | {len(rs)} | {cell([r.loses_share for r in rs], n_draws)} | "
+            + " | ".join(cell([r.share(o) for r in rs], n_draws) for o in OUTCOMES)
+            + f" | {count.format(by_code, by_rule)} |")
     return lines
 
 
@@ -253,11 +247,18 @@ def findings(rows: list[Row]) -> list[str]:
 
 
 def _commit() -> str:
+    """HEAD's short hash, marked when the corpus or this script differ from it."""
+    def git(*args) -> str:
+        return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True,
+                              timeout=10).stdout.strip()
+
     try:
-        return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, timeout=10).stdout.strip()
+        head = git("rev-parse", "--short", "HEAD") or "unknown"
+        changed = git("status", "--porcelain", "--", "benchmarks/mistake_corpus",
+                      "benchmarks/mistake_naming.py", "autograder")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+    return f"{head} (with uncommitted changes)" if changed else head
 
 
 def report(rows: list[Row], n_draws: int, seconds: float, command: str) -> list[str]:

@@ -19,7 +19,16 @@ it. ``benchmarks/mistake_naming.py`` scores every entry with ``autograder.checks
 (what ``check()`` shows a student) and counts named / misnamed / unnamed per lab.
 
 The corpus modules import only numpy, scipy and ``robots.geometry``, as a lab notebook does:
-the grader's forbidden-call scan reads their globals as it reads a notebook's.
+the grader's forbidden-call scan reads their globals as it reads a notebook's. They hold
+near-copies of the labs' answers: instructors' material, never released to students.
+
+Two bugs first written for it are no mistakes, and are left out: a Tsai-Lenz whose modified
+Rodrigues vectors are 2 sin(theta) a (or theta a, or in degrees) instead of 2 sin(theta/2) a
+(A's and B's scale alike, and skew(P_A + P_B) P' = P_B - P_A is homogeneous in that scale,
+so only the weighting of the motions changes), and a hand-to-eye fit that gives
+frame_from_three_points its points as (origin, xy, x) on both sides (the same wrong world
+frame on both sides cancels in base_T_world @ inv(cam_T_world)). A name for either would be
+a misnaming of correct code.
 """
 
 from __future__ import annotations
