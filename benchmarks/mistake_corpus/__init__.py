@@ -37,7 +37,9 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
-__all__ = ["FAMILIES", "LABS", "Mistake", "load", "register"]
+import numpy as np
+
+__all__ = ["FAMILIES", "LABS", "Mistake", "load", "pose", "register"]
 
 FAMILIES = ("inverse/transpose", "reflection", "units m/mm", "units rad/deg", "sign",
             "swapped arguments", "reversed stack/order", "first/last for mean", "sum for mean",
@@ -74,6 +76,14 @@ class Mistake:
 
 
 _REGISTRY: dict[str, Mistake] = {}
+
+
+def pose(R, t):
+    """The (4, 4) array [[R, t], [0, 0, 0, 1]] as a student builds it: ``R`` is taken as
+    given, so a mistake that makes no rotation returns it as the student's code would."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
 
 
 def register(lab: str):

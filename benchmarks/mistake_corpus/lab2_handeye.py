@@ -9,16 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from mistake_corpus import pose as _pose
 from mistake_corpus import register
 from robots import geometry as geo
 
 mistake = register("lab2_handeye")
-
-
-def _pose(R, t):
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
 
 
 def _pairs(n, strategy):
