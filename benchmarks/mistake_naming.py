@@ -73,14 +73,15 @@ FAMILY_WORDS = (
     ("units m/mm", r"millimet|1000 times|\bmm\b|mm\^2"),
     ("units rad/deg", r"degree|radian|180/pi"),
     ("swapped arguments", r"swapped|other way round"),
-    ("reversed stack/order", r"revers|\border\b"),
+    ("reversed stack/order", r"revers|\border\b|\bstacked\b"),
     ("inverse/transpose", r"invers|invert|transpos|\^T\b|\.T\b|inv\("),
     ("first/last for mean", r"\bfirst\b|\blast\b"),
     ("sum for mean", r"\bsum\b"),
     ("root or not", r"square root|squared|mean square|\bRMS\b"),
     ("absolute for squared", r"absolute"),
-    ("uncentred", r"centr|centroid"),
-    ("sign", r"\bsign\b|opposite|negat|flipped"),
+    # not "centre" alone: "the centre is the centroid of the rim points" is no uncentred fit
+    ("uncentred", r"uncentr|not (the )?centred|without centring|subtract.{0,30}centroid"),
+    ("sign", r"\bsigns?\b|opposite|negat|flipped"),
 )
 
 

@@ -85,6 +85,12 @@ def test_names_are_judged_by_their_diagnosis_not_their_fix():
     # swapping the point sets returns exactly the inverse: "also" accepts that name
     assert mistake_naming.is_right_name(by_id["hand_to_eye_point_sets_swapped"], inverse)
     assert not mistake_naming.is_right_name(by_id["hand_to_eye_wrong_frame_inverted"], inverse)
+    # words of the other labs' code mistakes, which the judge was not written on
+    assert mistake_naming.family_of("the centre is the centroid of the rim points: ...") is None
+    assert mistake_naming.family_of("the cross-covariance is of the raw points, not the "
+                                    "centred ones: subtract each set's centroid") == "uncentred"
+    assert mistake_naming.family_of("u and v are swapped: ...") == "swapped arguments"
+    assert mistake_naming.family_of("the gain's sign is flipped: ...") == "sign"
     median = "the median was taken: the RMS is the root of the mean square"
     assert mistake_naming.is_right_name(by_id["rmse_median"], median)
     assert not mistake_naming.is_right_name(by_id["rmse_std"], median)
