@@ -177,3 +177,18 @@ def test_the_real_franka_capture_has_its_rolled_view_turned_back():
     assert choice.mismatch_deg.max() < 0.5 and choice.alternative_deg.min() > 20.0
     tag = load_visp_franka("eye_to_hand")
     assert tag.pixels.shape == (8, 4, 2) and tag.notes == ()
+
+
+def test_a_capture_run_records_why_a_view_was_refused(tmp_path):
+    """capture_pose_pairs keeps the detector's reason (with the rule) for each skipped view."""
+    from contract import make_gantry_cell
+
+    from robots.capture import capture_pose_pairs
+
+    with make_gantry_cell() as cell:
+        pose = cell.robot.flange_pose()
+        capture = capture_pose_pairs(cell.robot, cell.camera, [pose],
+                                     aruco_detector("DICT_APRILTAG_36h11", 0.048, ids=(5,)),
+                                     progress=False, settle_s=0.0)
+    assert len(capture) == 0 and list(capture.failed_indices) == [0]
+    assert "found no marker; exactly 1 is needed" in capture.failed_reasons[0]
