@@ -285,6 +285,14 @@ def half_turn(object_points) -> np.ndarray:
     return F
 
 
+def _quarter_symmetric(points: np.ndarray) -> bool:
+    """Whether a quarter turn about the centre maps the point set onto itself (square grids)."""
+    centred = points[:, :2] - points[:, :2].mean(axis=0)
+    turned = centred @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+    gaps = np.linalg.norm(turned[:, None, :] - centred[None, :, :], axis=2).min(axis=1)
+    return bool(np.all(gaps < 1e-6 * max(np.ptp(centred), 1e-12)))
+
+
 @dataclass(frozen=True)
 class PoseChoice:
     """Which candidate target pose of each view agrees with the robot's motion.
@@ -441,6 +449,10 @@ def resolve_half_turns(base_T_flange, corners_px, object_points, intrinsics: Int
             raise ValueError(f"view {k}: {len(pixels)} corners for {len(grid)} grid points; the "
                              "half-turn needs the full grid in every view")
         turn = half_turn(grid)
+        if _quarter_symmetric(grid):
+            raise ValueError(f"view {k}: the grid is square ({len(grid)} points), so its corners "
+                             "may also be listed a quarter turn round, which this does not "
+                             "resolve; use a board with different corner counts across and down")
         pose = _planar_pose(grid, pixels, intrinsics)
         if pose is None:
             raise ValueError(f"view {k}: solvePnP found no pose for its corners")

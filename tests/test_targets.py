@@ -192,3 +192,14 @@ def test_a_capture_run_records_why_a_view_was_refused(tmp_path):
                                      progress=False, settle_s=0.0)
     assert len(capture) == 0 and list(capture.failed_indices) == [0]
     assert "found no marker; exactly 1 is needed" in capture.failed_reasons[0]
+
+
+def test_a_square_grid_is_refused_since_a_quarter_turn_is_not_resolved():
+    grid = np.zeros((36, 3))
+    grid[:, :2] = np.mgrid[0:6, 0:6].T.reshape(-1, 2) * 0.02
+    F = np.array([geo.pose_from_rotvec([0.1 * k, 0, 0], [0, 0, 0]) for k in range(3)])
+    intrinsics = Intrinsics(600, 600, 320, 240, 640, 480)
+    cam = geo.pose_from_rotvec([0, 0, 0], [-0.05, -0.05, 0.5])
+    pixels, _ = cv2.projectPoints(grid, np.zeros(3), cam[:3, 3], intrinsics.K, intrinsics.dist)
+    with pytest.raises(ValueError, match="quarter turn"):
+        resolve_half_turns(F, [pixels.reshape(-1, 2)] * 3, grid, intrinsics)
