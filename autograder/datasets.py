@@ -144,7 +144,7 @@ def load_visp_franka(mount: str = "eye_in_hand") -> RealHandEyeCapture:
 
     ``"eye_in_hand"``: a camera on the flange looks at a 9 x 6 (inner corners) chessboard of
     23.6 mm squares; one view has the camera rolled about half a turn, so the corner order is
-    resolved from the robot's motion (:func:`robots.targets.resolve_half_turns`) and said in
+    resolved from the robot's motion (:func:`robots.half_turn.resolve_half_turns`) and said in
     ``notes``. ``"eye_to_hand"``: a fixed camera looks at one 48 mm AprilTag (36h11) on the
     flange; its 4 corners per view. Robot poses: ViSP's ``rPe`` (base_T_flange, translation m
     and theta-u rad). Corners are detected here in the shipped images with OpenCV. Source:
@@ -153,8 +153,9 @@ def load_visp_franka(mount: str = "eye_in_hand") -> RealHandEyeCapture:
     import cv2
 
     from robots.capture import chessboard_detector
+    from robots.half_turn import resolve_half_turns
     from robots.interfaces import Frame, Intrinsics
-    from robots.targets import aruco_detector, resolve_half_turns
+    from robots.targets import aruco_detector
 
     if mount not in VISP_FRANKA_MOUNTS:
         raise ValueError(f"mount must be one of {VISP_FRANKA_MOUNTS}, got {mount!r}")

@@ -403,7 +403,7 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
     end. As a first guess the detector keeps the order whose first row runs left to right in
     the image, which is wrong for a view whose camera is rolled past 90 degrees; the robot's
     motion tells the two orders apart, so pass the whole capture through
-    :func:`robots.targets.resolve_half_turns` (or ``resolve_capture_half_turns``) before
+    :func:`robots.half_turn.resolve_half_turns` (or ``resolve_capture_half_turns``) before
     calibrating. A board not found whole gives None (all inner corners are needed).
     """
     if inner_cols < 2 or inner_rows < 2 or not square_m > 0:

@@ -1,4 +1,4 @@
-"""robots.targets: marker, ChArUco and circle-grid detectors on real OpenCV renderings, and the
+"""robots.targets and robots.half_turn: marker, ChArUco and circle-grid detectors on real OpenCV renderings, and the
 chessboard's half-turn chosen from the robot's motion (synthetic truth and the real Franka)."""
 
 from __future__ import annotations
@@ -10,15 +10,9 @@ import pytest
 from autograder.datasets import load_visp_franka
 from autograder.synthetic import NoiseModel, make_hand_eye
 from robots import geometry as geo
+from robots.half_turn import choose_consistent_poses, half_turn, resolve_half_turns
 from robots.interfaces import Frame, Intrinsics
-from robots.targets import (
-    aruco_detector,
-    charuco_detector,
-    choose_consistent_poses,
-    circle_grid_detector,
-    half_turn,
-    resolve_half_turns,
-)
+from robots.targets import aruco_detector, charuco_detector, circle_grid_detector
 
 PX_PER_M = 4000.0  # the flat rendering's scale: a camera 1 m away with this focal length
 
@@ -203,3 +197,23 @@ def test_a_square_grid_is_refused_since_a_quarter_turn_is_not_resolved():
     pixels, _ = cv2.projectPoints(grid, np.zeros(3), cam[:3, 3], intrinsics.K, intrinsics.dist)
     with pytest.raises(ValueError, match="quarter turn"):
         resolve_half_turns(F, [pixels.reshape(-1, 2)] * 3, grid, intrinsics)
+
+
+def test_a_capture_object_gets_its_turned_view_reordered_and_its_pose_re_solved():
+    from robots.capture import Capture
+    from robots.half_turn import resolve_capture_half_turns
+
+    p = make_hand_eye(6, "eye_in_hand", n_poses=5, noise=NoiseModel(pixel_px=0.2))
+    K = p.camera.K
+    intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], p.camera.width, p.camera.height)
+    grid = p.board.object_points()
+    read = [view[::-1] if k == 1 else view for k, view in enumerate(p.pixels)]
+    capture = Capture(base_T_flange=p.base_T_flange, cam_T_target=np.full((5, 4, 4), np.nan),
+                      corners_px=read, object_points=[grid] * 5, intrinsics=intrinsics,
+                      commanded_base_T_flange=p.base_T_flange, pose_indices=np.arange(5),
+                      timestamps=np.zeros(5), images=[])
+    fixed, choice = resolve_capture_half_turns(capture)
+    assert choice.changed == (1,)
+    assert np.allclose(np.array(fixed.corners_px), p.pixels)
+    assert geo.rotation_error_deg(fixed.cam_T_target, p.true_cam_T_target).max() < 1.0
+    assert np.isnan(capture.cam_T_target).all()  # the original is left as it was
