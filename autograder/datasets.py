@@ -184,7 +184,7 @@ def load_visp_franka(mount: str = "eye_in_hand") -> RealHandEyeCapture:
     base_T_flange = np.array(poses)
     notes: tuple[str, ...] = ()
     if mount == "eye_in_hand":
-        corners, _, choice = resolve_half_turns(base_T_flange, corners, board, intrinsics, mount)
+        corners, _, choice = resolve_half_turns(base_T_flange, corners, board, intrinsics)
         notes = (choice.summary(),)
     return RealHandEyeCapture(
         name=f"visp_franka_{mount}", base_T_flange=base_T_flange, pixels=np.array(corners),

@@ -2,14 +2,15 @@
 
 A plain chessboard (and a symmetric circle grid) looks the same turned half a turn, and OpenCV
 may list its corners from either end; an image axis cannot tell the two orders apart for a
-camera that rolls. The robot's motion can: for an eye-in-hand pair of views, the flange turns by
-the same angle as the camera sees the board turn (the angle of ``inv(base_T_flange_i) @
-base_T_flange_j`` equals that of ``cam_T_target_i @ inv(cam_T_target_j)``; eye-to-hand,
-``base_T_flange_i @ inv(base_T_flange_j)``), and reading one of the two views' corners in the
-reverse order adds a half-turn on the camera's side. :func:`choose_consistent_poses` picks, per
-view, the candidate pose that agrees with the other views; :func:`resolve_half_turns` applies it
-to a chessboard capture's corners and says which views it turned, with the evidence
-(:class:`PoseChoice`). Only ``robots.geometry`` and ``robots.interfaces`` are imported, so the
+camera that rolls. The robot's motion can: between two views the flange turns by the same angle
+as the camera sees the board turn (the angle of ``inv(base_T_flange_i) @ base_T_flange_j``
+equals that of ``cam_T_target_i @ inv(cam_T_target_j)``, since AX = XB makes the two motions
+conjugate), and reading one of the two views' corners in the reverse order adds a half-turn on
+the camera's side. The angle is the same eye-in-hand and eye-to-hand (``R_i^T R_j`` and
+``R_i R_j^T`` have the same trace), so the mount need not be known.
+:func:`choose_consistent_poses` picks, per view, the candidate pose that agrees with the other
+views; :func:`resolve_half_turns` applies it to a chessboard capture's corners and says which
+views it turned, with the evidence (:class:`PoseChoice`). Only ``robots.geometry`` and ``robots.interfaces`` are imported, so the
 capture and import code can use it.
 """
 
@@ -122,23 +123,22 @@ class PoseChoice:
         return text
 
 
-def _robot_angles(F: np.ndarray, mount: str) -> np.ndarray:
-    """(n, n) angle (deg) of the robot's motion between views i and j, as X sees it."""
+def _robot_angles(F: np.ndarray) -> np.ndarray:
+    """(n, n) angle (deg) of the robot's motion between views i and j (either mount)."""
     n = len(F)
     R = F[:, :3, :3]
     i, j = np.triu_indices(n, k=1)
-    rel = (np.swapaxes(R[i], 1, 2) @ R[j] if mount == "eye_in_hand"
-           else R[i] @ np.swapaxes(R[j], 1, 2))
+    rel = np.swapaxes(R[i], 1, 2) @ R[j]
     out = np.zeros((n, n))
     out[i, j] = out[j, i] = geo.rotation_angle_deg(rel)
     return out
 
 
-def _mismatch_table(F: np.ndarray, candidates: np.ndarray, mount: str) -> np.ndarray:
+def _mismatch_table(F: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """M[i, j, a, b]: |robot angle - camera angle| between view i's candidate a and view j's
     candidate b, degrees (0 on the diagonal)."""
     n, k = candidates.shape[:2]
-    robot = _robot_angles(F, mount)
+    robot = _robot_angles(F)
     Rc = candidates[:, :, :3, :3]
     M = np.zeros((n, n, k, k))
     i, j = np.triu_indices(n, k=1)
@@ -176,19 +176,17 @@ def _total(M: np.ndarray, labels: np.ndarray) -> float:
     return float(sum(M[i, j, labels[i], labels[j]] for i in range(n) for j in range(i + 1, n)))
 
 
-def choose_consistent_poses(base_T_flange, candidates, mount: str = "eye_in_hand") -> PoseChoice:
+def choose_consistent_poses(base_T_flange, candidates) -> PoseChoice:
     """Per view, the candidate ``cam_T_target`` that agrees with the robot's motion.
 
     ``base_T_flange`` (n, 4, 4); ``candidates`` (n, k, 4, 4): k candidate target poses per view
-    (candidate 0 is the detector's), e.g. a chessboard read in both orders. ``mount``:
-    ``"eye_in_hand"`` or ``"eye_to_hand"``. The choice minimises the summed angle mismatch
+    (candidate 0 is the detector's), e.g. a chessboard read in both orders; eye-in-hand or
+    eye-to-hand alike. The choice minimises the summed angle mismatch
     over all pairs of views (each capped at 30 deg): every view is tried as the anchor, the
     others start at the candidate that best fits it and are then improved one at a time.
     Symmetric choices (every view turned) fit equally well; the one that keeps the most views
     as detected is returned. Needs n >= 3.
     """
-    if mount not in ("eye_in_hand", "eye_to_hand"):
-        raise ValueError(f"mount must be 'eye_in_hand' or 'eye_to_hand', got {mount!r}")
     F = geo.as_poses(base_T_flange, "base_T_flange")
     C = np.asarray(candidates, dtype=float)
     if C.ndim != 4 or C.shape[0] != len(F) or C.shape[2:] != (4, 4) or C.shape[1] < 1:
@@ -196,7 +194,7 @@ def choose_consistent_poses(base_T_flange, candidates, mount: str = "eye_in_hand
     if len(F) < 3:
         raise ValueError(f"choosing poses from the motion needs at least 3 views, got {len(F)}")
     geo.as_poses(C.reshape(-1, 4, 4), "candidates")
-    raw = _mismatch_table(F, C, mount)
+    raw = _mismatch_table(F, C)
     M = np.minimum(raw, _MISMATCH_CAP_DEG)
     best, best_cost = None, np.inf
     for anchor in range(len(F)):
@@ -216,13 +214,13 @@ def choose_consistent_poses(base_T_flange, candidates, mount: str = "eye_in_hand
         unclear=tuple(int(v) for v in np.flatnonzero(alternative - mismatch < CLEAR_MARGIN_DEG)))
 
 
-def resolve_half_turns(base_T_flange, corners_px, object_points, intrinsics: Intrinsics,
-                       mount: str = "eye_in_hand"):
+def resolve_half_turns(base_T_flange, corners_px, object_points, intrinsics: Intrinsics):
     """Put every view's chessboard corners in the order that agrees with the robot's motion.
 
     ``base_T_flange`` (n, 4, 4); ``corners_px``: n arrays (N, 2) of pixels, each the full grid
     as a chessboard detector lists it; ``object_points``: the grid (N, 3), metres, row by row
-    (one array for all views, or one per view); ``intrinsics`` the camera's. Each view's pose is
+    (one array for all views, or one per view); ``intrinsics`` the camera's. Eye-in-hand and
+    eye-to-hand captures alike (the mount need not be known). Each view's pose is
     solved for its detected order and for the reverse order, and
     :func:`choose_consistent_poses` keeps the one that fits the other views' motions.
 
@@ -252,15 +250,15 @@ def resolve_half_turns(base_T_flange, corners_px, object_points, intrinsics: Int
             raise ValueError(f"view {k}: solvePnP found no pose for its corners")
         corners.append(pixels)
         candidates.append([pose, pose @ turn])
-    choice = choose_consistent_poses(F, np.array(candidates), mount)
+    choice = choose_consistent_poses(F, np.array(candidates))
     poses = np.array([c[a] for c, a in zip(candidates, choice.chosen)])
     corners = [c[::-1].copy() if a else c for c, a in zip(corners, choice.chosen)]
     return corners, poses, choice
 
 
-def resolve_capture_half_turns(capture, mount: str = "eye_in_hand"):
+def resolve_capture_half_turns(capture):
     """:func:`resolve_half_turns` on a chessboard :class:`~robots.capture.Capture`: returns a
     new Capture (corners reordered, ``cam_T_target`` re-solved) and the :class:`PoseChoice`."""
     corners, poses, choice = resolve_half_turns(capture.base_T_flange, capture.corners_px,
-                                                capture.object_points, capture.intrinsics, mount)
+                                                capture.object_points, capture.intrinsics)
     return dataclasses.replace(capture, corners_px=corners, cam_T_target=poses), choice

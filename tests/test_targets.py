@@ -129,7 +129,7 @@ def test_views_read_half_a_turn_round_are_found_from_the_motion(mount):
     intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], p.camera.width, p.camera.height)
     read = [view[::-1] if k in (2, 5) else view for k, view in enumerate(p.pixels)]
     corners, poses, choice = resolve_half_turns(p.base_T_flange, read, p.board.object_points(),
-                                                intrinsics, mount)
+                                                intrinsics)
     assert choice.changed == (2, 5) and choice.unclear == ()
     assert np.allclose(np.array(corners), p.pixels)
     assert geo.rotation_error_deg(poses, p.true_cam_T_target).max() < 1.0
@@ -153,7 +153,7 @@ def test_pure_rolls_about_the_optical_axis_leave_the_choice_unclear():
     F = np.array([geo.pose_from_rotvec([0, 0, a], [0.3, 0, 0.5]) for a in (0.0, np.pi / 2, np.pi)])
     C = np.array([geo.pose_from_rotvec([0, 0, -a], [0, 0, 0.5]) for a in (0.0, np.pi / 2, np.pi)])
     turn = geo.make_pose(np.diag([-1.0, -1.0, 1.0]))
-    choice = choose_consistent_poses(F, np.stack([C, C @ turn], axis=1), "eye_in_hand")
+    choice = choose_consistent_poses(F, np.stack([C, C @ turn], axis=1))
     assert choice.unclear  # a half-turn about z is itself a roll: the motion cannot tell
     with pytest.raises(ValueError, match="at least 3 views"):
         choose_consistent_poses(F[:2], np.stack([C[:2], C[:2]], axis=1))
