@@ -5,6 +5,8 @@ Detection`` like :func:`robots.capture.chessboard_detector`. A view that is refu
 as a ``Detection`` with ``ok=False`` and a ``reason`` that states the rule (how many points were
 found, how many are needed), never as a bare None:
 
+- :func:`chessboard_with_reasons`: :func:`robots.capture.chessboard_detector` with a reason
+  when the board is not found (that one returns None, which its callers expect);
 - :func:`aruco_detector`: one ArUco or AprilTag marker, or a grid of them (``cv2.aruco``);
 - :func:`charuco_detector`: a ChArUco board (chessboard corners identified by markers);
 - :func:`circle_grid_detector`: a symmetric or asymmetric circle grid.
@@ -20,13 +22,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots.capture import Detection
+from robots.capture import Detection, chessboard_detector
 from robots.half_turn import planar_pose
 from robots.interfaces import Frame, Intrinsics
 
 __all__ = [
     "MIN_POINTS",
     "aruco_detector",
+    "chessboard_with_reasons",
     "charuco_detector",
     "circle_grid_detector",
 ]
@@ -94,6 +97,29 @@ def _count(value, name: str, minimum: int) -> int:
     if isinstance(value, (bool, np.bool_)) or int(value) != value or int(value) < minimum:
         raise ValueError(f"{name} must be a whole number >= {minimum}, got {value!r}")
     return int(value)
+
+
+# --------------------------------------------------------------------------- chessboards
+
+
+def chessboard_with_reasons(inner_cols: int, inner_rows: int, square_m: float):
+    """Return ``detect(frame, intrinsics) -> Detection`` for a plain chessboard of
+    ``inner_cols`` x ``inner_rows`` inner corners, ``square_m`` metres: the detection of
+    :func:`robots.capture.chessboard_detector`, or a refusal with its rule (OpenCV finds a
+    chessboard whole or not at all, so every inner corner is needed)."""
+    square_m = _positive(square_m, "square_m", "metres")
+    detect_board = chessboard_detector(inner_cols, inner_rows, square_m)
+    needed = inner_cols * inner_rows
+
+    def detect(frame: Frame, intrinsics: Intrinsics) -> Detection:
+        found = detect_board(frame, intrinsics)
+        if found is None:
+            return _refused(f"{inner_cols} x {inner_rows} chessboard: not found whole; all "
+                            f"{needed} inner corners are needed (count inner corners, not "
+                            "squares: a board of 10 x 7 squares has 9 x 6; keep it fully in view)")
+        return found
+
+    return detect
 
 
 # --------------------------------------------------------------------------- markers

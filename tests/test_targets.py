@@ -3,6 +3,8 @@ chessboard's half-turn chosen from the robot's motion (synthetic truth and the r
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -12,7 +14,12 @@ from autograder.synthetic import NoiseModel, make_hand_eye
 from robots import geometry as geo
 from robots.half_turn import choose_consistent_poses, half_turn, resolve_half_turns
 from robots.interfaces import Frame, Intrinsics
-from robots.targets import aruco_detector, charuco_detector, circle_grid_detector
+from robots.targets import (
+    aruco_detector,
+    charuco_detector,
+    chessboard_with_reasons,
+    circle_grid_detector,
+)
 
 PX_PER_M = 4000.0  # the flat rendering's scale: a camera 1 m away with this focal length
 
@@ -63,6 +70,8 @@ def test_a_marker_that_is_not_there_is_refused_with_the_rule():
     assert not charuco.ok and "found 0 markers" in charuco.reason and "at least 4" in charuco.reason
     grid = circle_grid_detector(4, 3, 0.02)(blank, intrinsics)
     assert not grid.ok and "all 12 circles are needed" in grid.reason
+    board = chessboard_with_reasons(9, 6, 0.0236)(blank, intrinsics)
+    assert not board.ok and "all 54 inner corners are needed" in board.reason
 
 
 def test_a_grid_of_markers():
@@ -157,6 +166,15 @@ def test_pure_rolls_about_the_optical_axis_leave_the_choice_unclear():
     assert choice.unclear  # a half-turn about z is itself a roll: the motion cannot tell
     with pytest.raises(ValueError, match="at least 3 views"):
         choose_consistent_poses(F[:2], np.stack([C[:2], C[:2]], axis=1))
+
+
+def test_the_chessboard_with_reasons_finds_what_the_plain_detector_finds():
+    capture = load_visp_franka("eye_in_hand")
+    folder = Path(__file__).resolve().parents[1] / "autograder" / "data" / "visp_franka"
+    bgr = cv2.imread(str(folder / "eye_in_hand" / "franka_image-1.png"))
+    intrinsics = Intrinsics(*capture.K[[0, 1, 0, 1], [0, 1, 2, 2]], *capture.image_size_wh)
+    found = chessboard_with_reasons(9, 6, 0.0236)(Frame(bgr[:, :, ::-1], None, 0.0), intrinsics)
+    assert found.ok and np.allclose(found.corners_px, capture.pixels[0])
 
 
 def test_the_real_franka_capture_has_its_rolled_view_turned_back():
