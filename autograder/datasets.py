@@ -12,8 +12,8 @@ from importlib import resources
 
 import numpy as np
 
-__all__ = ["RWHE_KUKA_SEQUENCES", "RealHandEyeCapture", "load_aubo_flange_capture",
-           "load_rwhe_kuka"]
+__all__ = ["RWHE_KUKA_SEQUENCES", "RealHandEyeCapture", "VISP_FRANKA_MOUNTS",
+           "load_aubo_flange_capture", "load_rwhe_kuka", "load_visp_franka"]
 
 _AUBO_FLANGE = ("data", "bionicdl_aubo_i5_flange", "calibration_data.npz")
 _AUBO_FLANGE_POINTS = 50
@@ -53,7 +53,10 @@ class RealHandEyeCapture:
     OpenCV), NaN where a corner was not found. ``board_points_m`` (N, 3): the same corners in
     the board frame as printed (metres, z = 0). ``image_size_wh``: (width, height) in pixels.
     ``image_names``: the original image of each view. ``mount`` is ``"eye_in_hand"`` or
-    ``"eye_to_hand"``; ``pattern`` says how the corners were found.
+    ``"eye_to_hand"``; ``pattern`` says how the corners were found. ``K`` (3, 3) and ``dist``
+    (5,): the camera's intrinsics when the capture came with them (None: calibrate them from
+    the corners). ``notes``: what loading decided, with its evidence (e.g. views whose corner
+    order was turned to agree with the robot's motion).
     """
 
     name: str
@@ -64,6 +67,9 @@ class RealHandEyeCapture:
     image_names: tuple[str, ...]
     mount: str
     pattern: str
+    K: np.ndarray | None = None
+    dist: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
 
 
 def load_rwhe_kuka(sequence: str = "kuka_1") -> RealHandEyeCapture:
@@ -101,3 +107,86 @@ def load_rwhe_kuka(sequence: str = "kuka_1") -> RealHandEyeCapture:
     return RealHandEyeCapture(
         name=sequence, base_T_flange=base_T_flange, pixels=pixels, board_points_m=board,
         image_size_wh=size, image_names=names, mount="eye_in_hand", pattern=pattern)
+
+
+VISP_FRANKA_MOUNTS = ("eye_in_hand", "eye_to_hand")
+
+
+def _visp_pose(path) -> np.ndarray:
+    """base_T_flange from a ViSP ``vpPoseVector`` YAML: tx ty tz (m), theta-u (rad)."""
+    import yaml
+
+    from robots import geometry as geo
+
+    with open(path) as f:
+        values = np.array(yaml.safe_load(f)["data"], dtype=float).ravel()
+    if values.shape != (6,):
+        raise ValueError(f"{path}: {values.size} numbers, expected 6 (tx ty tz tux tuy tuz)")
+    return geo.pose_from_rotvec(values[3:], values[:3])
+
+
+def _visp_camera(path) -> tuple[np.ndarray, tuple[int, int]]:
+    """K and (width, height) from a ViSP camera XML (``perspectiveProjWithDistortion`` with
+    kud = 0 here, so no distortion)."""
+    import xml.etree.ElementTree as ElementTree
+
+    root = ElementTree.parse(path).getroot().find("camera")
+    model = root.find("model")
+    value = {k: float(model.find(k).text) for k in ("px", "py", "u0", "v0", "kud")}
+    if value["kud"] != 0.0:
+        raise ValueError(f"{path}: kud = {value['kud']}; ViSP's radial model is not OpenCV's")
+    K = np.array([[value["px"], 0, value["u0"]], [0, value["py"], value["v0"]], [0, 0, 1.0]])
+    return K, (int(root.find("image_width").text), int(root.find("image_height").text))
+
+
+def load_visp_franka(mount: str = "eye_in_hand") -> RealHandEyeCapture:
+    """One of ViSP's two real Franka hand-eye captures (8 views each, intrinsics given).
+
+    ``"eye_in_hand"``: a camera on the flange looks at a 9 x 6 (inner corners) chessboard of
+    23.6 mm squares; one view has the camera rolled about half a turn, so the corner order is
+    resolved from the robot's motion (:func:`robots.half_turn.resolve_half_turns`) and said in
+    ``notes``. ``"eye_to_hand"``: a fixed camera looks at one 48 mm AprilTag (36h11) on the
+    flange; its 4 corners per view. Robot poses: ViSP's ``rPe`` (base_T_flange, translation m
+    and theta-u rad). Corners are detected here in the shipped images with OpenCV. Source:
+    github.com/lagadic/visp, GPL-2.0-or-later; see the README next to the files.
+    """
+    import cv2
+
+    from robots.capture import chessboard_detector
+    from robots.half_turn import resolve_half_turns
+    from robots.interfaces import Frame, Intrinsics
+    from robots.targets import aruco_detector
+
+    if mount not in VISP_FRANKA_MOUNTS:
+        raise ValueError(f"mount must be one of {VISP_FRANKA_MOUNTS}, got {mount!r}")
+    folder = resources.files("autograder").joinpath("data", "visp_franka", mount)
+    with resources.as_file(folder) as root:
+        K, size = _visp_camera(root / "franka_camera.xml")
+        intrinsics = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], *size)
+        if mount == "eye_in_hand":
+            detect, pattern = chessboard_detector(9, 6, 0.0236), "chessboard 9 x 6, 23.6 mm"
+        else:
+            detect = aruco_detector("DICT_APRILTAG_36h11", 0.048)
+            pattern = "AprilTag 36h11, 48 mm, 4 corners"
+        names = tuple(f"franka_image-{i}.png" for i in range(1, 9))
+        poses, corners, board = [], [], None
+        for i, name in enumerate(names, 1):
+            poses.append(_visp_pose(root / f"franka_pose_rPe_{i}.yaml"))
+            bgr = cv2.imread(str(root / name), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise FileNotFoundError(f"{root / name} is missing; reinstall cobotlab")
+            found = detect(Frame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None, 0.0), intrinsics)
+            if found is None or not found.ok:
+                why = "" if found is None else f": {found.reason}"
+                raise ValueError(f"{root / name}: the target was not found{why}")
+            corners.append(found.corners_px)
+            board = found.object_points
+    base_T_flange = np.array(poses)
+    notes: tuple[str, ...] = ()
+    if mount == "eye_in_hand":
+        corners, _, choice = resolve_half_turns(base_T_flange, corners, board, intrinsics)
+        notes = (choice.summary(),)
+    return RealHandEyeCapture(
+        name=f"visp_franka_{mount}", base_T_flange=base_T_flange, pixels=np.array(corners),
+        board_points_m=board, image_size_wh=size, image_names=names, mount=mount,
+        pattern=pattern, K=K, dist=np.zeros(5), notes=notes)

@@ -53,13 +53,15 @@ class Detection:
     ``cam_T_target`` (4, 4): the target's pose in the camera optical frame (metres), or None
     when the detector finds corners but does not solve for the pose. ``corners_px`` (N, 2):
     detected image points in pixels; ``object_points`` (N, 3): the same points in the target
-    frame, metres. ``ok=False`` marks a failed detection (the view is skipped).
+    frame, metres. ``ok=False`` marks a failed detection (the view is skipped); ``reason``
+    then says why, with the rule (e.g. how many points were found and how many are needed).
     """
 
     cam_T_target: np.ndarray | None
     corners_px: np.ndarray
     object_points: np.ndarray
     ok: bool = True
+    reason: str = ""
 
     def __post_init__(self):
         self.corners_px = np.asarray(self.corners_px, dtype=float).reshape(-1, 2)
@@ -189,7 +191,8 @@ def capture_pose_pairs(
             detection = detector(frame, intrinsics)
             if detection is None or not detection.ok or len(detection.corners_px) == 0:
                 failed_indices.append(i)
-                failed_reasons.append("target not detected")
+                failed_reasons.append(detection.reason if detection is not None
+                                      and detection.reason else "target not detected")
                 failed_images.append(frame.rgb)
             else:
                 kept["flange"].append(as_pose(base_T_flange, "robot.flange_pose()"))
@@ -396,10 +399,12 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
     (OpenCV's convention for ``object_points``). The pose comes from ``cv2.solvePnP`` with the
     camera's distortion, after sub-pixel corner refinement.
 
-    A board with an odd number of squares both ways (9 x 7) looks the same turned half a
-    turn, and OpenCV may list its corners from either end. The detector keeps the order whose
-    first row runs left to right in the image, so views must keep the board's x axis within
-    90 degrees of the image's u axis (capture poses rolled less than +-90 degrees).
+    A chessboard looks the same turned half a turn, and OpenCV may list its corners from either
+    end. As a first guess the detector keeps the order whose first row runs left to right in
+    the image, which is wrong for a view whose camera is rolled past 90 degrees; the robot's
+    motion tells the two orders apart, so pass the whole capture through
+    :func:`robots.half_turn.resolve_half_turns` (or ``resolve_capture_half_turns``) before
+    calibrating. A board not found whole gives None (all inner corners are needed).
     """
     if inner_cols < 2 or inner_rows < 2 or not square_m > 0:
         raise ValueError(
@@ -418,7 +423,7 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
             return None
         criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
         corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
-        if corners[inner_cols - 1, 0] < corners[0, 0]:  # the half-turn ambiguity, see above
+        if corners[inner_cols - 1, 0] < corners[0, 0]:  # a first guess at the half-turn, see above
             corners = corners[::-1].copy()
         ok, rvec, tvec = cv2.solvePnP(
             grid, corners, intrinsics.K, intrinsics.dist, flags=cv2.SOLVEPNP_ITERATIVE

@@ -59,6 +59,9 @@ __all__ = [
     "CornerNoiseChoice",
     "HandEyeRefinement",
     "calibrate_from_corners",
+    "check_corner_inputs",
+    "fit_candidate",
+    "pnp_poses",
     "cramer_rao_covariance",
     "pose_residuals",
     "refine_hand_eye",
@@ -999,7 +1002,10 @@ def _check_intrinsics(K, dist) -> tuple[np.ndarray, np.ndarray]:
     return K, dist
 
 
-def _check_camera(board_points, pixels, K, dist, n_views):
+def check_corner_inputs(board_points, pixels, K, dist, n_views):
+    """Validated ``(board_points (N, 3) m, pixels (n, N, 2) px, K (3, 3), dist)``; ``ValueError``
+    naming the argument for a wrong shape, NaN board points, bad intrinsics or pixels given in
+    normalised image coordinates."""
     P = _check_board(board_points)
     px = diagnostics.as_array(pixels, "pixels", "an (n_views, N, 2) array of corner pixels")
     if px.shape != (n_views, len(P), 2):
@@ -1162,7 +1168,7 @@ def refine_reprojection(board_points, pixels, K, dist, base_T_flange, mount: str
     """
     _check_mount(mount)
     A = geo.as_poses(base_T_flange, "base_T_flange")
-    P, px, K, dist = _check_camera(board_points, pixels, K, dist, len(A))
+    P, px, K, dist = check_corner_inputs(board_points, pixels, K, dist, len(A))
     if X0 is None or Y0 is None:
         raise ValueError("refine_reprojection needs a start X0 and Y0; get them from "
                          "refine_hand_eye(base_T_flange, cam_T_target, mount) on the solvePnP poses")
@@ -1366,7 +1372,9 @@ def view_rms_px(predicted: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     return np.sqrt(np.nanmean(d2, axis=1))
 
 
-def _pnp_poses(board_points, pixels, K, dist) -> np.ndarray:
+def pnp_poses(board_points, pixels, K, dist) -> np.ndarray:
+    """(n, 4, 4) ``cam_T_target`` per view by ``cv2.solvePnP`` on its found corners (NaN rows
+    skipped), metres; ``ValueError`` for a view with fewer than 4 corners or no pose."""
     poses = []
     for i, view in enumerate(pixels):
         ok = np.all(np.isfinite(view), axis=1)
@@ -1395,7 +1403,10 @@ def _pose_candidate(method: str, A, C, mount: str) -> HandEyeRefinement:
                              converged=True)
 
 
-def _fit_choice(choice: CornerNoiseChoice, P, px, K, dist, A, C, mount, start):
+def fit_candidate(choice: CornerNoiseChoice, P, px, K, dist, A, C, mount, start):
+    """Fit one candidate model of ``calibrate_from_corners`` on these views (inputs validated):
+    a reprojection fit started from ``start`` (a ``HandEyeRefinement``), or a pose-based fit on
+    ``C``. Returns its ``HandEyeRefinement``."""
     if choice.method != "reprojection":
         return _pose_candidate(choice.method, A, C, mount)
     return refine_reprojection(P, px, K, dist, A, mount, X0=start.X, Y0=start.Y,
@@ -1483,7 +1494,7 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
     """
     _check_mount(mount)
     A = geo.as_poses(base_T_flange, "base_T_flange")
-    P, px, K, dist = _check_camera(board_points, pixels, K, dist, len(A))
+    P, px, K, dist = check_corner_inputs(board_points, pixels, K, dist, len(A))
     folds = diagnostics.check_number(folds, "folds", minimum=2, integer=True)
     if folds > len(A):
         raise ValueError(f"folds must be between 2 and the number of views ({len(A)}), got {folds}")
@@ -1505,7 +1516,7 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
     if not weights and not pose_methods:
         raise ValueError("no candidates: give robot_weights or pose_candidates")
     if cam_T_target is None:
-        C = _pnp_poses(P, px, K, dist)
+        C = pnp_poses(P, px, K, dist)
         camera_name, camera_fix = "cam_T_target (solvePnP on board_points)", "divide board_points by {n}"
     else:
         C = geo.as_poses(cam_T_target, "cam_T_target")
@@ -1532,7 +1543,7 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
         try:
             for k in range(folds):
                 out, keep = fold_of == k, fold_of != k
-                fit = _fit_choice(cand, P, px[keep], K, dist, A[keep], C[keep], mount, start)
+                fit = fit_candidate(cand, P, px[keep], K, dist, A[keep], C[keep], mount, start)
                 rms[out] = view_rms_px(predicted_corners(fit, P, K, dist, A[out]), px[out])
             score = float(np.exp(np.mean(np.log(np.maximum(rms, 1e-12)))))
         except ValueError:
@@ -1547,7 +1558,7 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
     chosen = _simplest_within_noise(choices, log_rms)
     choices = [choices[chosen]] + sorted(
         (c for k, c in enumerate(choices) if k != chosen), key=lambda c: c.held_out_px)
-    result = _fit_choice(choices[0], P, px, K, dist, A, C, mount, start)
+    result = fit_candidate(choices[0], P, px, K, dist, A, C, mount, start)
     if choices[0].method != "reprojection":
         # A pose-based fit has no corner residual of its own; report the one it leaves.
         rms = view_rms_px(predicted_corners(result, P, K, dist, A), px)

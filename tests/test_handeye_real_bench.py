@@ -73,3 +73,21 @@ def test_the_fold_cache_round_trips_and_is_ignored_for_other_sources(tmp_path, c
     assert real.load_cache(path, "other") == {}
     assert "written by other sources" in capsys.readouterr().err
     assert real.source_fingerprint() == real.source_fingerprint()
+
+
+def test_eye_to_hand_folds_predict_through_the_fixed_camera():
+    """Eye-to-hand: X = base_T_cam, Y = flange_T_target; the held-out corners come through
+    inv(X) @ base_T_flange_i @ Y, and a fold keeps a capture's given intrinsics."""
+    from autograder.synthetic import make_hand_eye
+
+    p = make_hand_eye(1, "eye_to_hand", n_poses=6)
+    board = p.board.object_points()
+    Y = real.board_pose_from_views(p.base_T_flange, p.true_cam_T_target, p.X_true, "eye_to_hand")
+    assert np.allclose(Y, p.Y_true, atol=1e-9)
+    clean = real.held_out_rms(p.X_true, Y, p.base_T_flange[0], board, p.pixels[0], p.camera.K,
+                              p.camera.dist, "eye_to_hand")
+    assert clean < 1e-6
+    assert real.training_views(8, 3, 0).tolist() == [0, 1, 2, 4, 5, 6, 7]
+    picked = real.training_views(30, 3, 8)
+    assert len(picked) == 8 and 3 not in picked
+    assert picked.tolist() == real.training_views(30, 3, 8).tolist()  # the same for every method
