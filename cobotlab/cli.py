@@ -10,7 +10,11 @@ import argparse
 import sys
 
 from cobotlab.commands import calibrate as calibrate_command
+from cobotlab.commands import course as course_command
 from cobotlab.commands import data as data_command
+from cobotlab.commands import export as export_command
+from cobotlab.commands import labs as labs_command
+from cobotlab.commands import report as report_command
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -56,136 +60,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     calibrate_command.add_parser(sub)
     data_command.add_parser(sub)
-
-    labs = sub.add_parser("labs", help="the labs: new ones, their verification, the students' "
-                                       "copies (no solutions)")
-    labs_sub = labs.add_subparsers(dest="labs_command", metavar="ACTION", required=True)
-    student = labs_sub.add_parser(
-        "student",
-        help="write the student version of every lab into DIR (solutions and hidden tests out)",
-        description=(
-            "Write DIR/<lab>/<lab>.ipynb for every lab: the release version nbgrader's "
-            "generate_assignment makes (solution regions replaced by `raise "
-            "NotImplementedError()`, hidden tests removed, outputs cleared), with the lab's "
-            "other files and a README. Give students DIR, never the repository's labs/. "
-            "Needs nbgrader (the course extra) and the labs/ sources of a full checkout."
-        ),
-    )
-    student.add_argument("dir", metavar="DIR", help="folder to write into (created if needed)")
-    student.add_argument("--lab", action="append", default=None, metavar="LAB",
-                         help="only this lab (repeat for several; default: every lab)")
-    student.add_argument("--force", action="store_true",
-                         help="replace notebooks already in DIR (they may hold a student's "
-                              "work), and write labs whose last `labs verify` failed")
-    _course_option(student, "the course whose own labs are written too")
-    remove = labs_sub.add_parser(
-        "remove",
-        help="remove a lab from the course: its folders, gradebook entry and grades",
-        description=(
-            "Remove lab NAME from the course: nbgrader's source/, release/, submitted/, "
-            "autograded/ and feedback/ folders of it (and its exchange outbound/inbound "
-            "entries), its assignment in gradebook.db with every score, its rows of grades.csv, "
-            "cobotlab's feedback, kept executions and verify record; for a course's own lab its "
-            "folder and private spec too. A built-in lab stays in the package: it is added to "
-            "removed_labs in the course's cobotlab.toml. Shows the plan and asks first."
-        ),
-    )
-    remove.add_argument("name", metavar="NAME", help="the lab (its nbgrader assignment name)")
-    _course_option(remove, "the course to remove it from")
-    remove.add_argument("--yes", action="store_true",
-                        help="remove without asking (for scripts; without it, a run with no "
-                             "terminal is refused)")
-    new = labs_sub.add_parser(
-        "new",
-        help="start a lab of your own in a course repository: from a skeleton, or a copy of a lab",
-        description=(
-            "Write a new lab NAME into the course folder: its nbgrader source notebook "
-            "(LABS/NAME/NAME.ipynb), its public scoring (LABS/NAME/scoring.py, released with "
-            "the notebook) and its private spec (.cobotlab/specs/NAME.py: the hidden problems, "
-            "their truths, the classic mistakes; never released). LABS is the first of the "
-            "lab_folders of the course's cobotlab.toml, which is created (lab_folders = "
-            "[\"labs\"]) if the course has none. Without --from the lab is a skeleton with one "
-            "graded function, ready to adapt; with --from it is a copy of that lab (built in or "
-            "the course's) under the new name. Nothing is written if anything is refused."
-        ),
-    )
-    new.add_argument("name", metavar="NAME",
-                     help="the lab's name: a folder, an nbgrader assignment and part of a Python "
-                          "module name (a letter, then letters, digits or _), e.g. lab6_gripper")
-    new.add_argument("--dir", default=None, metavar="DIR",
-                     help="the course folder (default: the current course, that of "
-                          "$COBOTLAB_COURSE or the nearest cobotlab.toml above the current "
-                          "folder, else the current folder)")
-    new.add_argument("--from", dest="from_lab", default=None, metavar="LAB",
-                     help="copy this lab (e.g. lab1_flange, or one of the course's) instead of "
-                          "starting from the skeleton")
-    verify = labs_sub.add_parser(
-        "verify",
-        help="check a lab's grading: correct code keeps full credit, each mistake loses it",
-        description=(
-            "Draw many sets of the hidden problems of the lab in PATH (its folder) and grade the "
-            "notebook's solution and each of the spec's code mistakes on them; record the "
-            "evidence beside the private specs, where `cobotlab grade` looks for it. Exits "
-            "non-zero when the lab fails."
-        ),
-    )
-    verify.add_argument("path", metavar="PATH", help="the lab: its folder (e.g. labs/lab6_gripper) or its name")
-    verify.add_argument("--draws", type=int, default=None, metavar="N",
-                        help="hidden draws per graded function (default 3688: with no loss, the "
-                             "95 %% bound on the reference's loss rate is below 1e-3; use "
-                             "10000 before a release)")
-    verify.add_argument("--worst", action="store_true",
-                        help="after the table, print each function's worst problem (where the "
-                             "reference came closest to its tolerance) as a notebook cell: "
-                             "the inputs as numpy literals, the call, the errors")
-    verify.add_argument("--json", default=None, metavar="FILE",
-                        help="write the JSON report to FILE instead of the course's "
-                             ".cobotlab/verified/<lab>.json (where `cobotlab grade` looks)")
-
-    course = sub.add_parser("course", help="lay out an nbgrader course for the labs")
-    course_sub = course.add_subparsers(dest="course_command", metavar="ACTION", required=True)
-    init = course_sub.add_parser(
-        "init",
-        help="write nbgrader_config.py, source/<lab>/ for every lab, and the grading secret",
-        description=(
-            "Lay out an nbgrader course in DIR: nbgrader_config.py, source/<assignment>/ for "
-            "every lab, and the grading secret in DIR/.cobotlab/secret (mode 0600; keep it "
-            "private). Safe to run again after adding a lab: sources and the secret are kept. "
-            "Then `nbgrader generate_assignment <assignment>` in DIR makes the student version."
-        ),
-    )
-    init.add_argument("dir", metavar="DIR", help="course directory (created if needed)")
-    init.add_argument("--force", action="store_true",
-                      help="lay out labs whose last `cobotlab labs verify` failed too (a lab "
-                           "that does not load is always left out)")
-    init.add_argument("--exchange", default=None, metavar="PATH",
-                      help="nbgrader's exchange folder (default DIR/exchange; created). On a "
-                           "JupyterHub, a folder every student's server mounts at this path")
-    private = course_sub.add_parser(
-        "exchange",
-        help="as root: a private nbgrader exchange where no student reaches another's work",
-        description=(
-            "Set up (or bring up to date) nbgrader's exchange at ROOT for a machine many "
-            "students share (JupyterHub spawning each student's server as their own Unix "
-            "user): each student on the roster gets an inbound and a feedback folder of their "
-            "own, which the instructors' group GROUP reads; nobody else can list, read, "
-            "replace or delete them. Run as root; again after adding students. Every user's "
-            "nbgrader then needs the lines this prints (or writes with --config) in its "
-            "nbgrader_config.py. See docs/exchange.md."
-        ),
-    )
-    private.add_argument("root", metavar="ROOT", help="the exchange folder (made if missing; "
-                         "root-owned folders above it), e.g. /srv/nbgrader/exchange")
-    private.add_argument("--students", required=True, metavar="ROSTER",
-                         help="CSV with an id column (as for `nbgrader db student import`): "
-                              "each student's Unix user name")
-    private.add_argument("--instructors", required=True, metavar="GROUP",
-                         help="the Unix group of the instructors (and the grading account)")
-    private.add_argument("--course", default="cobotlab", metavar="ID",
-                         help="nbgrader course id (default cobotlab, as `course init` writes)")
-    private.add_argument("--config", default=None, metavar="FILE",
-                         help="also write the nbgrader_config.py lines into FILE, e.g. "
-                              "/etc/jupyter/nbgrader_config.py (other lines kept)")
+    labs_command.add_parser(sub)
+    course_command.add_parser(sub)
 
     grade = sub.add_parser(
         "grade",
@@ -267,49 +143,8 @@ def _build_parser() -> argparse.ArgumentParser:
     merge.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
     merge.add_argument("shards", metavar="SHARD", nargs="+", help="a graded copy of the course")
 
-    # Issue 40, parts 4 and 5: grades to the LMS and the class at a glance.
-    export = sub.add_parser(
-        "export", help="write a lab's grades as the LMS imports them (Canvas, Moodle, CSV)",
-        description=(
-            "Write the grades of ASSIGNMENT (the gradebook's after `cobotlab grade`: manual "
-            "scores over automatic ones, less the late penalty) as Canvas' gradebook import, "
-            "Moodle's CSV grade import, or a plain CSV, for the students of ROSTER (a CSV with "
-            "a student_id column and the LMS's identity columns: docs/instructors.md, Grades "
-            "to the LMS). A submission whose student is not in the roster is refused by name; "
-            "a roster row with no submission, or an ungraded one, gets an empty cell and is "
-            "named on stderr."))
-    export.add_argument("course_dir", metavar="COURSE", help="course directory")
-    export.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
-    export.add_argument("--format", required=True, choices=("canvas", "moodle", "csv"))
-    export.add_argument("--roster", required=True, metavar="CSV",
-                        help="student_id -> the LMS's identities, one row per student")
-    export.add_argument("--out", default=None, metavar="FILE",
-                        help="default COURSE/exports/ASSIGNMENT_FORMAT.csv")
-    export.add_argument("--title", default=None,
-                        help="the grade column's name (default: the assignment's)")
-    export.add_argument("--canvas-id", default=None, metavar="N",
-                        help="canvas: the Canvas assignment's id, so the column is 'TITLE (N)' "
-                             "and updates that assignment (without it Canvas makes a new one)")
-    export.add_argument("--moodle-id", default="email", choices=("email", "idnumber", "username"),
-                        help="moodle: the roster column Moodle maps users by (default email)")
-    export.add_argument("--missing", default="blank", choices=("blank", "zero"),
-                        help="a roster row with no submission: empty cell (default) or 0")
-    export.add_argument("--skip-unrostered", action="store_true",
-                        help="leave out (and name) students who submitted but are not in the "
-                             "roster, instead of refusing")
-    class_report = sub.add_parser(
-        "report", help="the class at a glance: an HTML page with figures and CSV files",
-        description=(
-            "Write COURSE/reports/ASSIGNMENT/index.html (and its figures and CSV files): the "
-            "score distribution, each function's and check's share of students who lost "
-            "credit, the named mistakes and who made them, each check's errors against its "
-            "tolerance, late and ungraded submissions, and pairs of students whose graded "
-            "functions are the same code up to names and formatting. Scores again, in this "
-            "process, from the executions the last grade run kept: no student code runs."))
-    class_report.add_argument("course_dir", metavar="COURSE", help="course directory")
-    class_report.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")
-    class_report.add_argument("--out", default=None, metavar="DIR",
-                              help="default COURSE/reports/ASSIGNMENT")
+    export_command.add_parser(sub)
+    report_command.add_parser(sub)
 
     robot = sub.add_parser("robot", help="talk to a robot cell (sim or real) without a notebook")
     robot_sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
@@ -414,55 +249,6 @@ def _student_ids(spec: str | None) -> list[str] | None:
     return ids
 
 
-def _labs_new(name: str, course_dir, from_lab) -> None:
-    """``cobotlab labs new``: write the lab, then say what was written and what comes next."""
-    import os
-
-    from autograder import registry
-    from cobotlab.authoring import new_lab, next_steps
-
-    if course_dir is None:   # inside a course, its lab goes there, wherever the shell is
-        course_dir = registry.course_root() or "."
-    written = new_lab(name, course_dir, from_lab=from_lab)
-    for path in written:
-        print(f"wrote {os.path.relpath(path)}")
-    print("next:")
-    for number, step in enumerate(next_steps(written, course_dir), 1):
-        print(f"  {number}. {step}")
-
-
-def _course_option(parser, what: str) -> None:
-    """``--course COURSE`` of the lab commands that work on one course, found as git finds
-    its repository when not given."""
-    parser.add_argument("--course", default=None, metavar="COURSE",
-                        help=f"{what} (default: that of $COBOTLAB_COURSE, else the nearest "
-                             "cobotlab.toml at or above the current folder)")
-
-
-def _labs_student(args) -> None:
-    """``cobotlab labs student``: the course named, or found from here (said when none is)."""
-    from autograder import registry
-    from cobotlab.labs import write_student_labs
-
-    if args.course is not None:
-        from pathlib import Path
-
-        course = Path(args.course).expanduser().resolve()
-        if not any((course / f).is_file() for f in (registry.CONFIG_NAME, "nbgrader_config.py")):
-            raise ValueError(f"--course {args.course}: not a course (no {registry.CONFIG_NAME} "
-                             "or nbgrader_config.py there); give the course folder, the one "
-                             "`cobotlab course init` or `cobotlab labs new` wrote into")
-        registry.use_course(course)
-    elif registry.course_root() is None and registry.builtin_folder().is_dir():
-        # said, so a course's own labs are never left out unseen (a student's install has
-        # no lab sources at all, and the error below says so)
-        print(f"cobotlab: no course found (no {registry.CONFIG_NAME} here or above, "
-              f"${registry.COURSE_ENV} unset): writing the built-in labs only; pass --course "
-              "DIR for a course's own labs", file=sys.stderr)
-    for path in write_student_labs(args.dir, labs=args.lab, force=args.force):
-        print(f"wrote {path}")
-
-
 NOT_GRADED_EXIT = 3
 """`cobotlab grade`'s exit status when the grader itself failed on some submission (no
 score recorded for it; the next run grades it again): a script or a cron job must notice."""
@@ -532,42 +318,10 @@ def main(argv: list[str] | None = None) -> int:
             calibrate_command.run(args)
         elif args.command == "data":
             data_command.run(args)
-        elif args.command == "labs" and args.labs_command == "student":
-            _labs_student(args)
-        elif args.command == "labs" and args.labs_command == "remove":
-            from cobotlab.removal import run_remove
-
-            return run_remove(args.name, args.course, yes=args.yes)
-        elif args.command == "labs" and args.labs_command == "new":
-            _labs_new(args.name, args.dir, args.from_lab)
-        elif args.command == "labs" and args.labs_command == "verify":
-            from cobotlab.verify import run_verify
-
-            return run_verify(args.path, draws=args.draws, json_out=args.json,
-                              worst=args.worst)
-        elif args.command == "course" and args.course_command == "init":
-            from autograder.course import init_course
-            from cobotlab.authoring import write_gitignore
-
-            course = init_course(args.dir, exchange=args.exchange, force=args.force)
-            print(f"course laid out in {course}")
-            # the secret it just drew, and the grades to come, must never reach a repository
-            if write_gitignore(course):
-                print(f"{course / '.gitignore'} keeps the grading secret and the students' "
-                      "data out of git")
-        elif args.command == "course" and args.course_command == "exchange":
-            from autograder import exchange
-
-            done = exchange.set_up(args.root, exchange.read_roster(args.students),
-                                   args.instructors, course_id=args.course)
-            for line in done.changed + [f"warning: {w}" for w in done.warnings]:
-                print(line)
-            if args.config:
-                print(f"wrote {exchange.write_config(args.config, args.root, args.course)}")
-            else:
-                print("Put these lines in every user's nbgrader_config.py "
-                      "(/etc/jupyter/nbgrader_config.py):\n"
-                      + exchange.config_block(args.root, args.course))
+        elif args.command == "labs":
+            return labs_command.run(args)
+        elif args.command == "course":
+            course_command.run(args)
         elif args.command == "grade":
             status = _grade(args)
             if status:
@@ -580,13 +334,9 @@ def main(argv: list[str] | None = None) -> int:
             for shard in args.shards:
                 merge_shard(args.course_dir, args.assignment, shard)
         elif args.command == "export":
-            from cobotlab.lms_export import run_export
-
-            run_export(args)
+            export_command.run(args)
         elif args.command == "report":
-            from cobotlab.class_report import run_report
-
-            run_report(args)
+            report_command.run(args)
         elif args.command == "robot" and args.robot_command == "check":
             _robot_check(args.kind, args.host, args.arm, jog=args.jog, realtime=args.realtime)
     except KeyboardInterrupt:
