@@ -211,3 +211,55 @@ def test_a_json_list_in_one_file(tmp_path, kuka):
     path.write_text(json.dumps({"poses": poses}))
     imported = import_capture(path, corners=corners)
     _same_poses(imported, F)
+
+
+def test_bad_files_and_numbers_name_the_file_the_view_and_the_fix(tmp_path):
+    from robots.pose_files import PoseConvention, intrinsics_from, to_base_T_flange
+
+    with pytest.raises(FileNotFoundError, match="no pose file or folder"):
+        read_poses(tmp_path / "missing.csv")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="holds no .yaml, .yml or .json pose files"):
+        read_poses(tmp_path / "empty")
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "a.yaml").write_text("stamp: 3\n")
+    with pytest.raises(ValueError, match="a.yaml: no pose found; give 'matrix'"):
+        read_poses(tmp_path / "one")
+    quats = tmp_path / "q.csv"
+    quats.write_text("0 0 0 0 0 0 1\n0 0 0 0.5 0 0 1\n0 0 0 0 1 0 0\n")
+    with pytest.raises(ValueError, match=r"quaternion of q.csv:2 has norm 1.118"):
+        to_base_T_flange(read_poses(quats), PoseConvention())
+    scaled = tmp_path / "m.txt"
+    scaled.write_text("2 0 0 0 0 2 0 0 0 0 2 0 0 0 0 1\n")
+    with pytest.raises(ValueError, match="m.txt poses"):
+        to_base_T_flange(read_poses(scaled), PoseConvention())
+    with pytest.raises(ValueError, match="--fy must be a positive number of pixels"):
+        intrinsics_from(500, -1, 320, 240, 640, 480)
+    with pytest.raises(ValueError, match="keeps OpenCV's first five"):
+        intrinsics_from(500, 500, 320, 240, 640, 480, [0.1, 0, 0, 0, 0, 0.2, 0, 0])
+    skewed = tmp_path / "camera_info.yaml"
+    skewed.write_text("image_width: 640\nimage_height: 480\n"
+                      "camera_matrix: {data: [500, 3, 320, 0, 500, 240, 0, 0, 1]}\n")
+    with pytest.raises(ValueError, match=r"is not \[\[fx 0 cx\]"):
+        read_intrinsics(skewed)
+    (tmp_path / "nothing.yaml").write_text("image_width: 640\n")
+    with pytest.raises(ValueError, match="no 3 x 3 camera_matrix found"):
+        read_intrinsics(tmp_path / "nothing.yaml")
+
+
+def test_cli_flag_mistakes_are_one_line(tmp_path, kuka, capsys):
+    F, corners = kuka
+    path = _write_rows(tmp_path / "poses.txt", F.reshape(len(F), 16))
+    for argv, message in (
+            (["--corners", str(corners), "--board", "8x6:39"], "--board goes with --images"),
+            (["--corners", str(corners), "--dist=0.1,0"], "--dist needs --fx --fy --cx --cy"),
+            (["--corners", str(corners), "--intrinsics", "x.yaml", "--fx", "1"],
+             "either as --intrinsics FILE or as --fx")):
+        assert cli.main(["data", "import", str(path), str(tmp_path / "cap"), *argv]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["data", "import", str(path), str(tmp_path / "cap"), "--corners", str(corners),
+                  "--length-unit", "cm"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'cm' (choose from 'm', 'mm')" in capsys.readouterr().err
