@@ -7,6 +7,12 @@ corners, and the images. Saved with :func:`save_capture`, a capture folder reloa
 :func:`load_capture` to exactly the same arrays, so a lab can be re-run offline from data
 taken on a real robot.
 
+A capture made elsewhere comes in by stages: :func:`read_views` (each view's corners, from
+images or a corners file), :func:`solve_board_poses` (the board poses, with the camera's own
+intrinsics when given, else calibrated from the corners) and :func:`capture_from_views`; pose
+files of other layouts and conventions are read by ``robots.pose_files`` and decided by
+``solutions.capture_import``.
+
 Folder layout::
 
     poses.npz      arrays (no pickles): base_T_flange (M, 4, 4), cam_T_target (M, 4, 4)
@@ -490,12 +496,16 @@ class ViewCorners:
 
 
 def image_files(images_dir) -> list[Path]:
-    """The images of a folder, sorted by name (the order the pose file must follow)."""
+    """The images of a folder in name order, numbers compared as numbers (``image-2`` before
+    ``image-10``): the order the pose file must follow."""
+    from robots.pose_files import in_natural_order
+
     folder = Path(images_dir)
     if not folder.is_dir():
         raise FileNotFoundError(f"no image folder at {folder}")
-    return sorted(p for p in folder.iterdir()
-                  if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"))
+    return in_natural_order(p for p in folder.iterdir()
+                            if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp", ".tif",
+                                                    ".tiff"))
 
 
 def corners_from_images(images_dir, n_views: int, board) -> ViewCorners:

@@ -6,7 +6,7 @@ Robot poses, one per view, come as
   12 (its top 3 x 4), 6 (translation + rotation vector, i.e. theta-u) or 7 (translation +
   quaternion). A header row may name the columns (``x,y,z,qx,qy,qz,qw``, ``tx ty tz rx ry
   rz``, ``x,y,z,qw,qx,qy,qz``): then the names decide the layout and the quaternion's order;
-- a folder of YAML or JSON files, one per view, sorted by name: a mapping with a 4 x 4
+- a folder of YAML or JSON files, one per view, in name order (numbers as numbers): a mapping with a 4 x 4
   ``matrix`` (or ``pose``, ``T``), or ``translation``/``position`` plus ``rotation`` (3 x 3),
   ``rotvec``/``theta_u``, ``quat_xyzw``/``quat_wxyz``, or ``quaternion`` as ``{x, y, z, w}``
   (order named) or a list (order unknown); or ViSP's ``vpPoseVector`` file (``data``: the
@@ -32,8 +32,8 @@ from scipy.spatial.transform import Rotation
 from robots.geometry import as_poses
 from robots.interfaces import Intrinsics
 
-__all__ = ["PoseConvention", "PoseTable", "read_intrinsics", "intrinsics_from", "read_poses",
-           "to_base_T_flange"]
+__all__ = ["PoseConvention", "PoseTable", "in_natural_order", "read_intrinsics",
+           "intrinsics_from", "read_poses", "to_base_T_flange"]
 
 LENGTH_UNITS = ("m", "mm")
 ANGLE_UNITS = ("rad", "deg")
@@ -105,6 +105,16 @@ def to_base_T_flange(table: PoseTable, convention: PoseConvention) -> np.ndarray
 
 
 # --------------------------------------------------------------------------- poses
+
+
+def in_natural_order(paths) -> list[Path]:
+    """``paths`` sorted by name with runs of digits compared as numbers, so ``image-2`` comes
+    before ``image-10`` (ViSP numbers its files 1, 2, ..., 10 without zeros)."""
+    def key(path):
+        return [(0, int(part), "") if part.isdigit() else (1, 0, part)
+                for part in re.split(r"(\d+)", Path(path).name) if part]
+
+    return sorted((Path(p) for p in paths), key=key)
 
 
 _HEADER_LAYOUTS = {
@@ -253,7 +263,7 @@ def read_poses(path) -> PoseTable:
     file (and line) and says what was expected."""
     path = Path(path)
     if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in POSE_SUFFIXES)
+        files = in_natural_order(p for p in path.iterdir() if p.suffix.lower() in POSE_SUFFIXES)
         if not files:
             raise ValueError(f"{path} holds no .yaml, .yml or .json pose files")
         rows, layouts, orders = [], set(), set()

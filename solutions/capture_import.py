@@ -239,6 +239,24 @@ def _pick_quat_order(table, convention, C, mount, direction_given: bool, mount_g
     return chosen, decisions
 
 
+def check_pairing(table: PoseTable, convention: PoseConvention, C, mount: str) -> None:
+    """``ValueError`` when the poses and the views are not paired one to one (a file sorted
+    otherwise than the images, a view missing from one list): their motions then rotate by
+    different angles, whatever the conventions (``diagnostics.diagnose_hand_eye``)."""
+    d = diagnostics.diagnose_hand_eye(to_base_T_flange(table, convention), C, mount, full=True)
+    if d.verdict != "pairing":
+        return
+    message = (f"the robot poses and the views are not paired one to one: between two views "
+               f"the robot and the camera must rotate by the same angle, but here they differ "
+               f"by {d.angle_mismatch_deg:.3g} deg (median over pairs of views; noise gives "
+               "well under 2 deg). Check that the images sort in the order of the poses "
+               "(numbered names), one pose per image, none missing from either")
+    if d.reorder is not None:
+        message += (f"; another pairing of the same poses and views fits "
+                    f"({d.reordered_mismatch_deg:.3g} deg)")
+    raise ValueError(message)
+
+
 def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
                       mount_given: bool = True):
     """The ``PoseConvention`` of ``table`` (the kept views' rows) against the camera's board
@@ -249,6 +267,9 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
     decisions = [Decision(k.replace("_", " "), v, "given") for k, v in given.items()
                  if v is not None]
     C = geo.as_poses(cam_T_target, "cam_T_target")
+    if table.layout != "rotvec" or given.get("angle_unit") is not None:
+        # nothing else decided here changes a motion's angle: check the pairing first
+        check_pairing(table, convention, C, mount)
     if table.layout == "quat" and given.get("quat_order") is None:
         if table.quat_order is not None:
             convention = replace(convention, quat_order=table.quat_order)
@@ -267,6 +288,7 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
     if given.get("length_unit") is None:
         convention, d = _pick_length(table, convention, C, mount)
         decisions.append(d)
+    check_pairing(table, convention, C, mount)
     return convention, tuple(decisions)
 
 

@@ -263,3 +263,23 @@ def test_cli_flag_mistakes_are_one_line(tmp_path, kuka, capsys):
                   "--length-unit", "cm"])
     assert exit_.value.code == 2
     assert "invalid choice: 'cm' (choose from 'm', 'mm')" in capsys.readouterr().err
+
+
+def test_poses_not_in_the_order_of_the_views_are_refused_with_the_pairing(tmp_path, kuka):
+    F, corners = kuka
+    # image names sorted so the last view comes first (im_9 before im_10 without natural
+    # order, say): every pose goes with its neighbour's image
+    shifted = np.roll(F, 1, axis=0)
+    path = _write_rows(tmp_path / "poses.txt", shifted.reshape(len(F), 16))
+    with pytest.raises(ValueError, match="not paired one to one.*another pairing of the same poses"):
+        import_capture(path, corners=corners)
+    # (one swapped pair of 29 leaves the median motion angle as it is: the calibration's
+    # per-view residuals name those two views instead)
+
+
+def test_numbered_files_sort_as_numbers(tmp_path):
+    from robots.pose_files import in_natural_order
+
+    names = ["image-10.png", "image-2.png", "image-1.png"]
+    assert [p.name for p in in_natural_order(names)] == ["image-1.png", "image-2.png",
+                                                         "image-10.png"]
