@@ -1,13 +1,12 @@
 """``cobotlab calibrate``: solve a saved capture folder, print X and its diagnosis, save it.
 
 The calibration itself is ``solutions.pipeline.calibrate_capture``; this module prints it.
+Nothing heavy is imported before the command runs, so ``cobotlab --help`` stays quick.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-
-import numpy as np
 
 # The method names, for --help (solutions.pipeline holds the same, and checks them).
 AUTO_METHOD = "auto"
@@ -60,6 +59,8 @@ def run(args) -> None:
 def print_calibration(result, capture, source) -> None:
     """Print a ``solutions.pipeline.Calibration``: X, the residuals, the flagged views, the
     corner fit's choice and the held-out error."""
+    import numpy as np
+
     from robots.geometry import rpy_from_pose
 
     X, views = result.X, result.views
