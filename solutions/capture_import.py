@@ -264,8 +264,9 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
     taken as given, the quaternion order a header named is taken, the rest are decided from
     the data. Returns (convention, decisions)."""
     convention = PoseConvention(**{k: v for k, v in given.items() if v is not None})
-    decisions = [Decision(k.replace("_", " "), v, "given") for k, v in given.items()
-                 if v is not None]
+    labels = {"length_unit": "length unit", "angle_unit": "angle unit",
+              "quat_order": "quat order", "direction": "pose direction"}
+    decisions = [Decision(labels[k], v, "given") for k, v in given.items() if v is not None]
     C = geo.as_poses(cam_T_target, "cam_T_target")
     if table.layout != "rotvec" or given.get("angle_unit") is not None:
         # nothing else decided here changes a motion's angle: check the pairing first
@@ -282,7 +283,8 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
         convention, d = _pick_rotation(table, convention, C, mount, "angle_unit",
                                         ("rad", "deg"), "--angle-unit", "angle unit")
         decisions.append(d)
-    if not any(d.what == "pose direction" for d in decisions) and given.get("direction") is None:
+    if given.get("direction") is None and not any(d.what == "pose direction"
+                                                   for d in decisions):
         convention, d = _pick_direction(table, convention, C, mount, mount_given)
         decisions.append(d)
     if given.get("length_unit") is None:

@@ -117,7 +117,7 @@ def test_given_flags_are_used_as_given_and_said_so(tmp_path, kuka):
     path = _write_rows(tmp_path / "poses.txt", F.reshape(len(F), 16))
     imported = import_capture(path, corners=corners, length_unit="m", direction="base_T_flange")
     assert [(d.what, d.how) for d in imported.decisions] == [("length unit", "given"),
-                                                             ("direction", "given")]
+                                                             ("pose direction", "given")]
     _same_poses(imported, F)
 
 
