@@ -81,25 +81,20 @@ def _mismatch(table, convention, C, mount) -> tuple[float, float, float]:
     return d.angle_mismatch_deg, d.residual_deg, d.flipped_residual_deg
 
 
-def _pick_rotation(table, convention, C, mount, field_name: str, choices, flag: str,
-                   what: str):
-    """Decide the rotation vectors' angle unit from the data: it changes each motion's
-    rotation angle, which must be the camera motion's."""
-    def score(choice):
-        mismatch, _, _ = _mismatch(table, replace(convention, **{field_name: choice}),
-                                                C, mount)
-        return mismatch
-
-    scores = {c: score(c) for c in choices}
-    best, other = sorted(choices, key=lambda c: scores[c])
-    evidence = "median |angle(robot motion) - angle(camera motion)| over pairs of views: " + ", ".join(f"{c} {scores[c]:.3g} deg" for c in choices)
-    clear = (scores[other] > ANGLE_RATIO * scores[best]
-             and scores[other] - scores[best] > ANGLE_MARGIN_DEG)
-    if not clear:
-        raise ValueError(f"the data cannot tell the {what} ({evidence}); pass {flag} "
-                         f"{' or '.join(choices)}")
-    return replace(convention, **{field_name: best}), Decision(what, best, "from the data",
-                                                                evidence)
+def _pick_angle_unit(table, convention, C, mount):
+    """Rotation vectors in rad or deg, from the data: the unit changes each motion's rotation
+    angle, which must be the camera motion's."""
+    scores = {unit: _mismatch(table, replace(convention, angle_unit=unit), C, mount)[0]
+              for unit in ("rad", "deg")}
+    best, other = sorted(scores, key=scores.get)
+    evidence = ("median |angle(robot motion) - angle(camera motion)| over pairs of views: "
+                + ", ".join(f"{unit} {score:.3g} deg" for unit, score in scores.items()))
+    if not (scores[other] > ANGLE_RATIO * scores[best]
+            and scores[other] - scores[best] > ANGLE_MARGIN_DEG):
+        raise ValueError(f"the data cannot tell the angle unit ({evidence}); pass --angle-unit "
+                         "rad or deg")
+    return (replace(convention, angle_unit=best),
+            Decision("angle unit", best, "from the data", evidence))
 
 
 def _pick_direction(table, convention, C, mount, mount_given: bool):
@@ -280,8 +275,7 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
                                                  given.get("direction") is not None, mount_given)
             decisions += found
     if table.layout == "rotvec" and given.get("angle_unit") is None:
-        convention, d = _pick_rotation(table, convention, C, mount, "angle_unit",
-                                        ("rad", "deg"), "--angle-unit", "angle unit")
+        convention, d = _pick_angle_unit(table, convention, C, mount)
         decisions.append(d)
     if given.get("direction") is None and not any(d.what == "pose direction"
                                                    for d in decisions):
