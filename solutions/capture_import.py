@@ -301,7 +301,7 @@ def import_capture(poses, *, images=None, corners=None, board=None,
     """Import a capture made elsewhere.
 
     ``poses``: a pose file or folder (``robots.pose_files.read_poses``). ``images`` (a folder,
-    one image per pose, sorted by name) with ``board`` = (inner columns, inner rows, square m),
+    one image per pose, in name order with numbers as numbers) with ``board`` = (inner columns, inner rows, square m),
     or ``corners`` (an .npz, ``robots.capture.corners_from_file``). ``intrinsics``: the
     camera's own calibration, used as given; None: calibrated from the corners. ``mount``:
     eye_in_hand or eye_to_hand (``mount_given`` False when it is only the default, so a pose
