@@ -115,30 +115,6 @@ class DemoSettings:
 # --------------------------------------------------------------------------- shared helpers
 
 
-def per_pose_residuals(base_T_flange, cam_T_target, X, mount: str = "eye_in_hand"):
-    """How far each pose disagrees with a hand-eye result X: (rotation_deg (n,), translation_m (n,)).
-
-    The pose that X and each view imply for the fixed "other" frame (eye-in-hand: the board in
-    the base frame, ``base_T_flange[i] @ X @ cam_T_target[i]``; eye-to-hand: the board in the
-    flange frame, ``inv(base_T_flange[i]) @ X @ cam_T_target[i]``) should be the same for every
-    view; the residual is each view's distance from their mean. A pose far above the others
-    is a bad view (blurred corners, a wrong robot reading).
-    """
-    F = geo.as_poses(base_T_flange, "base_T_flange")
-    C = geo.as_poses(cam_T_target, "cam_T_target")
-    if len(F) != len(C):
-        raise ValueError(f"{len(F)} flange poses but {len(C)} target poses; give one of each "
-                         "per view")
-    if mount == "eye_in_hand":
-        implied = F @ geo.as_pose(X, "X") @ C
-    elif mount == "eye_to_hand":
-        implied = geo.invert(F) @ geo.as_pose(X, "X") @ C
-    else:
-        raise ValueError(f"mount must be 'eye_in_hand' or 'eye_to_hand', got {mount!r}")
-    mean = geo.make_pose(geo.chordal_mean_rotation(implied), implied[:, :3, 3].mean(axis=0))
-    return geo.rotation_error_deg(implied, mean), geo.translation_error(implied, mean)
-
-
 def _board_detector(target):
     """The project's chessboard detector for a simulated printed board (its printed size,
     which a user reads off the print; not a pose)."""
@@ -330,6 +306,7 @@ def eye_in_hand_calibration(settings: DemoSettings) -> EyeInHandOutcome:
     from sim_backends.world import create_workcell
     from solutions import handeye
     from solutions.catalog import DEFAULT_METHOD, hand_eye_methods
+    from solutions.pipeline import per_pose_residuals
 
     w, h = settings.calib_size
     with create_workcell(mount="eye_in_hand", scene="calibration", width=w, height=h,

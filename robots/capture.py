@@ -7,6 +7,12 @@ corners, and the images. Saved with :func:`save_capture`, a capture folder reloa
 :func:`load_capture` to exactly the same arrays, so a lab can be re-run offline from data
 taken on a real robot.
 
+A capture made elsewhere comes in by stages: :func:`read_views` (each view's corners, from
+images or a corners file), :func:`solve_board_poses` (the board poses, with the camera's own
+intrinsics when given, else calibrated from the corners) and :func:`capture_from_views`; pose
+files of other layouts and conventions are read by ``robots.pose_files`` and decided by
+``solutions.capture_import``.
+
 Folder layout::
 
     poses.npz      arrays (no pickles): base_T_flange (M, 4, 4), cam_T_target (M, 4, 4)
@@ -35,12 +41,18 @@ from robots.interfaces import Camera, Frame, Intrinsics, Robot, UnreachableError
 __all__ = [
     "Capture",
     "Detection",
+    "ViewCorners",
+    "capture_from_views",
     "capture_pose_pairs",
     "chessboard_detector",
+    "corners_from_file",
+    "corners_from_images",
     "import_pose_text_capture",
     "load_capture",
     "read_pose_text",
+    "read_views",
     "save_capture",
+    "solve_board_poses",
 ]
 
 FORMAT = "cobotlab-capture/1"
@@ -470,97 +482,182 @@ def read_pose_text(path) -> np.ndarray:
     return as_poses(poses, f"{path} poses")
 
 
-def _corners_from_images(images_dir, n_views: int, board):
-    """(rgb images, corners per view or None, object points, image size) for a chessboard."""
+#: Corners a view needs to be kept: the fewest cv2.calibrateCamera / solvePnP take from a
+#: planar board with some margin against a degenerate view.
+MIN_CORNERS = 6
+
+
+@dataclass
+class ViewCorners:
+    """Corners found per view, before any pose is solved: ``corners`` (per view an (N_i, 2)
+    pixel array or None when the target was not found), ``object_points`` (per view (N_i, 3)
+    metres, target frame, or None), ``image_size`` (width, height) and the RGB ``images``
+    (empty when the corners came from a file)."""
+
+    corners: list
+    object_points: list
+    image_size: tuple[int, int]
+    images: list = field(default_factory=list)
+
+
+def image_files(images_dir) -> list[Path]:
+    """The images of a folder in name order, numbers compared as numbers (``image-2`` before
+    ``image-10``): the order the pose file must follow."""
+    from robots.pose_files import in_natural_order
+
+    folder = Path(images_dir)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"no image folder at {folder}")
+    return in_natural_order(p for p in folder.iterdir()
+                            if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp", ".tif",
+                                                    ".tiff"))
+
+
+def corners_from_images(images_dir, n_views: int, board) -> ViewCorners:
+    """Detect a chessboard (``board`` = (inner columns, inner rows, square m)) in each image
+    of ``images_dir`` (one per pose, sorted by name)."""
     import cv2
 
     cols, rows, square_m = board
-    files = sorted(p for p in Path(images_dir).iterdir()
-                   if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"))
+    files = image_files(images_dir)
     if len(files) != n_views:
         raise ValueError(f"{images_dir} has {len(files)} images but the pose file {n_views} poses; "
                          "keep one image per pose, named so that they sort in pose order")
     detect = chessboard_detector(cols, rows, square_m)
-    images, corners, objects, size = [], [], None, None
+    images, corners, objects, size = [], [], [], None
     for path in files:
         rgb = _read_png(cv2, path)
         size = (rgb.shape[1], rgb.shape[0])
-        # The detector also solves a pose, which needs intrinsics; these are not known yet
-        # (they are calibrated from the corners next), so a nominal camera stands in and only
-        # the corners are kept.
+        # The detector also solves a pose, which needs intrinsics; these may not be known yet
+        # (they may be calibrated from the corners next), so a nominal camera stands in and
+        # only the corners are kept.
         nominal = Intrinsics(float(size[0]), float(size[0]), size[0] / 2, size[1] / 2,
                              size[0], size[1])
         found = detect(Frame(rgb=rgb, depth=None, timestamp=0.0), nominal)
         images.append(rgb)
         corners.append(None if found is None else found.corners_px)
-        objects = found.object_points if found is not None else objects
-    return images, corners, objects, size
+        objects.append(None if found is None else found.object_points)
+    return ViewCorners(corners, objects, size, images)
 
 
-def import_pose_text_capture(poses_file, corners_file=None, images_dir=None, board=None,
-                             robot_name: str = "", camera_name: str = "") -> Capture:
-    """A ``Capture`` from a robot pose text file and the board's corners or images.
+def corners_from_file(corners_file, n_views: int) -> ViewCorners:
+    """Corners from an ``.npz`` with ``corners_px`` (n, N, 2) pixels (NaN where a corner was not
+    found), ``board_points_m`` (N, 3) metres and ``image_size_wh`` (the layout of
+    ``autograder/data/rwhe_kuka``)."""
+    with np.load(corners_file, allow_pickle=False) as data:
+        missing = {"corners_px", "board_points_m", "image_size_wh"} - set(data.files)
+        if missing:
+            raise ValueError(f"{corners_file} lacks {', '.join(sorted(missing))}; it needs "
+                             "corners_px (n, N, 2), board_points_m (N, 3), image_size_wh (2,)")
+        pixels = np.array(data["corners_px"], dtype=float)
+        board_points = np.array(data["board_points_m"], dtype=float)
+        size = tuple(int(v) for v in data["image_size_wh"])
+    if pixels.shape[0] != n_views or pixels.shape[1:] != (len(board_points), 2):
+        raise ValueError(f"{corners_file} has corners of shape {pixels.shape} for {n_views} poses "
+                         f"and {len(board_points)} board points; expected ({n_views}, "
+                         f"{len(board_points)}, 2), one row of corners per pose line")
+    corners, objects = [], []
+    for view in pixels:
+        ok = np.all(np.isfinite(view), axis=1)
+        corners.append(view[ok])
+        objects.append(board_points[ok])
+    return ViewCorners(corners, objects, size)
 
-    ``poses_file``: see ``read_pose_text``. Then either ``corners_file``, an ``.npz`` with
-    ``corners_px`` (n, N, 2) pixels (NaN where a corner was not found), ``board_points_m``
-    (N, 3) metres and ``image_size_wh`` (the layout of ``autograder/data/rwhe_kuka``), or
-    ``images_dir`` (one image per pose, sorted by name) with ``board`` = (inner corner
-    columns, rows, square size in metres) of a chessboard, detected here.
 
-    The camera's intrinsics (K; k1, k2, p1, p2, k3) are calibrated with
-    ``cv2.calibrateCamera`` on every view's corners, and each view's ``cam_T_target`` is that
-    calibration's board pose. Views with fewer than 6 corners found are recorded as failed.
-    """
+def _refusal(found) -> str:
+    n = 0 if found is None else len(found)
+    return (f"board not found: {n} corners found, at least {MIN_CORNERS} needed" if n
+            else "board not found: no corners detected")
+
+
+def solve_board_poses(views: ViewCorners, intrinsics: Intrinsics | None = None):
+    """Each kept view's ``cam_T_target`` (m) and the intrinsics used.
+
+    A view is kept with at least ``MIN_CORNERS`` corners. Given ``intrinsics`` are used as
+    they are (``cv2.solvePnP`` per view); without them the camera is calibrated from every
+    kept view's corners (``cv2.calibrateCamera``: K; k1, k2, p1, p2, k3) and the board poses
+    are that calibration's. Returns (intrinsics, cam_T_target (M, 4, 4), kept view indices
+    (M,), refused indices, the reason for each refused view). ``ValueError`` when fewer than 3
+    views are kept, with the rule and each view's count."""
     import cv2
 
-    base_T_flange = read_pose_text(poses_file)
-    n = len(base_T_flange)
-    if (corners_file is None) == (images_dir is None):
-        raise ValueError("give either corners_file (an .npz of corners) or images_dir with board")
-    images: list = []
-    if corners_file is not None:
-        with np.load(corners_file, allow_pickle=False) as data:
-            missing = {"corners_px", "board_points_m", "image_size_wh"} - set(data.files)
-            if missing:
-                raise ValueError(f"{corners_file} lacks {', '.join(sorted(missing))}; it needs "
-                                 "corners_px (n, N, 2), board_points_m (N, 3), image_size_wh (2,)")
-            pixels = np.array(data["corners_px"], dtype=float)
-            board_points = np.array(data["board_points_m"], dtype=float)
-            size = tuple(int(v) for v in data["image_size_wh"])
-        if pixels.shape[0] != n or pixels.shape[1:] != (len(board_points), 2):
-            raise ValueError(f"{corners_file} has corners of shape {pixels.shape} for {n} poses "
-                             f"and {len(board_points)} board points; expected ({n}, "
-                             f"{len(board_points)}, 2), one row of corners per pose line")
-        corners = []
-        for view in pixels:
-            ok = np.all(np.isfinite(view), axis=1)
-            corners.append((view[ok], board_points[ok]))
-    else:
-        if board is None:
-            raise ValueError("images_dir needs board = (inner columns, inner rows, square_m)")
-        images, found, board_points, size = _corners_from_images(images_dir, n, board)
-        corners = [None if c is None else (c, board_points) for c in found]
-    keep = [i for i, c in enumerate(corners) if c is not None and len(c[0]) >= 6]
-    failed = [i for i in range(n) if i not in keep]
+    n = len(views.corners)
+    counts = [0 if c is None else len(c) for c in views.corners]
+    keep = [i for i in range(n) if counts[i] >= MIN_CORNERS]
+    refused = [i for i in range(n) if i not in keep]
     if len(keep) < 3:
-        raise ValueError(f"the board was found in only {len(keep)} of {n} views; at least 3 "
-                         "are needed (check the board size and that the images are in pose order)")
-    obj = [corners[i][1].astype(np.float32) for i in keep]
-    img = [corners[i][0].astype(np.float32).reshape(-1, 1, 2) for i in keep]
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, None, None)
+        raise ValueError(
+            f"the board was found in only {len(keep)} of {n} views; at least 3 are needed, "
+            f"and a view counts with at least {MIN_CORNERS} corners (corners found per view: "
+            f"{counts}). Check the board size (inner corners, not squares) and that the images "
+            "are in pose order")
+    obj = [views.object_points[i].astype(np.float32) for i in keep]
+    img = [views.corners[i].astype(np.float32).reshape(-1, 1, 2) for i in keep]
+    if intrinsics is None:
+        _, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, views.image_size, None, None)
+        intrinsics = Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                                int(views.image_size[0]), int(views.image_size[1]),
+                                dist.ravel()[:5].astype(float))
+    else:
+        rvecs, tvecs = [], []
+        for o, c in zip(obj, img):
+            ok, r, t = cv2.solvePnP(o, c, intrinsics.K, intrinsics.dist)
+            rvecs.append(r)
+            tvecs.append(t)
     cam_T_target = np.array([np.vstack([np.hstack([cv2.Rodrigues(r)[0], t.reshape(3, 1)]),
                                         [0.0, 0.0, 0.0, 1.0]]) for r, t in zip(rvecs, tvecs)])
-    intrinsics = Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                            int(size[0]), int(size[1]), dist.ravel()[:5].astype(float))
-    keep_arr = np.array(keep, dtype=np.int64)
+    reasons = [_refusal(views.corners[i]) for i in refused]
+    return intrinsics, cam_T_target, np.array(keep, dtype=np.int64), np.array(refused, dtype=np.int64), reasons
+
+
+def capture_from_views(base_T_flange, views: ViewCorners, intrinsics: Intrinsics | None = None,
+                       robot_name: str = "", camera_name: str = "") -> Capture:
+    """A ``Capture`` from every view's ``base_T_flange`` (n, 4, 4), metres, and its corners
+    (``solve_board_poses`` solves the board poses, and the intrinsics when not given)."""
+    base_T_flange = as_poses(base_T_flange, "base_T_flange")
+    if len(base_T_flange) != len(views.corners):
+        raise ValueError(f"{len(base_T_flange)} robot poses but {len(views.corners)} views; "
+                         "give one pose per image")
+    intrinsics, cam_T_target, keep, failed, reasons = solve_board_poses(views, intrinsics)
+    images = views.images
     return Capture(
-        base_T_flange=base_T_flange[keep_arr], cam_T_target=cam_T_target,
-        corners_px=[corners[i][0] for i in keep], object_points=[corners[i][1] for i in keep],
-        intrinsics=intrinsics, commanded_base_T_flange=base_T_flange, pose_indices=keep_arr,
+        base_T_flange=base_T_flange[keep], cam_T_target=cam_T_target,
+        corners_px=[views.corners[i] for i in keep],
+        object_points=[views.object_points[i] for i in keep],
+        intrinsics=intrinsics, commanded_base_T_flange=base_T_flange, pose_indices=keep,
         timestamps=np.zeros(len(keep)), images=[images[i] for i in keep] if images else [],
-        failed_indices=np.array(failed, dtype=np.int64),
-        failed_reasons=["board not found (fewer than 6 corners)"] * len(failed),
+        failed_indices=failed, failed_reasons=reasons,
         failed_images=[images[i] if images else None for i in failed],
         robot_name=robot_name, camera_name=camera_name,
         created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
     )
+
+
+def import_pose_text_capture(poses_file, corners_file=None, images_dir=None, board=None,
+                             robot_name: str = "", camera_name: str = "",
+                             intrinsics: Intrinsics | None = None) -> Capture:
+    """A ``Capture`` from a robot pose text file and the board's corners or images.
+
+    ``poses_file``: see ``read_pose_text``. Then either ``corners_file`` (see
+    ``corners_from_file``) or ``images_dir`` (one image per pose, sorted by name) with
+    ``board`` = (inner corner columns, rows, square size in metres) of a chessboard, detected
+    here. ``intrinsics``: the camera's own calibration, used as given; without it the camera
+    is calibrated from the corners (``solve_board_poses``). Views with fewer than
+    ``MIN_CORNERS`` corners are recorded as failed, with the count. Other pose layouts and
+    conventions: ``solutions.capture_import``.
+    """
+    base_T_flange = read_pose_text(poses_file)
+    return capture_from_views(base_T_flange, read_views(len(base_T_flange), corners_file,
+                                                        images_dir, board),
+                              intrinsics, robot_name, camera_name)
+
+
+def read_views(n_views: int, corners_file=None, images_dir=None, board=None) -> ViewCorners:
+    """The corners of ``n_views`` views from ``corners_file`` or ``images_dir`` + ``board``."""
+    if (corners_file is None) == (images_dir is None):
+        raise ValueError("give either corners_file (an .npz of corners) or images_dir with board")
+    if corners_file is not None:
+        return corners_from_file(corners_file, n_views)
+    if board is None:
+        raise ValueError("images_dir needs board = (inner columns, inner rows, square_m)")
+    return corners_from_images(images_dir, n_views, board)

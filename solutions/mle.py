@@ -1372,6 +1372,31 @@ def view_rms_px(predicted: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     return np.sqrt(np.nanmean(d2, axis=1))
 
 
+def held_out_view_rms(fit, board_points, pixels, K, dist, base_T_flange,
+                      folds: int | None = None) -> np.ndarray:
+    """The held-out error, per view (n,): the RMS pixel distance between a view's detected
+    corners and those a fit that did not see it predicts through its robot pose
+    (``predicted_corners``: the board at the fit's ``board_scale``, the fit's intrinsics when it
+    refined them).
+
+    View i is left out in fold ``i % folds``; ``folds=None`` leaves one view out at a time.
+    ``fit(keep) -> HandEyeRefinement`` fits on the views where the boolean mask ``keep`` (n,)
+    is True. ``board_points`` (N, 3) m, ``pixels`` (n, N, 2) with NaN where a corner was not
+    seen, ``base_T_flange`` (n, 4, 4). This is the one held-out error of the project:
+    ``calibrate_from_corners`` scores its candidates with it, and ``solutions.pipeline``
+    reports it for the model a calibration chose.
+    """
+    A = geo.as_poses(base_T_flange, "base_T_flange")
+    folds = len(A) if folds is None else folds
+    fold_of = np.arange(len(A)) % folds
+    rms = np.zeros(len(A))
+    for k in range(folds):
+        out = fold_of == k
+        rms[out] = view_rms_px(predicted_corners(fit(~out), board_points, K, dist, A[out]),
+                               pixels[out])
+    return rms
+
+
 def pnp_poses(board_points, pixels, K, dist) -> np.ndarray:
     """(n, 4, 4) ``cam_T_target`` per view by ``cv2.solvePnP`` on its found corners (NaN rows
     skipped), metres; ``ValueError`` for a view with fewer than 4 corners or no pose."""
@@ -1535,16 +1560,14 @@ def calibrate_from_corners(board_points, pixels, K, dist, base_T_flange,
                                     fit_intrinsics=camera)
                   for camera in cameras for w in weights for scale in scales]
     candidates += [CornerNoiseChoice(np.nan, None, False, np.nan, method=m) for m in pose_methods]
-    fold_of = np.arange(len(A)) % folds
-
     choices, log_rms = [], []
     for cand in candidates:
         rms = np.zeros(len(A))
         try:
-            for k in range(folds):
-                out, keep = fold_of == k, fold_of != k
-                fit = fit_candidate(cand, P, px[keep], K, dist, A[keep], C[keep], mount, start)
-                rms[out] = view_rms_px(predicted_corners(fit, P, K, dist, A[out]), px[out])
+            rms = held_out_view_rms(
+                lambda keep, cand=cand: fit_candidate(cand, P, px[keep], K, dist, A[keep], C[keep],
+                                                      mount, start),
+                P, px, K, dist, A, folds)
             score = float(np.exp(np.mean(np.log(np.maximum(rms, 1e-12)))))
         except ValueError:
             # A fold too degenerate for this candidate (e.g. the closed forms' checks): it

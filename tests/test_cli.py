@@ -175,6 +175,28 @@ def test_calibrate_default_output_and_other_method(capsys, sim_capture):
     assert result.method == "tsai" and translation_error(result.pose, true_X) < 2e-3
 
 
+def test_the_pipeline_a_notebook_calls_is_what_calibrate_prints(capsys, sim_capture, tmp_path):
+    """solutions.pipeline: typed values, the same X and held-out error the command prints."""
+    from robots.capture import load_capture
+    from solutions import pipeline
+
+    folder, true_X, _ = sim_capture
+    capture = load_capture(folder)
+    result = pipeline.calibrate_capture(capture, "eye_in_hand", "tsai")
+    assert result.method == "tsai" and result.parent == "flange"
+    assert result.corner_fit is None and result.held_out is not None
+    assert result.held_out.per_view_px.shape == (len(result.views),)
+    assert not result.held_out.model_kept
+    assert translation_error(result.X, true_X) < 2e-3
+    out = tmp_path / "X.yaml"
+    assert cli.main(["calibrate", str(folder), "--method", "tsai", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"median {result.held_out.median_px:.2f} px" in printed
+    np.testing.assert_allclose(load_calibration(out).pose, result.X, atol=1e-12)
+    with pytest.raises(ValueError, match="unknown --method 'magic'"):
+        pipeline.calibrate_capture(capture, "eye_in_hand", "magic")
+
+
 def test_calibrate_warns_when_the_views_cannot_tell_the_mounts_apart(capsys, sim_capture):
     # The fixture's views only tilt the camera about axes in the board plane, aimed at one
     # point: both mounts fit them exactly, so the student must be told the result rests on

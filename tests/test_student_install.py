@@ -243,6 +243,9 @@ def test_lab0_runs_in_the_student_env_and_solutions_is_missing(student_env, tmp_
     (["demo", "--synthetic"], "cobotlab demo --synthetic"),
     (["demo", "--quick"], "cobotlab demo"),
     (["calibrate", "some_capture"], "cobotlab calibrate"),
+    # the import decides the pose file's conventions with the solvers' hand-eye checks
+    (["data", "import", "poses.csv", "capture", "--corners", "corners.npz"],
+     "cobotlab data import"),
 ])
 def test_instructor_commands_say_in_one_line_what_is_missing(student_env, tmp_path, argv,
                                                              command):
