@@ -13,12 +13,13 @@ Conventions (see the project's DESIGN notes):
 
 Every function that takes poses validates them and raises ``ValueError`` naming the index of
 the first bad one, so a student sees "pose 7 has det -1" rather than a wrong answer later.
-The exceptions, by design, are the fast paths the solvers call in their inner loops:
-``invert``, ``compose``, ``relative`` and ``transform_points`` check shapes (and refuse
-strings, None and complex values) and refuse a rotation block that is not orthonormal within
-``FAST_PATH_RIGID_TOL`` (a student's scaled or hand-typed matrix), but they do not repair
-rounding, check det or the bottom row, or refuse NaN (NaN in, NaN out); validate untrusted
-poses once, at the public entry, with ``as_pose`` / ``as_poses``.
+The fast paths the solvers call in their inner loops, ``invert``, ``compose``, ``relative``
+and ``transform_points``, check as much for less (issue 50): shapes, strings, None, complex
+values, NaN and inf, the bottom row, a rotation block not orthonormal within
+``FAST_PATH_RIGID_TOL`` (a student's scaled or hand-typed matrix) and a reflection (det -1,
+which passes any orthonormality test), in about a microsecond a pose; they do not repair
+rounding and do not warn. ``as_pose`` / ``as_poses`` validate untrusted poses fully, once, at a
+public entry.
 """
 
 from __future__ import annotations
@@ -127,44 +128,82 @@ def _orthonormal_message(label: str, gram_error: float, tol: float = REPAIR_TOL)
 
 
 def _refuse_non_rigid(T: np.ndarray, label: str) -> None:
-    """``ValueError`` naming ``label`` (and the index in a stack) unless every rotation block
-    of ``T`` (..., 4, 4) has max |R^T R - I| <= ``FAST_PATH_RIGID_TOL``; NaN passes.
+    """``ValueError`` naming ``label`` (and the index in a stack) unless every pose of ``T``
+    (..., 4, 4) is a proper rigid motion: finite, bottom row [0, 0, 0, 1], rotation block
+    orthonormal within ``FAST_PATH_RIGID_TOL`` (max |R^T R - I|) and of determinant +1.
 
     The fast paths' check. A single pose is judged on plain floats (the sum of
-    ``_gram_error``, an upper bound of the max, written out here: 0.7 us, where one numpy
-    3 x 3 product costs more in call overhead); a stack in one vectorised pass. Only a
-    failure pays for the exact max and the message."""
+    ``_gram_error``, an upper bound of the max, and the determinant, written out: about 1 us,
+    where one numpy 3 x 3 product costs more in call overhead); a stack in one vectorised
+    pass. Only a failure pays for the exact diagnosis and the message
+    (``_pose_problem``)."""
     if T.ndim == 2:
-        (a, b, c, _), (d, e, f, _), (g, h, i, _), _ = T.tolist()
-        if not (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
-                + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
-                + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i)
-                > FAST_PATH_RIGID_TOL):  # NaN compares False: NaN in, NaN out
+        r0, r1, r2, bottom = T.tolist()
+        (a, b, c, x), (d, e, f, y), (g, h, i, z) = r0, r1, r2
+        # NaN makes the sum NaN and every comparison False, so it falls through to the
+        # diagnosis; inf - inf is NaN, so the translation's sum is finite only if each is.
+        if (bottom == _BOTTOM and math.isfinite(x + y + z) and _gram_error(r0, r1, r2)
+                <= FAST_PATH_RIGID_TOL and a * (e * i - f * h) - b * (d * i - f * g)
+                + c * (d * h - e * g) > 0):
             return
-        blocks, where = T[None, :3, :3], [()]
+        stack, where = T[None], [()]
     else:
-        R = T[..., :3, :3]
-        G = np.matmul(np.swapaxes(R, -1, -2), R)
-        np.subtract(G, _EYE3, out=G)
-        np.abs(G, out=G)
-        if not (G > FAST_PATH_RIGID_TOL).any():
-            return
-        blocks = R.reshape(-1, 3, 3)
+        stack = T.reshape(-1, 4, 4)
+        R = stack[:, :3, :3]
+        with np.errstate(invalid="ignore"):
+            G = np.matmul(np.swapaxes(R, -1, -2), R)
+            np.subtract(G, _EYE3, out=G)
+            np.abs(G, out=G)
+            if (np.isfinite(stack[:, :3, 3]).all() and (stack[:, 3] == _BOTTOM).all()
+                    and (G <= FAST_PATH_RIGID_TOL).all() and (_dets(R) > 0).all()):
+                return
         where = list(np.ndindex(T.shape[:-2]))
-    errors = np.abs(np.swapaxes(blocks, -1, -2) @ blocks - _EYE3).max(axis=(-2, -1))
-    bad = np.flatnonzero(errors > FAST_PATH_RIGID_TOL)
-    if not bad.size:  # the sum bound flagged a pose whose max is within the tolerance
-        return
-    k = int(bad[0])
-    index = "".join(f"[{i}]" for i in where[k])
-    lengths = np.linalg.norm(blocks[k], axis=0)
-    raise ValueError(
-        f"{label}{index} is not a rigid pose: its rotation block is not orthonormal (max "
-        f"|R^T R - I| = {errors[k]:.2e} > {FAST_PATH_RIGID_TOL:g}; column lengths "
-        f"{', '.join(f'{v:.4g}' for v in lengths)}, a rotation's are 1). Build poses with "
-        "geometry.make_pose(R, t) or geometry.pose_from_rotvec, or re-orthonormalise R with "
-        "geometry.project_to_so3; look for a scale or unit inside R, or K or a homography "
-        "where a pose belongs")
+    for k, pose in enumerate(stack):
+        problem = _pose_problem(pose, label + "".join(f"[{i}]" for i in where[k]))
+        if problem is not None:
+            raise ValueError(problem)
+    # The sum bound flagged a pose whose max is within the tolerance: it passes.
+
+
+_BOTTOM = [0.0, 0.0, 0.0, 1.0]
+_BUILD_POSES = ("Build poses with geometry.make_pose(R, t) or geometry.pose_from_rotvec, and "
+                "validate untrusted ones once with geometry.as_pose")
+
+
+def _pose_problem(T: np.ndarray, label: str, rotation_only: bool = False) -> str | None:
+    """What makes ``T`` (4, 4) not a proper rigid pose for the fast paths (or, with
+    ``rotation_only``, the (3, 3) ``T`` not a rotation), as a message naming ``label``, the
+    problem and the fix; None if it is one within ``FAST_PATH_RIGID_TOL``. The order of the
+    checks is the order of the causes: NaN first (it poisons every other test), then the
+    bottom row, the scale, and last the handedness."""
+    R = T if rotation_only else T[:3, :3]
+    what = "rotation" if rotation_only else "pose"
+    if not np.all(np.isfinite(T)):
+        bad = [tuple(int(v) for v in ij) for ij in np.argwhere(~np.isfinite(T))[:3]]
+        return (f"{label} contains NaN or inf (at {', '.join(map(str, bad))}); a {what} must "
+                "be finite: look for a failed detection, a division by zero or an unfilled "
+                "entry upstream, and drop that view. " + ("" if rotation_only else _BUILD_POSES))
+    if not rotation_only and not np.all(np.abs(T[3] - _BOTTOM) <= 1e-9):
+        return (f"{label} has bottom row {T[3].tolist()}, a pose's is [0, 0, 0, 1]: it is not "
+                "a homogeneous transform (a (3, 4) [R | t] padded with zeros, a projection "
+                "matrix or a transposed pose?). " + _BUILD_POSES)
+    errors = np.abs(R.T @ R - _EYE3).max()
+    if errors > FAST_PATH_RIGID_TOL:
+        lengths = np.linalg.norm(R, axis=0)
+        noun = label if rotation_only else f"{label} is not a rigid pose: its rotation block"
+        return (
+            f"{noun} is not orthonormal (max |R^T R - I| = {errors:.2e} > {FAST_PATH_RIGID_TOL:g}; column "
+            f"lengths {', '.join(f'{v:.4g}' for v in lengths)}, a rotation's are 1). Build "
+            "poses with geometry.make_pose(R, t) or geometry.pose_from_rotvec, or "
+            "re-orthonormalise R with geometry.project_to_so3; look for a scale or unit inside "
+            "R, or K or a homography where a pose belongs")
+    det = float(np.linalg.det(R))
+    if not det > 0:
+        noun = label if rotation_only else f"{label}'s rotation block"
+        return (f"{noun} has determinant {det:+.1f}: it is a reflection, not a rotation; check "
+                "the handedness of your axes (a negated or swapped axis, a left-handed frame) "
+                "or build it with geometry.pose_from_rotvec / make_pose")
+    return None
 
 
 def _fast_pose(T, label: str) -> np.ndarray:
@@ -332,14 +371,14 @@ def as_pose(T, name: str = "pose") -> np.ndarray:
 def make_pose(R=None, t=None) -> np.ndarray:
     """Build a (4, 4) pose from a (3, 3) rotation (default identity) and a translation in metres.
 
-    ``R`` is validated (``as_rotation``); ``t`` is checked for shape only, not finiteness: a
-    constructor builds what it is given (tests build invalid poses with it), and every
-    function that takes a pose refuses NaN and inf through ``as_pose``."""
+    ``R`` is validated (``as_rotation``: NaN, inf, a reflection or a non-orthonormal block
+    raise ``ValueError`` naming ``R``); ``t`` must be 3 finite numbers (``ValueError`` naming
+    ``t``): a pose built from NaN would only fail later, far from its cause."""
     T = np.eye(4)
     if R is not None:
         T[:3, :3] = as_rotation(R, "R")
     if t is not None:
-        T[:3, 3] = _translation(t, "t", finite=False)
+        T[:3, 3] = _translation(t, "t")
     return T
 
 
@@ -348,13 +387,12 @@ def invert(T) -> np.ndarray:
 
     Uses R^T rather than a general matrix inverse, so the result stays exactly rigid.
 
-    Fast path: solvers call this in their inner loops on poses they validated once at their
-    public entry (``as_pose`` / ``as_poses``). The shape is checked (strings, None, complex
-    values are refused) and so is rigidity, cheaply: a rotation block with max |R^T R - I|
-    above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming ``T`` (and the index in
-    a stack), since ``[R^T, -R^T t]`` is no inverse of a non-rigid matrix. Not checked: det
-    (a reflection is inverted as it is), the bottom row, finiteness (NaN in, NaN out), and
-    rounding is not repaired. Validate untrusted input fully with ``as_pose(T)``.
+    Fast path: solvers call this in their inner loops. ``ValueError`` naming ``T`` (and the
+    index in a stack) for a wrong shape, strings, None, complex values, NaN or inf, a bottom
+    row other than [0, 0, 0, 1], a rotation block with max |R^T R - I| above
+    ``FAST_PATH_RIGID_TOL`` (1e-3) or a reflection (det -1): ``[R^T, -R^T t]`` is the inverse
+    of a proper rigid motion only. Rounding within the tolerance is neither repaired nor
+    warned about (``as_pose`` does that).
     """
     return _invert(T, "invert: T")
 
@@ -374,12 +412,11 @@ def compose(*poses) -> np.ndarray:
 
     Arguments may be (4, 4) or (N, 4, 4) stacks; stacks broadcast against single poses.
 
-    Fast path (it sits in the solvers' inner loops): each argument's shape is checked, strings,
-    None and complex values are refused, and a rotation block with max |R^T R - I| above
-    ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming the argument (``compose
-    argument 1[7]``: the second argument, pose 7 of its stack). Not checked: det, bottom rows,
-    finiteness (NaN in gives NaN out); rounding is not repaired. Validate untrusted poses
-    fully with ``as_pose`` / ``as_poses`` once, at the public entry.
+    Fast path (it sits in the solvers' inner loops): ``ValueError`` naming the argument
+    (``compose argument 1[7]``: the second argument, pose 7 of its stack) for a wrong shape,
+    strings, None, complex values, NaN or inf, a bottom row other than [0, 0, 0, 1], a
+    rotation block with max |R^T R - I| above ``FAST_PATH_RIGID_TOL`` (1e-3) or a reflection
+    (det -1). Rounding within the tolerance is not repaired (``as_pose`` does that).
     """
     return _compose(poses, _COMPOSE_LABELS if len(poses) <= len(_COMPOSE_LABELS) else
                     [f"compose argument {i}" for i in range(len(poses))])
@@ -412,8 +449,8 @@ def _compose(poses, labels) -> np.ndarray:
 def relative(a_T_b, a_T_c) -> np.ndarray:
     """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a.
 
-    A fast path like :func:`invert` and :func:`compose`: shapes and rigidity are checked
-    (``ValueError`` naming ``a_T_b`` or ``a_T_c``), finiteness is not."""
+    A fast path like :func:`invert` and :func:`compose`, with the same checks (``ValueError``
+    naming ``a_T_b`` or ``a_T_c``)."""
     return _compose((_invert(a_T_b, "relative: a_T_b"), a_T_c), ("inv(a_T_b)", "relative: a_T_c"))
 
 
@@ -422,10 +459,10 @@ def transform_points(a_T_b, points_b) -> np.ndarray:
 
     Fast path (it sits in inner loops: projections, residuals): the shapes are checked --
     ``a_T_b`` one (4, 4) pose, ``points_b`` (..., 3), with a hint when ``points_b`` looks
-    transposed, (3, N) -- strings, None and complex values are refused, and a rotation block
-    with max |R^T R - I| above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming
-    ``a_T_b``. NaN passes through (NaN in, NaN out). Validate an untrusted pose fully with
-    ``as_pose`` first.
+    transposed, (3, N) -- strings, None and complex values are refused, and ``a_T_b`` gets
+    the checks of :func:`invert` (NaN or inf, bottom row, orthonormality within
+    ``FAST_PATH_RIGID_TOL``, det +1). NaN or inf in ``points_b`` raises too, naming the first
+    bad point: a missing point is dropped by the caller, not carried along.
     """
     T = a_T_b if type(a_T_b) is np.ndarray and a_T_b.dtype is _F64 else \
         as_real_array(a_T_b, "a_T_b")
@@ -442,7 +479,17 @@ def transform_points(a_T_b, points_b) -> np.ndarray:
         raise ValueError(f"transform_points: points_b must have shape (N, 3) or (3,) (metres), "
                          f"got shape {p.shape}{hint}")
     _refuse_non_rigid(T, "transform_points: a_T_b")
-    return p @ T[:3, :3].T + T[:3, 3]
+    out = p @ T[:3, :3].T + T[:3, 3]
+    # Checked on the result (one pass over data already in cache): NaN or inf in a point
+    # gives NaN or inf in its image, and a finite pose cannot make a finite point infinite
+    # short of overflow, which is as wrong.
+    if not np.isfinite(out).all():
+        bad = np.argwhere(~np.isfinite(out.reshape(-1, 3)))[0, 0]
+        where = f"[{bad}]" if p.ndim > 1 else ""
+        raise ValueError(f"transform_points: points_b{where} is not finite "
+                         f"({p.reshape(-1, 3)[bad].tolist()}); drop the missing points (e.g. "
+                         "points_b[np.isfinite(points_b).all(axis=-1)]) before mapping them")
+    return out
 
 
 def skew(v) -> np.ndarray:
@@ -506,7 +553,8 @@ def _translation(t, name: str = "t", finite: bool = True) -> list:
                          f"{t.shape}")
     x, y, z = t.reshape(3).tolist()
     if finite and not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}")
+        raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}; a translation is 3 finite "
+                         "numbers in metres: look for a failed measurement upstream")
     return [x, y, z]
 
 
@@ -892,11 +940,14 @@ def rotation_error_deg(A, B) -> np.ndarray | float:
     """Geodesic angle between two rotations (or poses, or stacks of them), in degrees.
 
     The angle of ``A^T B`` (of its nearest rotation when it is not orthonormal to 1e-9, as
-    :func:`rotation_angle_deg`). Raises ``ValueError`` when that nearest rotation is not
-    unique: one of A and B is a reflection (det -1) or rank-deficient. Two reflections differ
-    by a proper rotation, whose angle is returned.
+    :func:`rotation_angle_deg`). Each of A and B must be a rotation: ``ValueError`` naming it
+    (and the index in a stack) for NaN or inf, a block not orthonormal within
+    ``FAST_PATH_RIGID_TOL`` (a scaled matrix, K, a homography: no angle to speak of) or a
+    reflection (det -1; two reflections would otherwise "differ" by a proper rotation).
     """
     Ra, Rb = _rotation_block(A, "A"), _rotation_block(B, "B")
+    _refuse_non_rotation(Ra, "rotation_error_deg: A")
+    _refuse_non_rotation(Rb, "rotation_error_deg: B")
     try:
         product = np.swapaxes(Ra, -1, -2) @ Rb
     except ValueError:
@@ -904,6 +955,31 @@ def rotation_error_deg(A, B) -> np.ndarray | float:
                          f"({Rb.shape}) must be stacks of the same length, or single "
                          "rotations") from None
     return rotation_angle_deg(product, "A^T B (the rotation from A to B)")
+
+
+def _refuse_non_rotation(R: np.ndarray, label: str) -> None:
+    """``ValueError`` naming ``label`` (and the index in a stack) unless every (3, 3) block of
+    ``R`` is finite, orthonormal within ``FAST_PATH_RIGID_TOL`` and of det +1; the rotation
+    counterpart of ``_refuse_non_rigid``, with the same messages."""
+    if R.ndim == 2:
+        rows = R.tolist()
+        (a, b, c), (d, e, f), (g, h, i) = rows
+        if (_gram_error(*rows) <= FAST_PATH_RIGID_TOL
+                and a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0):
+            return
+        stack, where = R[None], [()]
+    else:
+        stack = R.reshape(-1, 3, 3)
+        with np.errstate(invalid="ignore"):
+            G = np.abs(np.swapaxes(stack, -1, -2) @ stack - _EYE3)
+            if (G <= FAST_PATH_RIGID_TOL).all() and (_dets(stack) > 0).all():
+                return
+        where = list(np.ndindex(R.shape[:-2]))
+    for k, block in enumerate(stack):
+        problem = _pose_problem(block, label + "".join(f"[{i}]" for i in where[k]),
+                                rotation_only=True)
+        if problem is not None:
+            raise ValueError(problem)
 
 
 def translation_error(A, B) -> np.ndarray | float:

@@ -356,6 +356,77 @@ def _fit_circle_2d(xy):
     return sol[:2], float(np.sqrt(sol[2] + sol[:2] @ sol[:2]))
 
 
+#: fit_flange refuses a radius_m above this (metres): a cobot's ISO 9409 flange is a few
+#: centimetres across (the sim's and the UR's: 63 mm), so a half-metre radius is no flange,
+#: while a radius in millimetres (31.5 for 0.0315) is beyond it.
+FLANGE_RADIUS_MAX_M = 0.5
+#: ... and a plane_threshold_m above this: a plane's inliers within 10 cm is no plane fit
+#: (a depth camera's noise is 1-10 mm), while 2 (millimetres) for 0.002 is.
+FLANGE_PLANE_THRESHOLD_MAX_M = 0.1
+#: ... and a depth image whose median valid depth exceeds this (metres): depth cameras see
+#: up to ~10 m, while the same image in millimetres has medians of hundreds.
+FLANGE_DEPTH_MAX_M = 20.0
+
+
+def _at_most(value: float, limit: float, name: str, what: str) -> float:
+    """``value`` (metres) unchanged; ``ValueError`` naming ``name`` when above ``limit``, which
+    ``what`` never is in metres: millimetres, most likely."""
+    if value > limit:
+        raise ValueError(
+            f"{name} = {value:g} m is more than {limit:g} m, far too large for {what}: it looks "
+            f"like millimetres. Pass metres: {name}={value / 1000:g}")
+    return value
+
+
+def _flange_depth(depth, intrinsics) -> np.ndarray:
+    """``depth`` as a float (H, W) image in metres of the camera ``intrinsics`` describe."""
+    raw = np.asarray(depth) if isinstance(depth, np.ndarray) else as_real_array(depth, "depth")
+    shape = (intrinsics.height, intrinsics.width)
+    if raw.shape != shape:
+        raise ValueError(f"depth must be the camera's depth image, shape {shape} (H, W) in "
+                         f"metres, got shape {raw.shape}")
+    if not np.issubdtype(raw.dtype, np.floating):
+        raise ValueError(f"depth must be float metres, got {raw.dtype}; a depth image in "
+                         "millimetres (uint16, as depth cameras' SDKs give it) converts with "
+                         "depth.astype(np.float32) / 1000")
+    valid = raw[np.isfinite(raw) & (raw > 0)]
+    if valid.size == 0:
+        raise ValueError("depth has no valid pixel (every value is 0, negative, NaN or inf): "
+                         "is the depth stream on and the flange within the camera's range?")
+    median = float(np.median(valid))
+    if median > FLANGE_DEPTH_MAX_M:
+        raise ValueError(f"depth has a median of {median:.4g} over its valid pixels: in metres "
+                         f"that is beyond any depth camera's range ({FLANGE_DEPTH_MAX_M:g} m), "
+                         "so it looks like millimetres. Divide it by 1000")
+    return raw.astype(float, copy=False)
+
+
+def _roi_box(roi, shape) -> tuple[int, int, int, int]:
+    """``roi`` (u0, v0, u1, v1) pixels as whole numbers clipped to an image of ``shape``
+    (H, W); ``ValueError`` naming ``roi`` unless it is 4 finite numbers bounding a non-empty
+    box that overlaps the image."""
+    box = as_real_array(roi, "roi")
+    if box.shape != (4,):
+        raise ValueError(f"roi must be 4 pixel bounds (u0, v0, u1, v1): columns u0..u1 and rows "
+                         f"v0..v1, got shape {box.shape} ({box.ravel().tolist()}); a 3-value "
+                         "roi has lost one bound")
+    if not np.all(np.isfinite(box)):
+        raise ValueError(f"roi {box.tolist()} contains NaN or inf; give 4 finite pixel bounds "
+                         "(u0, v0, u1, v1), or roi=None for the whole image")
+    u0, v0, u1, v1 = (int(np.floor(box[0])), int(np.floor(box[1])), int(np.ceil(box[2])),
+                      int(np.ceil(box[3])))
+    if not (u0 < u1 and v0 < v1):
+        raise ValueError(f"roi {box.tolist()} must be (u0, v0, u1, v1) with u0 < u1 and v0 < v1 "
+                         "(left, top, right, bottom in pixels); is it (x, y, width, height) or "
+                         "(v0, u0, v1, u1)?")
+    height, width = shape
+    u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, width), min(v1, height)
+    if not (u0 < u1 and v0 < v1):
+        raise ValueError(f"roi {box.tolist()} lies outside the {width} x {height} image; give "
+                         "pixel bounds (u0, v0, u1, v1) inside it")
+    return u0, v0, u1, v1
+
+
 def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
                plane_threshold_m: float = 0.002, seed: int = 0) -> FlangeFit:
     """Centre of a circular flange face seen by a depth camera (no printed marker needed).
@@ -366,14 +437,30 @@ def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
     in the image, its outline pixels re-intersected with the plane, then a RANSAC circle fit
     in the plane (radius fixed to ``radius_m`` when given: the ISO 9409 flange diameter is
     known from the robot's data sheet) refined by least squares on the inliers.
+
+    Bad input raises ``ValueError`` naming the argument, the cause and the fix: ``intrinsics``
+    not an ``Intrinsics`` (e.g. a bare K), ``depth`` not (H, W) of that camera, in millimetres
+    (integers, or a median beyond ``FLANGE_DEPTH_MAX_M``) or without any valid pixel; ``roi``
+    not 4 finite pixel bounds (u0, v0, u1, v1) with u0 < u1, v0 < v1 overlapping the image;
+    ``radius_m`` or ``plane_threshold_m`` not a positive number of metres, or beyond
+    ``FLANGE_RADIUS_MAX_M`` / ``FLANGE_PLANE_THRESHOLD_MAX_M`` (millimetres).
     """
+    intrinsics = _check_intrinsics(intrinsics)
+    depth = _flange_depth(depth, intrinsics)
+    box = None if roi is None else _roi_box(roi, depth.shape)
+    if radius_m is not None:
+        radius_m = _at_most(_size_m(radius_m, "radius_m"), FLANGE_RADIUS_MAX_M, "radius_m",
+                            "the flange's radius (a few centimetres)")
+    plane_threshold_m = _at_most(_size_m(plane_threshold_m, "plane_threshold_m"),
+                                 FLANGE_PLANE_THRESHOLD_MAX_M, "plane_threshold_m",
+                                 "the plane's inlier distance (a depth camera's noise is a few mm)")
     cloud = point_cloud(depth, intrinsics)
     mask = np.all(np.isfinite(cloud), axis=2)
-    if roi is not None:
-        u0, v0, u1, v1 = (int(r) for r in roi)
-        box = np.zeros_like(mask)
-        box[v0:v1, u0:u1] = True
-        mask &= box
+    if box is not None:
+        u0, v0, u1, v1 = box
+        inside = np.zeros_like(mask)
+        inside[v0:v1, u0:u1] = True
+        mask &= inside
     if mask.sum() < 50:
         raise ValueError("fewer than 50 depth points in the region; is the flange in view?")
     rng = np.random.default_rng(seed)

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from robots.geometry import as_pose, as_real_array, compose, invert, make_pose, transform_points
 from robots.perception import (
+    NORMALISED_MAX,
     ServoDivergedError,
     ServoError,
     ServoTimeoutError,
@@ -36,7 +37,8 @@ from robots.perception import (
     TargetOutOfViewError,
     check_normalised,
 )
-from robots.safety import check_angular_speed
+from robots.safety import ANGULAR_SPEED_MAX, check_angular_speed
+from solutions.units import UNIT_RATIO
 
 __all__ = [
     "ConvergenceMonitor",
@@ -123,8 +125,44 @@ def normalised_projection(points_cam) -> np.ndarray:
 
     ``points_cam`` must be (N, 3) (or one (3,) point), metres, finite: a (3, N) array or an
     (N, 2) one is refused, not reshaped. A point with Z <= 0 raises TargetOutOfViewError.
+
+    A (3, 3) array is the one shape where (N, 3) and a transposed (3, N) cannot be told apart
+    by the shape. Rows are points here, always; the array is refused (``ValueError`` naming
+    ``points_cam``, with the fix) whenever its columns read as three points in front of the
+    camera (and differ from its rows): as rows too, the answer would rest on a guess; not as
+    rows, it is transposed. Three points as rows whose columns put a point behind the camera
+    (the usual case: X and Y of both signs about the optical axis) pass. Pass 4 or more
+    points (IBVS needs 4 to avoid ambiguous poses anyway), or the three one by one as (3,).
     """
     pts = _points(points_cam, 3, "points_cam", "camera-frame points X, Y, Z in metres")
+    if pts.shape == (3, 3):
+        _refuse_ambiguous_square(pts)
+    return _normalised_projection(pts)
+
+
+def _refuse_ambiguous_square(pts: np.ndarray) -> None:
+    """``ValueError`` when a (3, 3) ``points_cam`` reads as three points in front of the camera
+    as columns, whether or not it does as rows (see ``normalised_projection``)."""
+    rows_ok, columns_ok = bool(np.all(pts[:, 2] > 0)), bool(np.all(pts[2, :] > 0))
+    if not columns_ok or np.array_equal(pts, pts.T):
+        return  # only the rows reading can be meant (or both are the same)
+    depths = f"(depths as rows {pts[:, 2].tolist()}, as columns {pts[2, :].tolist()})"
+    if not rows_ok:
+        raise ValueError(
+            "points_cam has shape (3, 3) and read as rows (N, 3), as cobotlab expects, puts a "
+            f"point behind the camera, while read as columns all three are in front {depths}: "
+            "transposed? pass points_cam.T (shape (3, 3), one point per row)")
+    raise ValueError(
+        "points_cam has shape (3, 3): three points as rows (N, 3), as cobotlab expects, or "
+        f"three points as columns (3, N)? Both readings put every point in front of the camera "
+        f"{depths}, so the shape cannot tell. Give one point per row (if they are columns, "
+        "transposed? pass points_cam.T) and project them one at a time "
+        "(normalised_projection(p) for each (3,) point p), or add a fourth point")
+
+
+def _normalised_projection(pts: np.ndarray) -> np.ndarray:
+    """``normalised_projection`` of points already validated as (N, 3) rows (the loops here
+    produce them with ``transform_points``, so the (3, 3) ambiguity cannot arise)."""
     if np.any(pts[:, 2] <= 0):
         k = int(np.flatnonzero(pts[:, 2] <= 0)[0])
         raise TargetOutOfViewError(f"points_cam[{k}] is behind the camera (z = {pts[k, 2]:.4g} "
@@ -273,7 +311,16 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
     ``features`` / ``desired``: ``(x, y, a, alpha)``: the blob centroid in normalised
     coordinates, its area in normalised units (pixels^2 / (fx fy)) and its orientation (rad;
     NaN for a round blob, which leaves the rotation about the optical axis alone). ``depth``
-    is the blob's current depth Z (m). Each feature drives one motion:
+    is the blob's current depth Z (m).
+
+    Areas in pixels^2 are refused (``ValueError`` naming the argument and the fix, divide by
+    fx fy), by two rules: an area above ``(2 NORMALISED_MAX)^2`` = 400 does not fit in the
+    widest image whose normalised coordinates stay within +-``NORMALISED_MAX`` (the bound
+    ``check_normalised`` puts on x and y); and an area ratio whose implied goal depth
+    ``Z* = Z sqrt(a / a*)`` is more than ``UNIT_RATIO`` (30) times nearer or farther than
+    the current one is one area in pixels^2 and the other normalised (their ratio is fx fy,
+    1e4-1e6), not a servo goal. Both areas in pixels^2 below 400 give the right twist, since
+    only their ratio counts. Each feature drives one motion:
     ``vx = gain Z (x - x*)``, ``vy = gain Z (y - y*)``, ``vz = gain (Z - Z*) = gain Z (1 - sqrt(a/a*))``
     (the area goes as 1/Z^2, so ``Z* = Z sqrt(a / a*)``), ``wz = -gain (alpha - alpha*)``
     wrapped to (-pi/2, pi/2] (a blob's axis has no head). ``wx = wy = 0``.
@@ -288,14 +335,28 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
             raise ValueError(f"{name} {arr} needs finite x, y, a positive area and a finite "
                              "angle (NaN for a round blob)")
         check_normalised(arr[:2], f"{name}[:2]")  # the centroid (x, y)
+        if arr[2] > _MAX_NORMALISED_AREA:
+            raise ValueError(
+                f"{name}[2], the blob's area, is {arr[2]:.4g}: in normalised units (pixels^2 / "
+                f"(fx fy)) no blob inside the image exceeds {_MAX_NORMALISED_AREA:g} (a square "
+                f"+-{NORMALISED_MAX:g} wide), so this looks like pixels^2. Divide it by fx * fy "
+                "(from K), as the centroid is normalised with K^-1")
     depth = _finite_number(depth, "depth", "metres")
     if not depth > 0:
         raise ValueError(f"depth must be positive finite metres, got {depth}")
     gain = _finite_number(gain, "gain", "1/s")
+    depth_ratio = math.sqrt(f[2] / d[2])  # Z* / Z
+    if not 1.0 / UNIT_RATIO <= depth_ratio <= UNIT_RATIO:
+        big, small = ("features", "desired") if f[2] > d[2] else ("desired", "features")
+        raise ValueError(
+            f"features[2] = {f[2]:.4g} and desired[2] = {d[2]:.4g}, the blob's areas, put the "
+            f"goal {depth_ratio:.4g} times as far as the current depth (Z* = Z sqrt(a / a*)), "
+            f"beyond a factor {UNIT_RATIO:g}: {big}[2] looks like pixels^2 and {small}[2] "
+            f"normalised. Give both areas in normalised units (pixels^2 / (fx fy))")
     v = np.zeros(6)
     v[0] = gain * depth * (f[0] - d[0])
     v[1] = gain * depth * (f[1] - d[1])
-    v[2] = gain * depth * (1.0 - np.sqrt(f[2] / d[2]))
+    v[2] = gain * depth * (1.0 - depth_ratio)
     if np.isfinite(f[3]) and np.isfinite(d[3]):
         da = (f[3] - d[3] + np.pi / 2) % np.pi - np.pi / 2
         v[5] = -gain * da
@@ -354,10 +415,27 @@ def cam_twist_to_flange(v_cam, flange_T_cam) -> np.ndarray:
 
 def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
     """The frame's pose after moving with constant body twist ``twist`` for ``dt`` seconds:
-    ``a_T_frame @ exp(dt * twist^)`` (exact SE(3) exponential)."""
+    ``a_T_frame @ exp(dt * twist^)`` (exact SE(3) exponential).
+
+    Angular rates in deg/s are refused (``ValueError`` naming ``twist`` and the conversion),
+    by two rules on the rotational part w (rad/s):
+
+    * the speed: |w| above ``ANGULAR_SPEED_MAX``, a turn per second, is faster than any
+      cobot's wrist and than every servo limit here (``saturate`` warns beyond it too);
+      30 deg/s given as rad/s is 4.8 turns a second;
+    * the rotation per step, |w| dt, above pi: the exponential of a turn beyond half a turn
+      is the same pose as a shorter turn the other way, so no control step means it (a
+      period in milliseconds given as seconds fails here too).
+
+    Speeds under a turn per second in deg/s (6 deg/s or less read as rad/s) cannot be told
+    from rad/s and pass.
+    """
     from scipy.linalg import expm
 
-    xi = _twist(twist, "twist") * _finite_number(dt, "dt", "seconds")
+    twist = _twist(twist, "twist")
+    dt = _finite_number(dt, "dt", "seconds")
+    _check_angular_rate(twist, dt)
+    xi = twist * dt
     M = np.zeros((4, 4))
     w = xi[3:]
     M[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
@@ -366,6 +444,30 @@ def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
     step[:3, :3] = Rotation.from_matrix(step[:3, :3]).as_matrix()  # re-orthonormalise
     step[3] = [0, 0, 0, 1]
     return compose(as_pose(a_T_frame, "a_T_frame"), step)
+
+
+def _check_angular_rate(twist: np.ndarray, dt: float) -> None:
+    """The two rules of ``integrate_twist`` on the rotational part of ``twist`` (rad/s)."""
+    speed = math.sqrt(twist[3] ** 2 + twist[4] ** 2 + twist[5] ** 2)
+    w = [round(v, 6) for v in twist[3:].tolist()]
+    if speed > ANGULAR_SPEED_MAX:
+        raise ValueError(
+            f"twist's angular part {w} turns at {speed:.4g} rad/s, more than a turn per second "
+            f"({ANGULAR_SPEED_MAX:.4g} rad/s, faster than any cobot): it looks like deg/s. "
+            f"Twists are m/s and rad/s: convert with np.radians(twist[3:]) "
+            f"({math.radians(speed):.4g} rad/s), or saturate it (saturate(twist, max_linear, "
+            "max_angular))")
+    if speed * abs(dt) > math.pi:
+        raise ValueError(
+            f"twist's angular part {w} ({speed:.4g} rad/s) for dt = {dt:g} s turns "
+            f"{math.degrees(speed * abs(dt)):.4g} deg in one step, more than half a turn: the "
+            "step would end as a shorter turn the other way. Use a smaller dt (seconds, not "
+            "milliseconds) or saturate the twist")
+
+
+#: The largest blob area in normalised units (pixels^2 / (fx fy)): a square spanning the
+#: whole +-NORMALISED_MAX window that ``check_normalised`` allows for x and y.
+_MAX_NORMALISED_AREA = (2.0 * NORMALISED_MAX) ** 2
 
 
 # --------------------------------------------------------------------------- convergence
@@ -500,7 +602,7 @@ def simulate_servo(method: str, world_T_cam, world_T_camd, target_points, intrin
         raise ValueError(f"max_iterations must be a whole number, got {max_iterations!r}")
     monitor = ConvergenceMonitor(tolerance, int(max_iterations))
     goal_pts = transform_points(invert(Td), pts)
-    s_star = normalised_projection(goal_pts)
+    s_star = _normalised_projection(goal_pts)
     z_star = goal_pts[:, 2]
     if method == "ibvs":  # a degenerate target raises here, naming its points
         if len(pts) < 3:
@@ -514,7 +616,7 @@ def simulate_servo(method: str, world_T_cam, world_T_camd, target_points, intrin
     converged, k = False, 0
     while not converged:
         cam_pts = transform_points(invert(T), pts)
-        s = normalised_projection(cam_pts)
+        s = _normalised_projection(cam_pts)
         if intrinsics is not None:
             u = s[:, 0] * intrinsics.fx + intrinsics.cx
             v = s[:, 1] * intrinsics.fy + intrinsics.cy
@@ -667,7 +769,7 @@ def ibvs_step(detect, camd_T_target, intrinsics, depth: str = "image", margin_px
         _check_target_in_view(det, intrinsics, margin_px, required_points)
         s = _undistorted(det.corners_px, intrinsics)
         goal = transform_points(camd_T_target, det.object_points)
-        s_star, z_star = normalised_projection(goal), goal[:, 2]
+        s_star, z_star = _normalised_projection(goal), goal[:, 2]
         z = depth_at(frame, det.corners_px) if depth == "image" and frame.depth is not None \
             else np.full(len(s), np.nan)
         if not np.all(np.isfinite(z)):

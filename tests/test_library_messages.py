@@ -120,11 +120,27 @@ def test_good_poses_give_exactly_the_unchecked_arithmetic():
                                   PTS @ T1[:3, :3].T + T1[:3, 3])
 
 
-def test_nan_still_passes_through_the_fast_paths():
+def test_nan_reflections_and_bad_bottom_rows_are_refused_by_the_fast_paths():
+    # Issue 50: they used to pass through (NaN in, NaN out; a reflection inverted as it is).
     bad = T1.copy()
     bad[0, 0] = np.nan
-    assert np.isnan(geo.invert(bad)[0, 0])
-    assert np.isnan(geo.compose(np.stack([T1, bad]), T2)[1]).any()
+    with pytest.raises(ValueError, match=re.escape("invert: T contains NaN or inf (at (0, 0))")):
+        geo.invert(bad)
+    with pytest.raises(ValueError, match=re.escape("compose argument 0[1] contains NaN")):
+        geo.compose(np.stack([T1, bad]), T2)
+    mirrored = T1 @ np.diag([1.0, -1.0, 1.0, 1.0])
+    for call, label in ((lambda: geo.invert(mirrored), "invert: T's"),
+                        (lambda: geo.compose(T1, np.stack([T2, mirrored])), "argument 1[1]'s"),
+                        (lambda: geo.relative(mirrored, T1), "a_T_b's"),
+                        (lambda: geo.transform_points(mirrored, PTS), "a_T_b's")):
+        with pytest.raises(ValueError, match=re.escape(f"{label} rotation block has determinant "
+                                                       "-1.0: it is a reflection")):
+            call()
+    flat = T1.copy()
+    flat[3] = 0.0
+    for T in (flat, np.stack([T1, flat])):
+        with pytest.raises(ValueError, match=r"has bottom row \[0\.0, 0\.0, 0\.0, 0\.0\]"):
+            geo.compose(T2, T)
 
 
 # --------------------------------------------------------------------------- transposed points
