@@ -497,7 +497,9 @@ def skew(v) -> np.ndarray:
     v = as_real_array(v, "v")
     if v.size != 3:
         raise ValueError(f"skew: v must have 3 elements, got shape {v.shape}")
-    x, y, z = v.reshape(3)
+    x, y, z = v.reshape(3).tolist()
+    if not math.isfinite(x + y + z):
+        raise ValueError(f"skew: v contains NaN or inf ({[x, y, z]}); give 3 finite numbers")
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
@@ -635,14 +637,16 @@ def _rotation_from_components(x: float, y: float, z: float, theta: float) -> np.
 
 def _rotation_entries(R, caller: str) -> list:
     """The entries of a (3, 3) rotation as floats, for the plain-float conversions; a block
-    that is not orthonormal to 1e-9 is projected onto SO(3) first. ``caller`` names the
-    function in the error for a wrong shape."""
+    that is not orthonormal to 1e-9 but within ``FAST_PATH_RIGID_TOL`` (rounding, float32) is
+    projected onto SO(3) first; NaN, inf, a reflection or a block further off raise
+    ``ValueError`` (``_refuse_non_rotation``). ``caller`` names the function in the errors."""
     if type(R) is not np.ndarray or R.dtype is not _F64:
         R = as_real_array(R, "R")
     if R.shape != (3, 3):
         raise ValueError(f"{caller} needs a (3, 3) rotation R, got shape {R.shape}")
     entries = _exact_rotation_entries(R)
     if entries is None:
+        _refuse_non_rotation(R, f"{caller}: R")
         entries = _exact_rotation_entries(project_to_so3(R, "R"))
     return entries
 
@@ -651,7 +655,9 @@ def rotvec_from_rotation(R) -> np.ndarray:
     """(3,) rotation vector (radians, angle in [0, pi]) of a (3, 3) rotation.
 
     A block that is not orthonormal to 1e-9 is projected onto SO(3) first (as scipy's
-    ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector.
+    ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector;
+    one beyond ``FAST_PATH_RIGID_TOL`` (a scaled matrix, K), a reflection, NaN or inf raise
+    ``ValueError`` naming ``R``: scipy would answer with the vector of a rotation nobody gave.
     """
     (a, b, c), (d, e, f), (g, h, i) = _rotation_entries(R, "rotvec_from_rotation")
     wx, wy, wz = h - f, c - g, d - b  # 2 sin(theta) * axis
@@ -698,6 +704,7 @@ def rotvecs_from_rotations(R) -> np.ndarray:
     out = w * scale[:, None]
     off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
     for k in np.flatnonzero(~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))):
+        _refuse_non_rotation(R[k], f"rotvecs_from_rotations: R[{k}]")
         out[k] = rotvec_from_rotation(R[k])
     return out
 
@@ -779,7 +786,10 @@ def slerp_rotations(R0, R1, fractions) -> np.ndarray:
     ``R0 @ exp(s * log(R0^T R1))``, one for each s in ``fractions`` (0 gives R0, 1 gives R1)."""
     R0 = as_rotation(R0, "R0")
     step = rotvec_from_rotation(R0.T @ as_rotation(R1, "R1"))
-    fractions = np.asarray(fractions, dtype=float).reshape(-1)
+    fractions = as_real_array(fractions, "fractions").reshape(-1)
+    if not np.isfinite(fractions).all():
+        raise ValueError(f"fractions must be finite numbers (0 gives R0, 1 gives R1), got "
+                         f"{fractions.tolist()}")
     return np.stack([R0 @ rotation_from_rotvec(s * step) for s in fractions.tolist()])
 
 
@@ -943,11 +953,20 @@ def rotation_error_deg(A, B) -> np.ndarray | float:
     :func:`rotation_angle_deg`). Each of A and B must be a rotation: ``ValueError`` naming it
     (and the index in a stack) for NaN or inf, a block not orthonormal within
     ``FAST_PATH_RIGID_TOL`` (a scaled matrix, K, a homography: no angle to speak of) or a
-    reflection (det -1; two reflections would otherwise "differ" by a proper rotation).
+    reflection (det -1; two reflections would otherwise "differ" by a proper rotation). A
+    pose is checked whole, as by :func:`invert` (its translation and bottom row too).
     """
-    Ra, Rb = _rotation_block(A, "A"), _rotation_block(B, "B")
-    _refuse_non_rotation(Ra, "rotation_error_deg: A")
-    _refuse_non_rotation(Rb, "rotation_error_deg: B")
+    blocks = []
+    for X, name in ((A, "A"), (B, "B")):
+        if type(X) is not np.ndarray or X.dtype is not _F64:
+            X = as_real_array(X, name)
+        block, label = _rotation_block(X, name), f"rotation_error_deg: {name}"
+        if X.shape[-2:] == (4, 4):
+            _refuse_non_rigid(X, label)  # a pose is checked whole: NaN in t, its bottom row
+        else:
+            _refuse_non_rotation(block, label)
+        blocks.append(block)
+    Ra, Rb = blocks
     try:
         product = np.swapaxes(Ra, -1, -2) @ Rb
     except ValueError:
@@ -983,7 +1002,10 @@ def _refuse_non_rotation(R: np.ndarray, label: str) -> None:
 
 
 def translation_error(A, B) -> np.ndarray | float:
-    """Euclidean distance between the translations of two poses (or stacks), in metres."""
+    """Euclidean distance between the translations of two poses (or stacks), in metres.
+
+    A and B are checked as by :func:`invert` (``ValueError`` naming them for NaN or inf, a
+    bad bottom row, a non-orthonormal block or a reflection)."""
     arrays = []
     for name, X in (("A", A), ("B", B)):
         if type(X) is not np.ndarray or X.dtype is not _F64:
@@ -993,6 +1015,8 @@ def translation_error(A, B) -> np.ndarray | float:
                              f"(N, 4, 4), got shape {X.shape}")
         arrays.append(X)
     A, B = arrays
+    _refuse_non_rigid(A, "translation_error: A")  # a distance between non-poses means nothing
+    _refuse_non_rigid(B, "translation_error: B")
     try:
         d = np.linalg.norm(A[..., :3, 3] - B[..., :3, 3], axis=-1)
     except ValueError:

@@ -29,7 +29,7 @@ from robots.geometry import (
     transform_points,
     warn_caller,
 )
-from robots.perception import point_cloud, project, square_at
+from robots.perception import _as_points, point_cloud, project, square_at
 
 __all__ = [
     "PIECE_HEIGHTS",
@@ -286,9 +286,20 @@ def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
     a least-squares refit on the inliers of the best triple. Returns ``(centre (3,), unit
     normal (3,), inlier mask (N,))``, the mask against the refitted plane with the same
     ``threshold_m``; the normal's sign is arbitrary. Raises ValueError for fewer than 3 points
-    or when every triple tried was collinear.
+    or when every triple tried was collinear, and naming the argument for points not (N, 3)
+    (a transposed (3, N) array is not reshaped) or not finite, a ``threshold_m`` that is not a
+    positive number of metres or beyond ``FLANGE_PLANE_THRESHOLD_MAX_M`` (millimetres), and
+    ``iterations`` below 1.
     """
-    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = _as_points(points, 3, "points")
+    if pts.ndim == 1:
+        pts = pts[None]
+    threshold_m = _at_most(_size_m(threshold_m, "threshold_m"), FLANGE_PLANE_THRESHOLD_MAX_M,
+                           "threshold_m", "a plane's inlier distance (a depth camera's noise "
+                           "is a few mm)")
+    if isinstance(iterations, (bool, np.bool_)) or not (
+            isinstance(iterations, (int, np.integer)) and iterations >= 1):
+        raise ValueError(f"iterations must be a whole number >= 1, got {iterations!r}")
     if len(pts) < 3:
         raise ValueError(f"a plane needs at least 3 points, got {len(pts)}")
     best = None

@@ -196,6 +196,7 @@ def _interaction_matrix(points_xy, depths, xy_name: str, z_name: str) -> np.ndar
     if bad.size:
         raise ValueError(f"{z_name}[{bad[0]}] is {Z[bad[0]]}: depths must be positive finite "
                          "metres")
+    _refuse_millimetre_depth(float(Z.max()), z_name)
     x, y = xy[:, 0], xy[:, 1]
     L = np.zeros((len(xy), 2, 6))
     L[:, 0] = np.column_stack([-1 / Z, 0 * Z, x / Z, x * y, -(1 + x * x), y])
@@ -334,6 +335,11 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
         if not np.all(np.isfinite(arr[:3])) or arr[2] <= 0 or np.isinf(arr[3]):
             raise ValueError(f"{name} {arr} needs finite x, y, a positive area and a finite "
                              "angle (NaN for a round blob)")
+        if abs(arr[3]) > 2 * math.pi:  # NaN compares False: a round blob passes
+            raise ValueError(
+                f"{name}[3], the blob's orientation, is {arr[3]:g}: more than a full turn in "
+                "radians, so it looks like degrees (cv2.fitEllipse and cv2.minAreaRect give "
+                f"degrees). Pass radians: np.radians({arr[3]:g}) = {math.radians(arr[3]):.4g}")
         check_normalised(arr[:2], f"{name}[:2]")  # the centroid (x, y)
         if arr[2] > _MAX_NORMALISED_AREA:
             raise ValueError(
@@ -344,6 +350,7 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
     depth = _finite_number(depth, "depth", "metres")
     if not depth > 0:
         raise ValueError(f"depth must be positive finite metres, got {depth}")
+    _refuse_millimetre_depth(depth, "depth")
     gain = _finite_number(gain, "gain", "1/s")
     depth_ratio = math.sqrt(f[2] / d[2])  # Z* / Z
     if not 1.0 / UNIT_RATIO <= depth_ratio <= UNIT_RATIO:
@@ -409,8 +416,13 @@ def twist_transform(a_T_b) -> np.ndarray:
 
 
 def cam_twist_to_flange(v_cam, flange_T_cam) -> np.ndarray:
-    """The flange body twist that moves an eye-in-hand camera with body twist ``v_cam``."""
-    return twist_transform(as_pose(flange_T_cam, "flange_T_cam")) @ _twist(v_cam, "v_cam")
+    """The flange body twist that moves an eye-in-hand camera with body twist ``v_cam``.
+
+    An angular speed above a turn per second raises ``ValueError`` (deg/s, as in
+    :func:`integrate_twist`)."""
+    v_cam = _twist(v_cam, "v_cam")
+    _refuse_deg_per_s(v_cam, "v_cam")
+    return twist_transform(as_pose(flange_T_cam, "flange_T_cam")) @ v_cam
 
 
 def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
@@ -446,17 +458,38 @@ def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
     return compose(as_pose(a_T_frame, "a_T_frame"), step)
 
 
+def _refuse_deg_per_s(twist: np.ndarray, name: str) -> float:
+    """The angular speed |w| (rad/s) of ``twist``; ``ValueError`` naming ``name`` above
+    ``ANGULAR_SPEED_MAX``, a turn per second: deg/s."""
+    speed = math.sqrt(twist[3] ** 2 + twist[4] ** 2 + twist[5] ** 2)
+    if speed > ANGULAR_SPEED_MAX:
+        w = [round(v, 6) for v in twist[3:].tolist()]
+        raise ValueError(
+            f"{name}'s angular part {w} turns at {speed:.4g} rad/s, more than a turn per second "
+            f"({ANGULAR_SPEED_MAX:.4g} rad/s, faster than any cobot): it looks like deg/s. "
+            f"Twists are m/s and rad/s: convert with np.radians({name}[3:]) "
+            f"({math.radians(speed):.4g} rad/s), or saturate it (saturate({name}, max_linear, "
+            "max_angular))")
+    return speed
+
+
+#: The servo laws refuse a depth beyond this (metres) as millimetres: a cobot's camera sees
+#: its target within its reach (under 2 m), while any depth beyond 5 cm in millimetres is
+#: larger than this.
+SERVO_DEPTH_MAX_M = 50.0
+
+
+def _refuse_millimetre_depth(depth: float, name: str) -> None:
+    if depth > SERVO_DEPTH_MAX_M:
+        raise ValueError(
+            f"{name} reaches {depth:.4g} m, beyond {SERVO_DEPTH_MAX_M:g} m, where no target of a "
+            f"servoing arm is: it looks like millimetres. Pass metres ({name} / 1000)")
+
+
 def _check_angular_rate(twist: np.ndarray, dt: float) -> None:
     """The two rules of ``integrate_twist`` on the rotational part of ``twist`` (rad/s)."""
-    speed = math.sqrt(twist[3] ** 2 + twist[4] ** 2 + twist[5] ** 2)
+    speed = _refuse_deg_per_s(twist, "twist")
     w = [round(v, 6) for v in twist[3:].tolist()]
-    if speed > ANGULAR_SPEED_MAX:
-        raise ValueError(
-            f"twist's angular part {w} turns at {speed:.4g} rad/s, more than a turn per second "
-            f"({ANGULAR_SPEED_MAX:.4g} rad/s, faster than any cobot): it looks like deg/s. "
-            f"Twists are m/s and rad/s: convert with np.radians(twist[3:]) "
-            f"({math.radians(speed):.4g} rad/s), or saturate it (saturate(twist, max_linear, "
-            "max_angular))")
     if speed * abs(dt) > math.pi:
         raise ValueError(
             f"twist's angular part {w} ({speed:.4g} rad/s) for dt = {dt:g} s turns "

@@ -240,7 +240,7 @@ row("rotation_angle_deg-reflection", geo.rotation_angle_deg, (REFLECT,),
 row("rotation_angle_deg-string", geo.rotation_angle_deg, ("R",), Raises(("R", "string")))
 row("rotation_angle_deg-list", geo.rotation_angle_deg, (Rz90.tolist(),), Same((Rz90,)))
 row("rotvec_from_rotation-reflection", geo.rotvec_from_rotation, (REFLECT,),
-    Raises(("R", "no unique")))
+    Raises(("rotvec_from_rotation: R", "determinant -1.0", "reflection")))
 row("rotvec_from_rotation-string", geo.rotvec_from_rotation, ("R",), Raises(("R", "string")))
 row("rotvec_from_rotation-shape", geo.rotvec_from_rotation, (np.eye(4),), Raises(("R", "(4, 4)")))
 row("rotvec_from_rotation-list", geo.rotvec_from_rotation, (Rz90.tolist(),), Same((Rz90,)))
