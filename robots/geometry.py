@@ -699,11 +699,12 @@ def rotvecs_from_rotations(R) -> np.ndarray:
     sin = np.sqrt(np.sum(w * w, axis=1)) / 2.0
     cos = (R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2] - 1.0) / 2.0
     theta = np.arctan2(sin, cos)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # inf in R: refused below, by name
         scale = np.where(theta < 1e-4, 0.5 + theta * theta / 12.0, theta / (2.0 * sin))
-    out = w * scale[:, None]
-    off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
-    for k in np.flatnonzero(~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))):
+        out = w * scale[:, None]
+        off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
+        inexact = ~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))
+    for k in np.flatnonzero(inexact):
         _refuse_non_rotation(R[k], f"rotvecs_from_rotations: R[{k}]")
         out[k] = rotvec_from_rotation(R[k])
     return out
@@ -787,6 +788,8 @@ def slerp_rotations(R0, R1, fractions) -> np.ndarray:
     R0 = as_rotation(R0, "R0")
     step = rotvec_from_rotation(R0.T @ as_rotation(R1, "R1"))
     fractions = as_real_array(fractions, "fractions").reshape(-1)
+    if fractions.size == 0:
+        raise ValueError("fractions is empty; give at least one fraction (0 gives R0, 1 gives R1)")
     if not np.isfinite(fractions).all():
         raise ValueError(f"fractions must be finite numbers (0 gives R0, 1 gives R1), got "
                          f"{fractions.tolist()}")
