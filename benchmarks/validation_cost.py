@@ -13,7 +13,7 @@ realistic inputs (a 200-pose stack as in a 20-view calibration's motions, 100 bo
 refuses to time them otherwise.
 
 Timing: CPU seconds of this process (``time.process_time``: other processes on a shared
-machine do not count), in blocks that alternate the arms (before-now, now-before, ...), each
+machine do not count; one BLAS thread), in blocks that alternate the arms (before-now, now-before, ...), each
 block as many calls as fill about 10 ms. Per function the table gives the median time per
 call of each arm, the added time and the ratio, with 95 % bootstrap intervals of the medians
 (2000 resamples). Needs git and the project's history (a source checkout).
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
 import subprocess
 import sys
 import time
@@ -30,6 +31,11 @@ import types
 from pathlib import Path
 
 import numpy as np
+
+# One BLAS thread: CPU time counts every thread's, and a pool spinning on 3 x 3 products
+# (scipy's expm in integrate_twist) would bill its waiting to the call.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -166,6 +172,21 @@ def _medians(x: np.ndarray, rng, n_boot: int = 2000) -> np.ndarray:
     return np.median(x[rng.integers(0, len(x), (n_boot, len(x)))], axis=1)
 
 
+def _row(name: str, before: np.ndarray, now: np.ndarray, rng, scale: float) -> str:
+    """A table row: the median time per call of each arm (seconds times ``scale``), the
+    added time and the ratio, each with the 95 % bootstrap interval of its median."""
+    b_before, b_now = _medians(before, rng), _medians(now, rng)
+
+    def ci(b, factor=scale, digits=".3g"):
+        lo, hi = np.percentile(b * factor, [2.5, 97.5])
+        return f"[{lo:{digits}}, {hi:{digits}}]"
+
+    m_before, m_now = np.median(before), np.median(now)
+    return (f"| {name} | {m_before * scale:.3g} {ci(b_before)} | {m_now * scale:.3g} "
+            f"{ci(b_now)} | {(m_now - m_before) * scale:+.2g} {ci(b_now - b_before, scale, '+.2g')}"
+            f" | {m_now / m_before:.3f} {ci(b_now / b_before, 1.0, '.3f')} |")
+
+
 def table(blocks: int) -> list[str]:
     old_geo, old_S, old_SP = _previous_modules()
     rng = np.random.default_rng(7)
@@ -178,17 +199,7 @@ def table(blocks: int) -> list[str]:
         if not _same(now(), before()):
             raise SystemExit(f"{name}: the current and the previous versions disagree on a "
                              "valid input; the cost comparison would be meaningless")
-        t_before, t_now = _time(now, before, blocks)
-        b_before, b_now = _medians(t_before, rng), _medians(t_now, rng)
-
-        def ci(b, scale=1e6, digits=".3g"):
-            lo, hi = np.percentile(b * scale, [2.5, 97.5])
-            return f"[{lo:{digits}}, {hi:{digits}}]"
-
-        m_before, m_now = np.median(t_before), np.median(t_now)
-        lines.append(f"| {name} | {m_before * 1e6:.3g} {ci(b_before)} | {m_now * 1e6:.3g} "
-                     f"{ci(b_now)} | {(m_now - m_before) * 1e6:+.2g} {ci(b_now - b_before, 1e6, '+.2g')}"
-                     f" | {m_now / m_before:.2f} {ci(b_now / b_before, 1.0, '.2f')} |")
+        lines.append(_row(name, *_time(now, before, blocks), rng, 1e6))
     return lines
 
 
@@ -255,17 +266,7 @@ def solver_table(blocks: int) -> list[str]:
             finally:
                 restore()
 
-        t_off, t_on = _time(call, switched, blocks, block_s=0.0)
-        b_off, b_on = _medians(t_off, rng), _medians(t_on, rng)
-
-        def ci(b, scale=1e3, digits=".3g"):
-            lo, hi = np.percentile(b * scale, [2.5, 97.5])
-            return f"[{lo:{digits}}, {hi:{digits}}]"
-
-        m_off, m_on = np.median(t_off), np.median(t_on)
-        lines.append(f"| {name} | {m_off * 1e3:.3g} {ci(b_off)} | {m_on * 1e3:.3g} {ci(b_on)} | "
-                     f"{(m_on - m_off) * 1e3:+.2g} {ci(b_on - b_off, 1e3, '+.2g')} | "
-                     f"{m_on / m_off:.3f} {ci(b_on / b_off, 1.0, '.3f')} |")
+        lines.append(_row(name, *_time(call, switched, blocks, block_s=0.0), rng, 1e3))
     return lines
 
 

@@ -177,16 +177,10 @@ def _pose_problem(T: np.ndarray, label: str, rotation_only: bool = False) -> str
     checks is the order of the causes: NaN first (it poisons every other test), then the
     bottom row, the scale, and last the handedness."""
     R = T if rotation_only else T[:3, :3]
-    what = "rotation" if rotation_only else "pose"
     if not np.all(np.isfinite(T)):
-        bad = [tuple(int(v) for v in ij) for ij in np.argwhere(~np.isfinite(T))[:3]]
-        return (f"{label} contains NaN or inf (at {', '.join(map(str, bad))}); a {what} must "
-                "be finite: look for a failed detection, a division by zero or an unfilled "
-                "entry upstream, and drop that view. " + ("" if rotation_only else _BUILD_POSES))
+        return _non_finite_message(T, label, "rotation" if rotation_only else "pose")
     if not rotation_only and not np.all(np.abs(T[3] - _BOTTOM) <= 1e-9):
-        return (f"{label} has bottom row {T[3].tolist()}, a pose's is [0, 0, 0, 1]: it is not "
-                "a homogeneous transform (a (3, 4) [R | t] padded with zeros, a projection "
-                "matrix or a transposed pose?). " + _BUILD_POSES)
+        return _bottom_row_message(T, label)
     errors = np.abs(R.T @ R - _EYE3).max()
     if errors > FAST_PATH_RIGID_TOL:
         lengths = np.linalg.norm(R, axis=0)
@@ -199,11 +193,28 @@ def _pose_problem(T: np.ndarray, label: str, rotation_only: bool = False) -> str
             "R, or K or a homography where a pose belongs")
     det = float(np.linalg.det(R))
     if not det > 0:
-        noun = label if rotation_only else f"{label}'s rotation block"
-        return (f"{noun} has determinant {det:+.1f}: it is a reflection, not a rotation; check "
-                "the handedness of your axes (a negated or swapped axis, a left-handed frame) "
-                "or build it with geometry.pose_from_rotvec / make_pose")
+        return _reflection_message(label if rotation_only else f"{label}'s rotation block", det)
     return None
+
+
+def _non_finite_message(T: np.ndarray, label: str, what: str) -> str:
+    bad = [tuple(int(v) for v in ij) for ij in np.argwhere(~np.isfinite(T))[:3]]
+    return (f"{label} contains NaN or inf (at {', '.join(map(str, bad))}); a {what} must be "
+            "finite: look for a failed detection, a division by zero or an unfilled entry "
+            "upstream, and drop that view")
+
+
+def _bottom_row_message(T: np.ndarray, label: str) -> str:
+    return (f"{label} has bottom row {T[3].tolist()}, a pose's is [0, 0, 0, 1]: it is not a "
+            "homogeneous transform (a (3, 4) [R | t] padded with zeros, a projection matrix "
+            "or a transposed pose?). " + _BUILD_POSES)
+
+
+def _reflection_message(label: str, det: float) -> str:
+    """The one message for a rotation block of determinant -1, wherever it is found."""
+    return (f"{label} has det {det:+.1f} (determinant): it is a reflection, not a rotation; "
+            "check the handedness of your axes (a negated or swapped axis, a left-handed "
+            "frame), or build it with geometry.make_pose / pose_from_rotvec")
 
 
 def _fast_pose(T, label: str) -> np.ndarray:
@@ -222,16 +233,13 @@ def _check_rotation_block(R: np.ndarray, label: str) -> bool:
     """Raise ``ValueError`` unless R is a proper rotation within ``REPAIR_TOL``; return whether
     it needs re-orthonormalising (its error exceeds ``ORTHONORMAL_TOL``)."""
     if not np.all(np.isfinite(R)):
-        raise ValueError(f"{label} contains NaN or inf")
+        raise ValueError(_non_finite_message(R, label, "rotation"))
     gram_error = np.abs(R.T @ R - np.eye(3)).max()
     if gram_error > REPAIR_TOL:
         raise ValueError(_orthonormal_message(label, gram_error))
     det = np.linalg.det(R)
     if det < 0:
-        raise ValueError(
-            f"{label} has det {det:+.3f}: a reflection, not a rotation; check for a "
-            "left-handed frame or a swapped axis"
-        )
+        raise ValueError(_reflection_message(label, det))
     return gram_error > ORTHONORMAL_TOL
 
 
@@ -339,9 +347,9 @@ def as_poses(poses, name: str = "poses", min_count: int = 0) -> np.ndarray:
     for i in np.flatnonzero(~good)[:1]:
         T, label = arr[i], f"{name}[{i}]"
         if not np.all(np.isfinite(T)):
-            raise ValueError(f"{label} contains NaN or inf")
+            raise ValueError(_non_finite_message(T, label, "pose"))
         if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
-            raise ValueError(f"{label} has bottom row {T[3]}, expected [0, 0, 0, 1]")
+            raise ValueError(_bottom_row_message(T, label))
         _check_rotation_block(T[:3, :3], f"{label} rotation")
     repair = np.flatnonzero(gram_error > ORTHONORMAL_TOL)
     if repair.size:

@@ -133,8 +133,8 @@ def test_nan_reflections_and_bad_bottom_rows_are_refused_by_the_fast_paths():
                         (lambda: geo.compose(T1, np.stack([T2, mirrored])), "argument 1[1]'s"),
                         (lambda: geo.relative(mirrored, T1), "a_T_b's"),
                         (lambda: geo.transform_points(mirrored, PTS), "a_T_b's")):
-        with pytest.raises(ValueError, match=re.escape(f"{label} rotation block has determinant "
-                                                       "-1.0: it is a reflection")):
+        with pytest.raises(ValueError, match=re.escape(f"{label} rotation block has det -1.0 "
+                                                       "(determinant): it is a reflection")):
             call()
     flat = T1.copy()
     flat[3] = 0.0
@@ -327,7 +327,7 @@ def test_a_reflection_is_named_by_its_determinant_wherever_a_pose_goes():
                  lambda: geo.rotation_error_deg(mirrored, T2),
                  lambda: geo.translation_error(T2, mirrored)):
         message = _message(call)
-        assert "determinant -1.0: it is a reflection, not a rotation" in message, message
+        assert "det -1.0 (determinant): it is a reflection, not a rotation" in message, message
         assert "handedness" in message, message
 
 
