@@ -1,5 +1,7 @@
 """Bad inputs, one row each (issue 31): the pose math, the servo laws, rectangle_pose and the
-calibration files.
+calibration files; and issue 50's corpus, every class of bad input against every argument of
+the public functions of robots/geometry.py and solutions/{servoing, perception, registration,
+units}.py, generated from one spec per function (the section "issue 50: the corpus").
 
 Every row is (function, arguments, expected outcome), the outcome one of:
 
