@@ -242,9 +242,20 @@ def rectangle_pose_stability(cam_T_rect, width_m: float, height_m: float, intrin
     ``trials`` noisy copies (Gaussian, ``noise_px`` std) of the true corners.
 
     Returns ``{method: {"translation_mm": rms, "rotation_deg": rms, "failures": n}}``.
+    ``ValueError`` naming the argument for a pose that is not one (``as_pose``), sizes that
+    are not positive metres, intrinsics that are not an ``Intrinsics``, a ``noise_px`` that is
+    not a finite number >= 0 and ``trials`` below 1.
     """
-    from robots.geometry import rotation_error_deg, translation_error
+    from robots.geometry import as_pose, rotation_error_deg, translation_error
 
+    cam_T_rect = as_pose(cam_T_rect, "cam_T_rect")
+    width_m, height_m = _size_m(width_m, "width_m"), _size_m(height_m, "height_m")
+    intrinsics = _check_intrinsics(intrinsics)
+    noise = as_real_array(noise_px, "noise_px")
+    if noise.shape != () or not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise_px must be one finite number >= 0 (the corners' noise, pixels), "
+                         f"got {noise_px!r}")
+    trials = _count(trials, "trials")
     w, h = width_m / 2, height_m / 2
     P = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
     clean = project(transform_points(cam_T_rect, P), intrinsics)
@@ -297,9 +308,7 @@ def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
     threshold_m = _at_most(_size_m(threshold_m, "threshold_m"), FLANGE_PLANE_THRESHOLD_MAX_M,
                            "threshold_m", "a plane's inlier distance (a depth camera's noise "
                            "is a few mm)")
-    if isinstance(iterations, (bool, np.bool_)) or not (
-            isinstance(iterations, (int, np.integer)) and iterations >= 1):
-        raise ValueError(f"iterations must be a whole number >= 1, got {iterations!r}")
+    iterations = _count(iterations, "iterations")
     if len(pts) < 3:
         raise ValueError(f"a plane needs at least 3 points, got {len(pts)}")
     best = None
@@ -331,10 +340,20 @@ def heights_above_plane(cloud, sample_rng: np.random.Generator, fit_rng: np.rand
     one twice is fine) for repeatable results. Raises ValueError when fewer than 3 points have
     depth or no plane can be fitted.
     """
+    cloud = as_real_array(cloud, "cloud")
+    if cloud.ndim != 3 or cloud.shape[2] != 3:
+        raise ValueError(f"cloud must be an organised point cloud (H, W, 3) in metres (from "
+                         f"robots.perception.point_cloud), got shape {cloud.shape}")
+    for name, rng in (("sample_rng", sample_rng), ("fit_rng", fit_rng)):
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"{name} must be a numpy Generator (np.random.default_rng(seed)), "
+                             f"got {type(rng).__name__}")
+    sample_size = _count(sample_size, "sample_size", least=3)
     valid = np.all(np.isfinite(cloud), axis=2)
     pts = cloud[valid]
     if len(pts) < 3:
         raise ValueError(f"a plane needs at least 3 points with depth, got {len(pts)}")
+    _refuse_millimetres(pts[:, 2], "cloud")
     sample = pts[sample_rng.choice(len(pts), min(sample_size, len(pts)), replace=False)]
     centre, normal, inliers = fit_plane_ransac(sample, threshold_m, fit_rng, iterations)
     if normal @ centre > 0:
@@ -404,12 +423,26 @@ def _flange_depth(depth, intrinsics) -> np.ndarray:
     if valid.size == 0:
         raise ValueError("depth has no valid pixel (every value is 0, negative, NaN or inf): "
                          "is the depth stream on and the flange within the camera's range?")
-    median = float(np.median(valid))
-    if median > FLANGE_DEPTH_MAX_M:
-        raise ValueError(f"depth has a median of {median:.4g} over its valid pixels: in metres "
-                         f"that is beyond any depth camera's range ({FLANGE_DEPTH_MAX_M:g} m), "
-                         "so it looks like millimetres. Divide it by 1000")
+    _refuse_millimetres(valid, "depth")
     return raw.astype(float, copy=False)
+
+
+def _refuse_millimetres(depths: np.ndarray, name: str) -> None:
+    """``ValueError`` naming ``name`` when the median of ``depths`` (valid, > 0) is beyond
+    ``FLANGE_DEPTH_MAX_M``: no depth camera sees that far, millimetres are that large."""
+    median = float(np.median(depths))
+    if median > FLANGE_DEPTH_MAX_M:
+        raise ValueError(f"{name} has a median depth of {median:.4g}: in metres that is beyond "
+                         f"any depth camera's range ({FLANGE_DEPTH_MAX_M:g} m), so it looks like "
+                         "millimetres. Divide it by 1000")
+
+
+def _count(value, name: str, least: int = 1) -> int:
+    """``value`` as an int; ``ValueError`` naming ``name`` unless a whole number >= least."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or (
+            value < least):
+        raise ValueError(f"{name} must be a whole number >= {least}, got {value!r}")
+    return int(value)
 
 
 def _roi_box(roi, shape) -> tuple[int, int, int, int]:
