@@ -554,15 +554,15 @@ def project_to_so3(M, name: str = "M") -> np.ndarray:
 # --------------------------------------------------------------------------- conversions
 
 
-def _translation(t, name: str = "t", finite: bool = True) -> list:
+def _translation(t, name: str = "t") -> list:
     """A translation (3,) or (3, 1), metres, as 3 plain floats; ValueError naming ``name``
-    for a wrong shape, a non-number, and (if ``finite``) NaN or inf."""
+    for a wrong shape, a non-number, NaN or inf."""
     t = as_real_array(t, name)
     if t.shape not in ((3,), (3, 1)):
         raise ValueError(f"{name} must be a translation of 3 numbers (metres), got shape "
                          f"{t.shape}")
     x, y, z = t.reshape(3).tolist()
-    if finite and not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}; a translation is 3 finite "
                          "numbers in metres: look for a failed measurement upstream")
     return [x, y, z]

@@ -437,7 +437,7 @@ def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
       30 deg/s given as rad/s is 4.8 turns a second;
     * the rotation per step, |w| dt, above pi: the exponential of a turn beyond half a turn
       is the same pose as a shorter turn the other way, so no control step means it (a
-      period in milliseconds given as seconds fails here too).
+      period in milliseconds given as seconds is often caught here too).
 
     Speeds under a turn per second in deg/s (6 deg/s or less read as rad/s) cannot be told
     from rad/s and pass.
