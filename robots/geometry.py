@@ -264,11 +264,12 @@ def warn_caller(message: str, category=UserWarning) -> None:
     warnings.warn(message, category, stacklevel=level)
 
 
-def _warn_repaired(name: str, indices, gram_errors) -> None:
-    shown = ", ".join(f"{name}[{i}] ({e:.1e})" for i, e in list(zip(indices, gram_errors))[:5])
-    more = f" and {len(indices) - 5} more" if len(indices) > 5 else ""
+def _warn_repaired(labels: list, gram_errors) -> None:
+    """Warn that the rotations named by ``labels`` were re-orthonormalised."""
+    shown = ", ".join(f"{label} ({e:.1e})" for label, e in list(zip(labels, gram_errors))[:5])
+    more = f" and {len(labels) - 5} more" if len(labels) > 5 else ""
     warn_caller(
-        f"re-orthonormalised {len(indices)} rotation(s) with max |R^T R - I| between "
+        f"re-orthonormalised {len(labels)} rotation(s) with max |R^T R - I| between "
         f"{ORTHONORMAL_TOL:g} and {REPAIR_TOL:g} (rounding, e.g. matrices printed to 6 "
         f"decimals): {shown}{more}. Save poses with full precision (or as quaternions) to "
         "avoid this")
@@ -300,7 +301,7 @@ def as_rotation(R, name: str = "rotation") -> np.ndarray:
     if _is_clean_rotation(*R.tolist()):
         return R
     if _check_rotation_block(R, name):
-        _warn_repaired(name, [0], [np.abs(R.T @ R - np.eye(3)).max()])
+        _warn_repaired([name], [np.abs(R.T @ R - np.eye(3)).max()])
         R = project_to_so3(R)
     return R
 
@@ -345,18 +346,13 @@ def as_poses(poses, name: str = "poses", min_count: int = 0) -> np.ndarray:
                 & (gram_error <= REPAIR_TOL)
                 & (np.linalg.det(R) > 0))
     for i in np.flatnonzero(~good)[:1]:
-        T, label = arr[i], f"{name}[{i}]"
-        if not np.all(np.isfinite(T)):
-            raise ValueError(_non_finite_message(T, label, "pose"))
-        if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
-            raise ValueError(_bottom_row_message(T, label))
-        _check_rotation_block(T[:3, :3], f"{label} rotation")
+        _check_pose(arr[i], f"{name}[{i}]")
     repair = np.flatnonzero(gram_error > ORTHONORMAL_TOL)
     if repair.size:
         arr = arr.copy()  # never modify the caller's array
         for i in repair:
             arr[i, :3, :3] = project_to_so3(arr[i, :3, :3])
-        _warn_repaired(name, repair.tolist(), gram_error[repair].tolist())
+        _warn_repaired([f"{name}[{i}]" for i in repair.tolist()], gram_error[repair].tolist())
     return arr
 
 
@@ -370,7 +366,23 @@ def as_pose(T, name: str = "pose") -> np.ndarray:
     if (bottom == [0.0, 0.0, 0.0, 1.0] and math.isfinite(r0[3] + r1[3] + r2[3])
             and _is_clean_rotation(r0, r1, r2)):
         return T
-    return as_poses(T[None], name=name)[0]
+    if _check_pose(T, name):  # named without an index: there is one pose
+        gram_error = float(np.abs(T[:3, :3].T @ T[:3, :3] - _EYE3).max())
+        T = T.copy()  # never modify the caller's array
+        T[:3, :3] = project_to_so3(T[:3, :3])
+        _warn_repaired([name], [gram_error])
+    return T
+
+
+def _check_pose(T: np.ndarray, label: str) -> bool:
+    """Raise ``ValueError`` naming ``label`` unless ``T`` (4, 4) is finite with bottom row
+    [0, 0, 0, 1] and a proper rotation within ``REPAIR_TOL``; return whether its rotation
+    needs re-orthonormalising (``_check_rotation_block``)."""
+    if not np.all(np.isfinite(T)):
+        raise ValueError(_non_finite_message(T, label, "pose"))
+    if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
+        raise ValueError(_bottom_row_message(T, label))
+    return _check_rotation_block(T[:3, :3], f"{label} rotation")
 
 
 # --------------------------------------------------------------------------- construction

@@ -323,6 +323,8 @@ for rid, args, names in [
     ("t-4", (None, [1, 2, 3, 1]), ("t", "(4,)")),
 ]:
     row(f"make_pose-{rid}", geo.make_pose, args, Raises(names))
+row("as_pose-one-pose-named-without-an-index", geo.as_pose, (NAN_POSE, "cam_T_rect"),
+    Raises(("cam_T_rect contains NaN or inf (at (0, 3))",)))
 row("make_pose-t-nan", geo.make_pose, (None, [np.nan, 0, 0]), Raises(("t", "NaN or inf")))
 row("make_pose-lists", geo.make_pose, (Rz90.tolist(), [1, 2, 3]),
     Same((Rz90, np.array([1.0, 2.0, 3.0]))))
