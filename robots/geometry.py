@@ -13,12 +13,13 @@ Conventions (see the project's DESIGN notes):
 
 Every function that takes poses validates them and raises ``ValueError`` naming the index of
 the first bad one, so a student sees "pose 7 has det -1" rather than a wrong answer later.
-The exceptions, by design, are the fast paths the solvers call in their inner loops:
-``invert``, ``compose``, ``relative`` and ``transform_points`` check shapes (and refuse
-strings, None and complex values) and refuse a rotation block that is not orthonormal within
-``FAST_PATH_RIGID_TOL`` (a student's scaled or hand-typed matrix), but they do not repair
-rounding, check det or the bottom row, or refuse NaN (NaN in, NaN out); validate untrusted
-poses once, at the public entry, with ``as_pose`` / ``as_poses``.
+The fast paths the solvers call in their inner loops, ``invert``, ``compose``, ``relative``
+and ``transform_points``, check as much for less (issue 50): shapes, strings, None, complex
+values, NaN and inf, the bottom row, a rotation block not orthonormal within
+``FAST_PATH_RIGID_TOL`` (a student's scaled or hand-typed matrix) and a reflection (det -1,
+which passes any orthonormality test), in about a microsecond a pose; they do not repair
+rounding and do not warn. ``as_pose`` / ``as_poses`` validate untrusted poses fully, once, at a
+public entry.
 """
 
 from __future__ import annotations
@@ -127,44 +128,93 @@ def _orthonormal_message(label: str, gram_error: float, tol: float = REPAIR_TOL)
 
 
 def _refuse_non_rigid(T: np.ndarray, label: str) -> None:
-    """``ValueError`` naming ``label`` (and the index in a stack) unless every rotation block
-    of ``T`` (..., 4, 4) has max |R^T R - I| <= ``FAST_PATH_RIGID_TOL``; NaN passes.
+    """``ValueError`` naming ``label`` (and the index in a stack) unless every pose of ``T``
+    (..., 4, 4) is a proper rigid motion: finite, bottom row [0, 0, 0, 1], rotation block
+    orthonormal within ``FAST_PATH_RIGID_TOL`` (max |R^T R - I|) and of determinant +1.
 
     The fast paths' check. A single pose is judged on plain floats (the sum of
-    ``_gram_error``, an upper bound of the max, written out here: 0.7 us, where one numpy
-    3 x 3 product costs more in call overhead); a stack in one vectorised pass. Only a
-    failure pays for the exact max and the message."""
+    ``_gram_error``, an upper bound of the max, and the determinant, written out: about 1 us,
+    where one numpy 3 x 3 product costs more in call overhead); a stack in one vectorised
+    pass. Only a failure pays for the exact diagnosis and the message
+    (``_pose_problem``)."""
     if T.ndim == 2:
-        (a, b, c, _), (d, e, f, _), (g, h, i, _), _ = T.tolist()
-        if not (abs(a * a + d * d + g * g - 1.0) + abs(b * b + e * e + h * h - 1.0)
-                + abs(c * c + f * f + i * i - 1.0) + abs(a * b + d * e + g * h)
-                + abs(a * c + d * f + g * i) + abs(b * c + e * f + h * i)
-                > FAST_PATH_RIGID_TOL):  # NaN compares False: NaN in, NaN out
+        r0, r1, r2, bottom = T.tolist()
+        (a, b, c, x), (d, e, f, y), (g, h, i, z) = r0, r1, r2
+        # NaN makes the sum NaN and every comparison False, so it falls through to the
+        # diagnosis; inf - inf is NaN, so the translation's sum is finite only if each is.
+        if (bottom == _BOTTOM and math.isfinite(x + y + z) and _gram_error(r0, r1, r2)
+                <= FAST_PATH_RIGID_TOL and a * (e * i - f * h) - b * (d * i - f * g)
+                + c * (d * h - e * g) > 0):
             return
-        blocks, where = T[None, :3, :3], [()]
+        stack, where = T[None], [()]
     else:
-        R = T[..., :3, :3]
-        G = np.matmul(np.swapaxes(R, -1, -2), R)
-        np.subtract(G, _EYE3, out=G)
-        np.abs(G, out=G)
-        if not (G > FAST_PATH_RIGID_TOL).any():
-            return
-        blocks = R.reshape(-1, 3, 3)
+        stack = T.reshape(-1, 4, 4)
+        R = stack[:, :3, :3]
+        with np.errstate(invalid="ignore"):
+            G = np.matmul(np.swapaxes(R, -1, -2), R)
+            np.subtract(G, _EYE3, out=G)
+            np.abs(G, out=G)
+            if (np.isfinite(stack[:, :3, 3]).all() and (stack[:, 3] == _BOTTOM).all()
+                    and (G <= FAST_PATH_RIGID_TOL).all() and (_dets(R) > 0).all()):
+                return
         where = list(np.ndindex(T.shape[:-2]))
-    errors = np.abs(np.swapaxes(blocks, -1, -2) @ blocks - _EYE3).max(axis=(-2, -1))
-    bad = np.flatnonzero(errors > FAST_PATH_RIGID_TOL)
-    if not bad.size:  # the sum bound flagged a pose whose max is within the tolerance
-        return
-    k = int(bad[0])
-    index = "".join(f"[{i}]" for i in where[k])
-    lengths = np.linalg.norm(blocks[k], axis=0)
-    raise ValueError(
-        f"{label}{index} is not a rigid pose: its rotation block is not orthonormal (max "
-        f"|R^T R - I| = {errors[k]:.2e} > {FAST_PATH_RIGID_TOL:g}; column lengths "
-        f"{', '.join(f'{v:.4g}' for v in lengths)}, a rotation's are 1). Build poses with "
-        "geometry.make_pose(R, t) or geometry.pose_from_rotvec, or re-orthonormalise R with "
-        "geometry.project_to_so3; look for a scale or unit inside R, or K or a homography "
-        "where a pose belongs")
+    for k, pose in enumerate(stack):
+        problem = _pose_problem(pose, label + "".join(f"[{i}]" for i in where[k]))
+        if problem is not None:
+            raise ValueError(problem)
+    # The sum bound flagged a pose whose max is within the tolerance: it passes.
+
+
+_BOTTOM = [0.0, 0.0, 0.0, 1.0]
+_BUILD_POSES = ("Build poses with geometry.make_pose(R, t) or geometry.pose_from_rotvec, and "
+                "validate untrusted ones once with geometry.as_pose")
+
+
+def _pose_problem(T: np.ndarray, label: str, rotation_only: bool = False) -> str | None:
+    """What makes ``T`` (4, 4) not a proper rigid pose for the fast paths (or, with
+    ``rotation_only``, the (3, 3) ``T`` not a rotation), as a message naming ``label``, the
+    problem and the fix; None if it is one within ``FAST_PATH_RIGID_TOL``. The order of the
+    checks is the order of the causes: NaN first (it poisons every other test), then the
+    bottom row, the scale, and last the handedness."""
+    R = T if rotation_only else T[:3, :3]
+    if not np.all(np.isfinite(T)):
+        return _non_finite_message(T, label, "rotation" if rotation_only else "pose")
+    if not rotation_only and not np.all(np.abs(T[3] - _BOTTOM) <= 1e-9):
+        return _bottom_row_message(T, label)
+    errors = np.abs(R.T @ R - _EYE3).max()
+    if errors > FAST_PATH_RIGID_TOL:
+        lengths = np.linalg.norm(R, axis=0)
+        noun = label if rotation_only else f"{label} is not a rigid pose: its rotation block"
+        return (
+            f"{noun} is not orthonormal (max |R^T R - I| = {errors:.2e} > {FAST_PATH_RIGID_TOL:g}; column "
+            f"lengths {', '.join(f'{v:.4g}' for v in lengths)}, a rotation's are 1). Build "
+            "poses with geometry.make_pose(R, t) or geometry.pose_from_rotvec, or "
+            "re-orthonormalise R with geometry.project_to_so3; look for a scale or unit inside "
+            "R, or K or a homography where a pose belongs")
+    det = float(np.linalg.det(R))
+    if not det > 0:
+        return _reflection_message(label if rotation_only else f"{label}'s rotation block", det)
+    return None
+
+
+def _non_finite_message(T: np.ndarray, label: str, what: str) -> str:
+    bad = [tuple(int(v) for v in ij) for ij in np.argwhere(~np.isfinite(T))[:3]]
+    return (f"{label} contains NaN or inf (at {', '.join(map(str, bad))}); a {what} must be "
+            "finite: look for a failed detection, a division by zero or an unfilled entry "
+            "upstream, and drop that view")
+
+
+def _bottom_row_message(T: np.ndarray, label: str) -> str:
+    return (f"{label} has bottom row {T[3].tolist()}, a pose's is [0, 0, 0, 1]: it is not a "
+            "homogeneous transform (a (3, 4) [R | t] padded with zeros, a projection matrix "
+            "or a transposed pose?). " + _BUILD_POSES)
+
+
+def _reflection_message(label: str, det: float) -> str:
+    """The one message for a rotation block of determinant -1, wherever it is found."""
+    return (f"{label} has det {det:+.1f} (determinant): it is a reflection, not a rotation; "
+            "check the handedness of your axes (a negated or swapped axis, a left-handed "
+            "frame), or build it with geometry.make_pose / pose_from_rotvec")
 
 
 def _fast_pose(T, label: str) -> np.ndarray:
@@ -183,16 +233,13 @@ def _check_rotation_block(R: np.ndarray, label: str) -> bool:
     """Raise ``ValueError`` unless R is a proper rotation within ``REPAIR_TOL``; return whether
     it needs re-orthonormalising (its error exceeds ``ORTHONORMAL_TOL``)."""
     if not np.all(np.isfinite(R)):
-        raise ValueError(f"{label} contains NaN or inf")
+        raise ValueError(_non_finite_message(R, label, "rotation"))
     gram_error = np.abs(R.T @ R - np.eye(3)).max()
     if gram_error > REPAIR_TOL:
         raise ValueError(_orthonormal_message(label, gram_error))
     det = np.linalg.det(R)
     if det < 0:
-        raise ValueError(
-            f"{label} has det {det:+.3f}: a reflection, not a rotation; check for a "
-            "left-handed frame or a swapped axis"
-        )
+        raise ValueError(_reflection_message(label, det))
     return gram_error > ORTHONORMAL_TOL
 
 
@@ -217,11 +264,12 @@ def warn_caller(message: str, category=UserWarning) -> None:
     warnings.warn(message, category, stacklevel=level)
 
 
-def _warn_repaired(name: str, indices, gram_errors) -> None:
-    shown = ", ".join(f"{name}[{i}] ({e:.1e})" for i, e in list(zip(indices, gram_errors))[:5])
-    more = f" and {len(indices) - 5} more" if len(indices) > 5 else ""
+def _warn_repaired(labels: list, gram_errors) -> None:
+    """Warn that the rotations named by ``labels`` were re-orthonormalised."""
+    shown = ", ".join(f"{label} ({e:.1e})" for label, e in list(zip(labels, gram_errors))[:5])
+    more = f" and {len(labels) - 5} more" if len(labels) > 5 else ""
     warn_caller(
-        f"re-orthonormalised {len(indices)} rotation(s) with max |R^T R - I| between "
+        f"re-orthonormalised {len(labels)} rotation(s) with max |R^T R - I| between "
         f"{ORTHONORMAL_TOL:g} and {REPAIR_TOL:g} (rounding, e.g. matrices printed to 6 "
         f"decimals): {shown}{more}. Save poses with full precision (or as quaternions) to "
         "avoid this")
@@ -253,7 +301,7 @@ def as_rotation(R, name: str = "rotation") -> np.ndarray:
     if _is_clean_rotation(*R.tolist()):
         return R
     if _check_rotation_block(R, name):
-        _warn_repaired(name, [0], [np.abs(R.T @ R - np.eye(3)).max()])
+        _warn_repaired([name], [np.abs(R.T @ R - np.eye(3)).max()])
         R = project_to_so3(R)
     return R
 
@@ -298,18 +346,13 @@ def as_poses(poses, name: str = "poses", min_count: int = 0) -> np.ndarray:
                 & (gram_error <= REPAIR_TOL)
                 & (np.linalg.det(R) > 0))
     for i in np.flatnonzero(~good)[:1]:
-        T, label = arr[i], f"{name}[{i}]"
-        if not np.all(np.isfinite(T)):
-            raise ValueError(f"{label} contains NaN or inf")
-        if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
-            raise ValueError(f"{label} has bottom row {T[3]}, expected [0, 0, 0, 1]")
-        _check_rotation_block(T[:3, :3], f"{label} rotation")
+        _check_pose(arr[i], f"{name}[{i}]")
     repair = np.flatnonzero(gram_error > ORTHONORMAL_TOL)
     if repair.size:
         arr = arr.copy()  # never modify the caller's array
         for i in repair:
             arr[i, :3, :3] = project_to_so3(arr[i, :3, :3])
-        _warn_repaired(name, repair.tolist(), gram_error[repair].tolist())
+        _warn_repaired([f"{name}[{i}]" for i in repair.tolist()], gram_error[repair].tolist())
     return arr
 
 
@@ -323,7 +366,23 @@ def as_pose(T, name: str = "pose") -> np.ndarray:
     if (bottom == [0.0, 0.0, 0.0, 1.0] and math.isfinite(r0[3] + r1[3] + r2[3])
             and _is_clean_rotation(r0, r1, r2)):
         return T
-    return as_poses(T[None], name=name)[0]
+    if _check_pose(T, name):  # named without an index: there is one pose
+        gram_error = float(np.abs(T[:3, :3].T @ T[:3, :3] - _EYE3).max())
+        T = T.copy()  # never modify the caller's array
+        T[:3, :3] = project_to_so3(T[:3, :3])
+        _warn_repaired([name], [gram_error])
+    return T
+
+
+def _check_pose(T: np.ndarray, label: str) -> bool:
+    """Raise ``ValueError`` naming ``label`` unless ``T`` (4, 4) is finite with bottom row
+    [0, 0, 0, 1] and a proper rotation within ``REPAIR_TOL``; return whether its rotation
+    needs re-orthonormalising (``_check_rotation_block``)."""
+    if not np.all(np.isfinite(T)):
+        raise ValueError(_non_finite_message(T, label, "pose"))
+    if not np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9):
+        raise ValueError(_bottom_row_message(T, label))
+    return _check_rotation_block(T[:3, :3], f"{label} rotation")
 
 
 # --------------------------------------------------------------------------- construction
@@ -332,14 +391,14 @@ def as_pose(T, name: str = "pose") -> np.ndarray:
 def make_pose(R=None, t=None) -> np.ndarray:
     """Build a (4, 4) pose from a (3, 3) rotation (default identity) and a translation in metres.
 
-    ``R`` is validated (``as_rotation``); ``t`` is checked for shape only, not finiteness: a
-    constructor builds what it is given (tests build invalid poses with it), and every
-    function that takes a pose refuses NaN and inf through ``as_pose``."""
+    ``R`` is validated (``as_rotation``: NaN, inf, a reflection or a non-orthonormal block
+    raise ``ValueError`` naming ``R``); ``t`` must be 3 finite numbers (``ValueError`` naming
+    ``t``): a pose built from NaN would only fail later, far from its cause."""
     T = np.eye(4)
     if R is not None:
         T[:3, :3] = as_rotation(R, "R")
     if t is not None:
-        T[:3, 3] = _translation(t, "t", finite=False)
+        T[:3, 3] = _translation(t, "t")
     return T
 
 
@@ -348,13 +407,12 @@ def invert(T) -> np.ndarray:
 
     Uses R^T rather than a general matrix inverse, so the result stays exactly rigid.
 
-    Fast path: solvers call this in their inner loops on poses they validated once at their
-    public entry (``as_pose`` / ``as_poses``). The shape is checked (strings, None, complex
-    values are refused) and so is rigidity, cheaply: a rotation block with max |R^T R - I|
-    above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming ``T`` (and the index in
-    a stack), since ``[R^T, -R^T t]`` is no inverse of a non-rigid matrix. Not checked: det
-    (a reflection is inverted as it is), the bottom row, finiteness (NaN in, NaN out), and
-    rounding is not repaired. Validate untrusted input fully with ``as_pose(T)``.
+    Fast path: solvers call this in their inner loops. ``ValueError`` naming ``T`` (and the
+    index in a stack) for a wrong shape, strings, None, complex values, NaN or inf, a bottom
+    row other than [0, 0, 0, 1], a rotation block with max |R^T R - I| above
+    ``FAST_PATH_RIGID_TOL`` (1e-3) or a reflection (det -1): ``[R^T, -R^T t]`` is the inverse
+    of a proper rigid motion only. Rounding within the tolerance is neither repaired nor
+    warned about (``as_pose`` does that).
     """
     return _invert(T, "invert: T")
 
@@ -374,12 +432,11 @@ def compose(*poses) -> np.ndarray:
 
     Arguments may be (4, 4) or (N, 4, 4) stacks; stacks broadcast against single poses.
 
-    Fast path (it sits in the solvers' inner loops): each argument's shape is checked, strings,
-    None and complex values are refused, and a rotation block with max |R^T R - I| above
-    ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming the argument (``compose
-    argument 1[7]``: the second argument, pose 7 of its stack). Not checked: det, bottom rows,
-    finiteness (NaN in gives NaN out); rounding is not repaired. Validate untrusted poses
-    fully with ``as_pose`` / ``as_poses`` once, at the public entry.
+    Fast path (it sits in the solvers' inner loops): ``ValueError`` naming the argument
+    (``compose argument 1[7]``: the second argument, pose 7 of its stack) for a wrong shape,
+    strings, None, complex values, NaN or inf, a bottom row other than [0, 0, 0, 1], a
+    rotation block with max |R^T R - I| above ``FAST_PATH_RIGID_TOL`` (1e-3) or a reflection
+    (det -1). Rounding within the tolerance is not repaired (``as_pose`` does that).
     """
     return _compose(poses, _COMPOSE_LABELS if len(poses) <= len(_COMPOSE_LABELS) else
                     [f"compose argument {i}" for i in range(len(poses))])
@@ -412,8 +469,8 @@ def _compose(poses, labels) -> np.ndarray:
 def relative(a_T_b, a_T_c) -> np.ndarray:
     """``b_T_c = inv(a_T_b) @ a_T_c``: the pose of c seen from b, both given in a.
 
-    A fast path like :func:`invert` and :func:`compose`: shapes and rigidity are checked
-    (``ValueError`` naming ``a_T_b`` or ``a_T_c``), finiteness is not."""
+    A fast path like :func:`invert` and :func:`compose`, with the same checks (``ValueError``
+    naming ``a_T_b`` or ``a_T_c``)."""
     return _compose((_invert(a_T_b, "relative: a_T_b"), a_T_c), ("inv(a_T_b)", "relative: a_T_c"))
 
 
@@ -422,10 +479,10 @@ def transform_points(a_T_b, points_b) -> np.ndarray:
 
     Fast path (it sits in inner loops: projections, residuals): the shapes are checked --
     ``a_T_b`` one (4, 4) pose, ``points_b`` (..., 3), with a hint when ``points_b`` looks
-    transposed, (3, N) -- strings, None and complex values are refused, and a rotation block
-    with max |R^T R - I| above ``FAST_PATH_RIGID_TOL`` (1e-3) raises ``ValueError`` naming
-    ``a_T_b``. NaN passes through (NaN in, NaN out). Validate an untrusted pose fully with
-    ``as_pose`` first.
+    transposed, (3, N) -- strings, None and complex values are refused, and ``a_T_b`` gets
+    the checks of :func:`invert` (NaN or inf, bottom row, orthonormality within
+    ``FAST_PATH_RIGID_TOL``, det +1). NaN or inf in ``points_b`` raises too, naming the first
+    bad point: a missing point is dropped by the caller, not carried along.
     """
     T = a_T_b if type(a_T_b) is np.ndarray and a_T_b.dtype is _F64 else \
         as_real_array(a_T_b, "a_T_b")
@@ -442,7 +499,17 @@ def transform_points(a_T_b, points_b) -> np.ndarray:
         raise ValueError(f"transform_points: points_b must have shape (N, 3) or (3,) (metres), "
                          f"got shape {p.shape}{hint}")
     _refuse_non_rigid(T, "transform_points: a_T_b")
-    return p @ T[:3, :3].T + T[:3, 3]
+    out = p @ T[:3, :3].T + T[:3, 3]
+    # Checked on the result (one pass over data already in cache): NaN or inf in a point
+    # gives NaN or inf in its image, and a finite pose cannot make a finite point infinite
+    # short of overflow, which is as wrong.
+    if not np.isfinite(out).all():
+        bad = np.argwhere(~np.isfinite(out.reshape(-1, 3)))[0, 0]
+        where = f"[{bad}]" if p.ndim > 1 else ""
+        raise ValueError(f"transform_points: points_b{where} is not finite "
+                         f"({p.reshape(-1, 3)[bad].tolist()}); drop the missing points (e.g. "
+                         "points_b[np.isfinite(points_b).all(axis=-1)]) before mapping them")
+    return out
 
 
 def skew(v) -> np.ndarray:
@@ -450,7 +517,9 @@ def skew(v) -> np.ndarray:
     v = as_real_array(v, "v")
     if v.size != 3:
         raise ValueError(f"skew: v must have 3 elements, got shape {v.shape}")
-    x, y, z = v.reshape(3)
+    x, y, z = v.reshape(3).tolist()
+    if not math.isfinite(x + y + z):
+        raise ValueError(f"skew: v contains NaN or inf ({[x, y, z]}); give 3 finite numbers")
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
@@ -497,16 +566,17 @@ def project_to_so3(M, name: str = "M") -> np.ndarray:
 # --------------------------------------------------------------------------- conversions
 
 
-def _translation(t, name: str = "t", finite: bool = True) -> list:
+def _translation(t, name: str = "t") -> list:
     """A translation (3,) or (3, 1), metres, as 3 plain floats; ValueError naming ``name``
-    for a wrong shape, a non-number, and (if ``finite``) NaN or inf."""
+    for a wrong shape, a non-number, NaN or inf."""
     t = as_real_array(t, name)
     if t.shape not in ((3,), (3, 1)):
         raise ValueError(f"{name} must be a translation of 3 numbers (metres), got shape "
                          f"{t.shape}")
     x, y, z = t.reshape(3).tolist()
-    if finite and not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}")
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ValueError(f"{name} contains NaN or inf: {[x, y, z]}; a translation is 3 finite "
+                         "numbers in metres: look for a failed measurement upstream")
     return [x, y, z]
 
 
@@ -587,14 +657,16 @@ def _rotation_from_components(x: float, y: float, z: float, theta: float) -> np.
 
 def _rotation_entries(R, caller: str) -> list:
     """The entries of a (3, 3) rotation as floats, for the plain-float conversions; a block
-    that is not orthonormal to 1e-9 is projected onto SO(3) first. ``caller`` names the
-    function in the error for a wrong shape."""
+    that is not orthonormal to 1e-9 but within ``FAST_PATH_RIGID_TOL`` (rounding, float32) is
+    projected onto SO(3) first; NaN, inf, a reflection or a block further off raise
+    ``ValueError`` (``_refuse_non_rotation``). ``caller`` names the function in the errors."""
     if type(R) is not np.ndarray or R.dtype is not _F64:
         R = as_real_array(R, "R")
     if R.shape != (3, 3):
         raise ValueError(f"{caller} needs a (3, 3) rotation R, got shape {R.shape}")
     entries = _exact_rotation_entries(R)
     if entries is None:
+        _refuse_non_rotation(R, f"{caller}: R")
         entries = _exact_rotation_entries(project_to_so3(R, "R"))
     return entries
 
@@ -603,7 +675,9 @@ def rotvec_from_rotation(R) -> np.ndarray:
     """(3,) rotation vector (radians, angle in [0, pi]) of a (3, 3) rotation.
 
     A block that is not orthonormal to 1e-9 is projected onto SO(3) first (as scipy's
-    ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector.
+    ``Rotation.from_matrix`` does), so a slightly-off matrix gets its nearest rotation's vector;
+    one beyond ``FAST_PATH_RIGID_TOL`` (a scaled matrix, K), a reflection, NaN or inf raise
+    ``ValueError`` naming ``R``: scipy would answer with the vector of a rotation nobody gave.
     """
     (a, b, c), (d, e, f), (g, h, i) = _rotation_entries(R, "rotvec_from_rotation")
     wx, wy, wz = h - f, c - g, d - b  # 2 sin(theta) * axis
@@ -645,11 +719,13 @@ def rotvecs_from_rotations(R) -> np.ndarray:
     sin = np.sqrt(np.sum(w * w, axis=1)) / 2.0
     cos = (R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2] - 1.0) / 2.0
     theta = np.arctan2(sin, cos)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # inf in R: refused below, by name
         scale = np.where(theta < 1e-4, 0.5 + theta * theta / 12.0, theta / (2.0 * sin))
-    out = w * scale[:, None]
-    off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
-    for k in np.flatnonzero(~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))):
+        out = w * scale[:, None]
+        off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).sum(axis=(1, 2))
+        inexact = ~((cos > -0.9) & (off <= _EXACT_ROTATION_TOL) & (_dets(R) > 0))
+    for k in np.flatnonzero(inexact):
+        _refuse_non_rotation(R[k], f"rotvecs_from_rotations: R[{k}]")
         out[k] = rotvec_from_rotation(R[k])
     return out
 
@@ -731,7 +807,12 @@ def slerp_rotations(R0, R1, fractions) -> np.ndarray:
     ``R0 @ exp(s * log(R0^T R1))``, one for each s in ``fractions`` (0 gives R0, 1 gives R1)."""
     R0 = as_rotation(R0, "R0")
     step = rotvec_from_rotation(R0.T @ as_rotation(R1, "R1"))
-    fractions = np.asarray(fractions, dtype=float).reshape(-1)
+    fractions = as_real_array(fractions, "fractions").reshape(-1)
+    if fractions.size == 0:
+        raise ValueError("fractions is empty; give at least one fraction (0 gives R0, 1 gives R1)")
+    if not np.isfinite(fractions).all():
+        raise ValueError(f"fractions must be finite numbers (0 gives R0, 1 gives R1), got "
+                         f"{fractions.tolist()}")
     return np.stack([R0 @ rotation_from_rotvec(s * step) for s in fractions.tolist()])
 
 
@@ -892,11 +973,23 @@ def rotation_error_deg(A, B) -> np.ndarray | float:
     """Geodesic angle between two rotations (or poses, or stacks of them), in degrees.
 
     The angle of ``A^T B`` (of its nearest rotation when it is not orthonormal to 1e-9, as
-    :func:`rotation_angle_deg`). Raises ``ValueError`` when that nearest rotation is not
-    unique: one of A and B is a reflection (det -1) or rank-deficient. Two reflections differ
-    by a proper rotation, whose angle is returned.
+    :func:`rotation_angle_deg`). Each of A and B must be a rotation: ``ValueError`` naming it
+    (and the index in a stack) for NaN or inf, a block not orthonormal within
+    ``FAST_PATH_RIGID_TOL`` (a scaled matrix, K, a homography: no angle to speak of) or a
+    reflection (det -1; two reflections would otherwise "differ" by a proper rotation). A
+    pose is checked whole, as by :func:`invert` (its translation and bottom row too).
     """
-    Ra, Rb = _rotation_block(A, "A"), _rotation_block(B, "B")
+    blocks = []
+    for X, name in ((A, "A"), (B, "B")):
+        if type(X) is not np.ndarray or X.dtype is not _F64:
+            X = as_real_array(X, name)
+        block, label = _rotation_block(X, name), f"rotation_error_deg: {name}"
+        if X.shape[-2:] == (4, 4):
+            _refuse_non_rigid(X, label)  # a pose is checked whole: NaN in t, its bottom row
+        else:
+            _refuse_non_rotation(block, label)
+        blocks.append(block)
+    Ra, Rb = blocks
     try:
         product = np.swapaxes(Ra, -1, -2) @ Rb
     except ValueError:
@@ -906,8 +999,36 @@ def rotation_error_deg(A, B) -> np.ndarray | float:
     return rotation_angle_deg(product, "A^T B (the rotation from A to B)")
 
 
+def _refuse_non_rotation(R: np.ndarray, label: str) -> None:
+    """``ValueError`` naming ``label`` (and the index in a stack) unless every (3, 3) block of
+    ``R`` is finite, orthonormal within ``FAST_PATH_RIGID_TOL`` and of det +1; the rotation
+    counterpart of ``_refuse_non_rigid``, with the same messages."""
+    if R.ndim == 2:
+        rows = R.tolist()
+        (a, b, c), (d, e, f), (g, h, i) = rows
+        if (_gram_error(*rows) <= FAST_PATH_RIGID_TOL
+                and a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0):
+            return
+        stack, where = R[None], [()]
+    else:
+        stack = R.reshape(-1, 3, 3)
+        with np.errstate(invalid="ignore"):
+            G = np.abs(np.swapaxes(stack, -1, -2) @ stack - _EYE3)
+            if (G <= FAST_PATH_RIGID_TOL).all() and (_dets(stack) > 0).all():
+                return
+        where = list(np.ndindex(R.shape[:-2]))
+    for k, block in enumerate(stack):
+        problem = _pose_problem(block, label + "".join(f"[{i}]" for i in where[k]),
+                                rotation_only=True)
+        if problem is not None:
+            raise ValueError(problem)
+
+
 def translation_error(A, B) -> np.ndarray | float:
-    """Euclidean distance between the translations of two poses (or stacks), in metres."""
+    """Euclidean distance between the translations of two poses (or stacks), in metres.
+
+    A and B are checked as by :func:`invert` (``ValueError`` naming them for NaN or inf, a
+    bad bottom row, a non-orthonormal block or a reflection)."""
     arrays = []
     for name, X in (("A", A), ("B", B)):
         if type(X) is not np.ndarray or X.dtype is not _F64:
@@ -917,6 +1038,8 @@ def translation_error(A, B) -> np.ndarray | float:
                              f"(N, 4, 4), got shape {X.shape}")
         arrays.append(X)
     A, B = arrays
+    _refuse_non_rigid(A, "translation_error: A")  # a distance between non-poses means nothing
+    _refuse_non_rigid(B, "translation_error: B")
     try:
         d = np.linalg.norm(A[..., :3, 3] - B[..., :3, 3], axis=-1)
     except ValueError:

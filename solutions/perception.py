@@ -29,7 +29,7 @@ from robots.geometry import (
     transform_points,
     warn_caller,
 )
-from robots.perception import point_cloud, project, square_at
+from robots.perception import _as_points, point_cloud, project, square_at
 
 __all__ = [
     "PIECE_HEIGHTS",
@@ -242,9 +242,20 @@ def rectangle_pose_stability(cam_T_rect, width_m: float, height_m: float, intrin
     ``trials`` noisy copies (Gaussian, ``noise_px`` std) of the true corners.
 
     Returns ``{method: {"translation_mm": rms, "rotation_deg": rms, "failures": n}}``.
+    ``ValueError`` naming the argument for a pose that is not one (``as_pose``), sizes that
+    are not positive metres, intrinsics that are not an ``Intrinsics``, a ``noise_px`` that is
+    not a finite number >= 0 and ``trials`` below 1.
     """
-    from robots.geometry import rotation_error_deg, translation_error
+    from robots.geometry import as_pose, rotation_error_deg, translation_error
 
+    cam_T_rect = as_pose(cam_T_rect, "cam_T_rect")
+    width_m, height_m = _size_m(width_m, "width_m"), _size_m(height_m, "height_m")
+    intrinsics = _check_intrinsics(intrinsics)
+    noise = as_real_array(noise_px, "noise_px")
+    if noise.shape != () or not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise_px must be one finite number >= 0 (the corners' noise, pixels), "
+                         f"got {noise_px!r}")
+    trials = _count(trials, "trials")
     w, h = width_m / 2, height_m / 2
     P = np.array([[-w, -h, 0], [w, -h, 0], [w, h, 0], [-w, h, 0]])
     clean = project(transform_points(cam_T_rect, P), intrinsics)
@@ -286,9 +297,18 @@ def fit_plane_ransac(points, threshold_m: float, rng: np.random.Generator,
     a least-squares refit on the inliers of the best triple. Returns ``(centre (3,), unit
     normal (3,), inlier mask (N,))``, the mask against the refitted plane with the same
     ``threshold_m``; the normal's sign is arbitrary. Raises ValueError for fewer than 3 points
-    or when every triple tried was collinear.
+    or when every triple tried was collinear, and naming the argument for points not (N, 3)
+    (a transposed (3, N) array is not reshaped) or not finite, a ``threshold_m`` that is not a
+    positive number of metres or beyond ``FLANGE_PLANE_THRESHOLD_MAX_M`` (millimetres), and
+    ``iterations`` below 1.
     """
-    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = _as_points(points, 3, "points")
+    if pts.ndim == 1:
+        pts = pts[None]
+    threshold_m = _at_most(_size_m(threshold_m, "threshold_m"), FLANGE_PLANE_THRESHOLD_MAX_M,
+                           "threshold_m", "a plane's inlier distance (a depth camera's noise "
+                           "is a few mm)")
+    iterations = _count(iterations, "iterations")
     if len(pts) < 3:
         raise ValueError(f"a plane needs at least 3 points, got {len(pts)}")
     best = None
@@ -320,10 +340,20 @@ def heights_above_plane(cloud, sample_rng: np.random.Generator, fit_rng: np.rand
     one twice is fine) for repeatable results. Raises ValueError when fewer than 3 points have
     depth or no plane can be fitted.
     """
+    cloud = as_real_array(cloud, "cloud")
+    if cloud.ndim != 3 or cloud.shape[2] != 3:
+        raise ValueError(f"cloud must be an organised point cloud (H, W, 3) in metres (from "
+                         f"robots.perception.point_cloud), got shape {cloud.shape}")
+    for name, rng in (("sample_rng", sample_rng), ("fit_rng", fit_rng)):
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"{name} must be a numpy Generator (np.random.default_rng(seed)), "
+                             f"got {type(rng).__name__}")
+    sample_size = _count(sample_size, "sample_size", least=3)
     valid = np.all(np.isfinite(cloud), axis=2)
     pts = cloud[valid]
     if len(pts) < 3:
         raise ValueError(f"a plane needs at least 3 points with depth, got {len(pts)}")
+    _refuse_millimetres(pts[:, 2], "cloud")
     sample = pts[sample_rng.choice(len(pts), min(sample_size, len(pts)), replace=False)]
     centre, normal, inliers = fit_plane_ransac(sample, threshold_m, fit_rng, iterations)
     if normal @ centre > 0:
@@ -356,6 +386,91 @@ def _fit_circle_2d(xy):
     return sol[:2], float(np.sqrt(sol[2] + sol[:2] @ sol[:2]))
 
 
+#: fit_flange refuses a radius_m above this (metres): a cobot's ISO 9409 flange is a few
+#: centimetres across (the sim's and the UR's: 63 mm), so a half-metre radius is no flange,
+#: while a radius in millimetres (31.5 for 0.0315) is beyond it.
+FLANGE_RADIUS_MAX_M = 0.5
+#: ... and a plane_threshold_m above this: a plane's inliers within 10 cm is no plane fit
+#: (a depth camera's noise is 1-10 mm), while 2 (millimetres) for 0.002 is.
+FLANGE_PLANE_THRESHOLD_MAX_M = 0.1
+#: ... and a depth image whose median valid depth exceeds this (metres): depth cameras see
+#: up to ~10 m, while the same image in millimetres has medians of hundreds.
+FLANGE_DEPTH_MAX_M = 20.0
+
+
+def _at_most(value: float, limit: float, name: str, what: str) -> float:
+    """``value`` (metres) unchanged; ``ValueError`` naming ``name`` when above ``limit``, which
+    ``what`` never is in metres: millimetres, most likely."""
+    if value > limit:
+        raise ValueError(
+            f"{name} = {value:g} m is more than {limit:g} m, far too large for {what}: it looks "
+            f"like millimetres. Pass metres: {name}={value / 1000:g}")
+    return value
+
+
+def _flange_depth(depth, intrinsics) -> np.ndarray:
+    """``depth`` as a float (H, W) image in metres of the camera ``intrinsics`` describe."""
+    raw = np.asarray(depth) if isinstance(depth, np.ndarray) else as_real_array(depth, "depth")
+    shape = (intrinsics.height, intrinsics.width)
+    if raw.shape != shape:
+        raise ValueError(f"depth must be the camera's depth image, shape {shape} (H, W) in "
+                         f"metres, got shape {raw.shape}")
+    if not np.issubdtype(raw.dtype, np.floating):
+        raise ValueError(f"depth must be float metres, got {raw.dtype}; a depth image in "
+                         "millimetres (uint16, as depth cameras' SDKs give it) converts with "
+                         "depth.astype(np.float32) / 1000")
+    valid = raw[np.isfinite(raw) & (raw > 0)]
+    if valid.size == 0:
+        raise ValueError("depth has no valid pixel (every value is 0, negative, NaN or inf): "
+                         "is the depth stream on and the flange within the camera's range?")
+    _refuse_millimetres(valid, "depth")
+    return raw.astype(float, copy=False)
+
+
+def _refuse_millimetres(depths: np.ndarray, name: str) -> None:
+    """``ValueError`` naming ``name`` when the median of ``depths`` (valid, > 0) is beyond
+    ``FLANGE_DEPTH_MAX_M``: no depth camera sees that far, millimetres are that large."""
+    median = float(np.median(depths))
+    if median > FLANGE_DEPTH_MAX_M:
+        raise ValueError(f"{name} has a median depth of {median:.4g}: in metres that is beyond "
+                         f"any depth camera's range ({FLANGE_DEPTH_MAX_M:g} m), so it looks like "
+                         "millimetres. Divide it by 1000")
+
+
+def _count(value, name: str, least: int = 1) -> int:
+    """``value`` as an int; ``ValueError`` naming ``name`` unless a whole number >= least."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or (
+            value < least):
+        raise ValueError(f"{name} must be a whole number >= {least}, got {value!r}")
+    return int(value)
+
+
+def _roi_box(roi, shape) -> tuple[int, int, int, int]:
+    """``roi`` (u0, v0, u1, v1) pixels as whole numbers clipped to an image of ``shape``
+    (H, W); ``ValueError`` naming ``roi`` unless it is 4 finite numbers bounding a non-empty
+    box that overlaps the image."""
+    box = as_real_array(roi, "roi")
+    if box.shape != (4,):
+        raise ValueError(f"roi must be 4 pixel bounds (u0, v0, u1, v1): columns u0..u1 and rows "
+                         f"v0..v1, got shape {box.shape} ({box.ravel().tolist()}); a 3-value "
+                         "roi has lost one bound")
+    if not np.all(np.isfinite(box)):
+        raise ValueError(f"roi {box.tolist()} contains NaN or inf; give 4 finite pixel bounds "
+                         "(u0, v0, u1, v1), or roi=None for the whole image")
+    u0, v0, u1, v1 = (int(np.floor(box[0])), int(np.floor(box[1])), int(np.ceil(box[2])),
+                      int(np.ceil(box[3])))
+    if not (u0 < u1 and v0 < v1):
+        raise ValueError(f"roi {box.tolist()} must be (u0, v0, u1, v1) with u0 < u1 and v0 < v1 "
+                         "(left, top, right, bottom in pixels); is it (x, y, width, height) or "
+                         "(v0, u0, v1, u1)?")
+    height, width = shape
+    u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, width), min(v1, height)
+    if not (u0 < u1 and v0 < v1):
+        raise ValueError(f"roi {box.tolist()} lies outside the {width} x {height} image; give "
+                         "pixel bounds (u0, v0, u1, v1) inside it")
+    return u0, v0, u1, v1
+
+
 def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
                plane_threshold_m: float = 0.002, seed: int = 0) -> FlangeFit:
     """Centre of a circular flange face seen by a depth camera (no printed marker needed).
@@ -366,14 +481,30 @@ def fit_flange(depth, intrinsics, roi=None, radius_m: float | None = None,
     in the image, its outline pixels re-intersected with the plane, then a RANSAC circle fit
     in the plane (radius fixed to ``radius_m`` when given: the ISO 9409 flange diameter is
     known from the robot's data sheet) refined by least squares on the inliers.
+
+    Bad input raises ``ValueError`` naming the argument, the cause and the fix: ``intrinsics``
+    not an ``Intrinsics`` (e.g. a bare K), ``depth`` not (H, W) of that camera, in millimetres
+    (integers, or a median beyond ``FLANGE_DEPTH_MAX_M``) or without any valid pixel; ``roi``
+    not 4 finite pixel bounds (u0, v0, u1, v1) with u0 < u1, v0 < v1 overlapping the image;
+    ``radius_m`` or ``plane_threshold_m`` not a positive number of metres, or beyond
+    ``FLANGE_RADIUS_MAX_M`` / ``FLANGE_PLANE_THRESHOLD_MAX_M`` (millimetres).
     """
+    intrinsics = _check_intrinsics(intrinsics)
+    depth = _flange_depth(depth, intrinsics)
+    box = None if roi is None else _roi_box(roi, depth.shape)
+    if radius_m is not None:
+        radius_m = _at_most(_size_m(radius_m, "radius_m"), FLANGE_RADIUS_MAX_M, "radius_m",
+                            "the flange's radius (a few centimetres)")
+    plane_threshold_m = _at_most(_size_m(plane_threshold_m, "plane_threshold_m"),
+                                 FLANGE_PLANE_THRESHOLD_MAX_M, "plane_threshold_m",
+                                 "the plane's inlier distance (a depth camera's noise is a few mm)")
     cloud = point_cloud(depth, intrinsics)
     mask = np.all(np.isfinite(cloud), axis=2)
-    if roi is not None:
-        u0, v0, u1, v1 = (int(r) for r in roi)
-        box = np.zeros_like(mask)
-        box[v0:v1, u0:u1] = True
-        mask &= box
+    if box is not None:
+        u0, v0, u1, v1 = box
+        inside = np.zeros_like(mask)
+        inside[v0:v1, u0:u1] = True
+        mask &= inside
     if mask.sum() < 50:
         raise ValueError("fewer than 50 depth points in the region; is the flange in view?")
     rng = np.random.default_rng(seed)

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from robots.geometry import as_pose, as_real_array, compose, invert, make_pose, transform_points
 from robots.perception import (
+    NORMALISED_MAX,
     ServoDivergedError,
     ServoError,
     ServoTimeoutError,
@@ -36,7 +37,8 @@ from robots.perception import (
     TargetOutOfViewError,
     check_normalised,
 )
-from robots.safety import check_angular_speed
+from robots.safety import ANGULAR_SPEED_MAX, check_angular_speed
+from solutions.units import UNIT_RATIO
 
 __all__ = [
     "ConvergenceMonitor",
@@ -123,8 +125,44 @@ def normalised_projection(points_cam) -> np.ndarray:
 
     ``points_cam`` must be (N, 3) (or one (3,) point), metres, finite: a (3, N) array or an
     (N, 2) one is refused, not reshaped. A point with Z <= 0 raises TargetOutOfViewError.
+
+    A (3, 3) array is the one shape where (N, 3) and a transposed (3, N) cannot be told apart
+    by the shape. Rows are points here, always; the array is refused (``ValueError`` naming
+    ``points_cam``, with the fix) whenever its columns read as three points in front of the
+    camera (and differ from its rows): as rows too, the answer would rest on a guess; not as
+    rows, it is transposed. Three points as rows whose columns put a point behind the camera
+    (the usual case: X and Y of both signs about the optical axis) pass. Pass 4 or more
+    points (IBVS needs 4 to avoid ambiguous poses anyway), or the three one by one as (3,).
     """
     pts = _points(points_cam, 3, "points_cam", "camera-frame points X, Y, Z in metres")
+    if pts.shape == (3, 3):
+        _refuse_ambiguous_square(pts)
+    return _normalised_projection(pts)
+
+
+def _refuse_ambiguous_square(pts: np.ndarray) -> None:
+    """``ValueError`` when a (3, 3) ``points_cam`` reads as three points in front of the camera
+    as columns, whether or not it does as rows (see ``normalised_projection``)."""
+    rows_ok, columns_ok = bool(np.all(pts[:, 2] > 0)), bool(np.all(pts[2, :] > 0))
+    if not columns_ok or np.array_equal(pts, pts.T):
+        return  # only the rows reading can be meant (or both are the same)
+    depths = f"(depths as rows {pts[:, 2].tolist()}, as columns {pts[2, :].tolist()})"
+    if not rows_ok:
+        raise ValueError(
+            "points_cam has shape (3, 3) and read as rows (N, 3), as cobotlab expects, puts a "
+            f"point behind the camera, while read as columns all three are in front {depths}: "
+            "transposed? pass points_cam.T (shape (3, 3), one point per row)")
+    raise ValueError(
+        "points_cam has shape (3, 3): three points as rows (N, 3), as cobotlab expects, or "
+        f"three points as columns (3, N)? Both readings put every point in front of the camera "
+        f"{depths}, so the shape cannot tell. Give one point per row (if they are columns, "
+        "transposed? pass points_cam.T) and project them one at a time "
+        "(normalised_projection(p) for each (3,) point p), or add a fourth point")
+
+
+def _normalised_projection(pts: np.ndarray) -> np.ndarray:
+    """``normalised_projection`` of points already validated as (N, 3) rows (the loops here
+    produce them with ``transform_points``, so the (3, 3) ambiguity cannot arise)."""
     if np.any(pts[:, 2] <= 0):
         k = int(np.flatnonzero(pts[:, 2] <= 0)[0])
         raise TargetOutOfViewError(f"points_cam[{k}] is behind the camera (z = {pts[k, 2]:.4g} "
@@ -158,6 +196,7 @@ def _interaction_matrix(points_xy, depths, xy_name: str, z_name: str) -> np.ndar
     if bad.size:
         raise ValueError(f"{z_name}[{bad[0]}] is {Z[bad[0]]}: depths must be positive finite "
                          "metres")
+    _refuse_millimetre_depth(float(Z.max()), z_name)
     x, y = xy[:, 0], xy[:, 1]
     L = np.zeros((len(xy), 2, 6))
     L[:, 0] = np.column_stack([-1 / Z, 0 * Z, x / Z, x * y, -(1 + x * x), y])
@@ -273,7 +312,16 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
     ``features`` / ``desired``: ``(x, y, a, alpha)``: the blob centroid in normalised
     coordinates, its area in normalised units (pixels^2 / (fx fy)) and its orientation (rad;
     NaN for a round blob, which leaves the rotation about the optical axis alone). ``depth``
-    is the blob's current depth Z (m). Each feature drives one motion:
+    is the blob's current depth Z (m).
+
+    Areas in pixels^2 are refused (``ValueError`` naming the argument and the fix, divide by
+    fx fy), by two rules: an area above ``(2 NORMALISED_MAX)^2`` = 400 does not fit in the
+    widest image whose normalised coordinates stay within +-``NORMALISED_MAX`` (the bound
+    ``check_normalised`` puts on x and y); and an area ratio whose implied goal depth
+    ``Z* = Z sqrt(a / a*)`` is more than ``UNIT_RATIO`` (30) times nearer or farther than
+    the current one is one area in pixels^2 and the other normalised (their ratio is fx fy,
+    1e4-1e6), not a servo goal. Both areas in pixels^2 below 400 give the right twist, since
+    only their ratio counts. Each feature drives one motion:
     ``vx = gain Z (x - x*)``, ``vy = gain Z (y - y*)``, ``vz = gain (Z - Z*) = gain Z (1 - sqrt(a/a*))``
     (the area goes as 1/Z^2, so ``Z* = Z sqrt(a / a*)``), ``wz = -gain (alpha - alpha*)``
     wrapped to (-pi/2, pi/2] (a blob's axis has no head). ``wx = wy = 0``.
@@ -287,15 +335,35 @@ def decoupled_velocity(features, desired, depth: float, gain: float = 1.0) -> np
         if not np.all(np.isfinite(arr[:3])) or arr[2] <= 0 or np.isinf(arr[3]):
             raise ValueError(f"{name} {arr} needs finite x, y, a positive area and a finite "
                              "angle (NaN for a round blob)")
+        if abs(arr[3]) > 2 * math.pi:  # NaN compares False: a round blob passes
+            raise ValueError(
+                f"{name}[3], the blob's orientation, is {arr[3]:g}: more than a full turn in "
+                "radians, so it looks like degrees (cv2.fitEllipse and cv2.minAreaRect give "
+                f"degrees). Pass radians: np.radians({arr[3]:g}) = {math.radians(arr[3]):.4g}")
         check_normalised(arr[:2], f"{name}[:2]")  # the centroid (x, y)
+        if arr[2] > _MAX_NORMALISED_AREA:
+            raise ValueError(
+                f"{name}[2], the blob's area, is {arr[2]:.4g}: in normalised units (pixels^2 / "
+                f"(fx fy)) no blob inside the image exceeds {_MAX_NORMALISED_AREA:g} (a square "
+                f"+-{NORMALISED_MAX:g} wide), so this looks like pixels^2. Divide it by fx * fy "
+                "(from K), as the centroid is normalised with K^-1")
     depth = _finite_number(depth, "depth", "metres")
     if not depth > 0:
         raise ValueError(f"depth must be positive finite metres, got {depth}")
+    _refuse_millimetre_depth(depth, "depth")
     gain = _finite_number(gain, "gain", "1/s")
+    depth_ratio = math.sqrt(f[2] / d[2])  # Z* / Z
+    if not 1.0 / UNIT_RATIO <= depth_ratio <= UNIT_RATIO:
+        big, small = ("features", "desired") if f[2] > d[2] else ("desired", "features")
+        raise ValueError(
+            f"features[2] = {f[2]:.4g} and desired[2] = {d[2]:.4g}, the blob's areas, put the "
+            f"goal {depth_ratio:.4g} times as far as the current depth (Z* = Z sqrt(a / a*)), "
+            f"beyond a factor {UNIT_RATIO:g}: {big}[2] looks like pixels^2 and {small}[2] "
+            f"normalised. Give both areas in normalised units (pixels^2 / (fx fy))")
     v = np.zeros(6)
     v[0] = gain * depth * (f[0] - d[0])
     v[1] = gain * depth * (f[1] - d[1])
-    v[2] = gain * depth * (1.0 - np.sqrt(f[2] / d[2]))
+    v[2] = gain * depth * (1.0 - depth_ratio)
     if np.isfinite(f[3]) and np.isfinite(d[3]):
         da = (f[3] - d[3] + np.pi / 2) % np.pi - np.pi / 2
         v[5] = -gain * da
@@ -348,16 +416,38 @@ def twist_transform(a_T_b) -> np.ndarray:
 
 
 def cam_twist_to_flange(v_cam, flange_T_cam) -> np.ndarray:
-    """The flange body twist that moves an eye-in-hand camera with body twist ``v_cam``."""
-    return twist_transform(as_pose(flange_T_cam, "flange_T_cam")) @ _twist(v_cam, "v_cam")
+    """The flange body twist that moves an eye-in-hand camera with body twist ``v_cam``.
+
+    An angular speed above a turn per second raises ``ValueError`` (deg/s, as in
+    :func:`integrate_twist`)."""
+    v_cam = _twist(v_cam, "v_cam")
+    _refuse_deg_per_s(v_cam, "v_cam")
+    return twist_transform(as_pose(flange_T_cam, "flange_T_cam")) @ v_cam
 
 
 def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
     """The frame's pose after moving with constant body twist ``twist`` for ``dt`` seconds:
-    ``a_T_frame @ exp(dt * twist^)`` (exact SE(3) exponential)."""
+    ``a_T_frame @ exp(dt * twist^)`` (exact SE(3) exponential).
+
+    Angular rates in deg/s are refused (``ValueError`` naming ``twist`` and the conversion),
+    by two rules on the rotational part w (rad/s):
+
+    * the speed: |w| above ``ANGULAR_SPEED_MAX``, a turn per second, is faster than any
+      cobot's wrist and than every servo limit here (``saturate`` warns beyond it too);
+      30 deg/s given as rad/s is 4.8 turns a second;
+    * the rotation per step, |w| dt, above pi: the exponential of a turn beyond half a turn
+      is the same pose as a shorter turn the other way, so no control step means it (a
+      period in milliseconds given as seconds is often caught here too).
+
+    Speeds under a turn per second in deg/s (6 deg/s or less read as rad/s) cannot be told
+    from rad/s and pass.
+    """
     from scipy.linalg import expm
 
-    xi = _twist(twist, "twist") * _finite_number(dt, "dt", "seconds")
+    twist = _twist(twist, "twist")
+    dt = _finite_number(dt, "dt", "seconds")
+    _check_angular_rate(twist, dt)
+    xi = twist * dt
     M = np.zeros((4, 4))
     w = xi[3:]
     M[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
@@ -366,6 +456,51 @@ def integrate_twist(a_T_frame, twist, dt: float) -> np.ndarray:
     step[:3, :3] = Rotation.from_matrix(step[:3, :3]).as_matrix()  # re-orthonormalise
     step[3] = [0, 0, 0, 1]
     return compose(as_pose(a_T_frame, "a_T_frame"), step)
+
+
+def _refuse_deg_per_s(twist: np.ndarray, name: str) -> float:
+    """The angular speed |w| (rad/s) of ``twist``; ``ValueError`` naming ``name`` above
+    ``ANGULAR_SPEED_MAX``, a turn per second: deg/s."""
+    speed = math.sqrt(twist[3] ** 2 + twist[4] ** 2 + twist[5] ** 2)
+    if speed > ANGULAR_SPEED_MAX:
+        w = [round(v, 6) for v in twist[3:].tolist()]
+        raise ValueError(
+            f"{name}'s angular part {w} turns at {speed:.4g} rad/s, more than a turn per second "
+            f"({ANGULAR_SPEED_MAX:.4g} rad/s, faster than any cobot): it looks like deg/s. "
+            f"Twists are m/s and rad/s: convert with np.radians({name}[3:]) "
+            f"({math.radians(speed):.4g} rad/s), or saturate it (saturate({name}, max_linear, "
+            "max_angular))")
+    return speed
+
+
+#: The servo laws refuse a depth beyond this (metres) as millimetres: a cobot's camera sees
+#: its target within its reach (under 2 m), while any depth beyond 5 cm in millimetres is
+#: larger than this.
+SERVO_DEPTH_MAX_M = 50.0
+
+
+def _refuse_millimetre_depth(depth: float, name: str) -> None:
+    if depth > SERVO_DEPTH_MAX_M:
+        raise ValueError(
+            f"{name} reaches {depth:.4g} m, beyond {SERVO_DEPTH_MAX_M:g} m, where no target of a "
+            f"servoing arm is: it looks like millimetres. Pass metres ({name} / 1000)")
+
+
+def _check_angular_rate(twist: np.ndarray, dt: float) -> None:
+    """The two rules of ``integrate_twist`` on the rotational part of ``twist`` (rad/s)."""
+    speed = _refuse_deg_per_s(twist, "twist")
+    w = [round(v, 6) for v in twist[3:].tolist()]
+    if speed * abs(dt) > math.pi:
+        raise ValueError(
+            f"twist's angular part {w} ({speed:.4g} rad/s) for dt = {dt:g} s turns "
+            f"{math.degrees(speed * abs(dt)):.4g} deg in one step, more than half a turn: the "
+            "step would end as a shorter turn the other way. Use a smaller dt (seconds, not "
+            "milliseconds) or saturate the twist")
+
+
+#: The largest blob area in normalised units (pixels^2 / (fx fy)): a square spanning the
+#: whole +-NORMALISED_MAX window that ``check_normalised`` allows for x and y.
+_MAX_NORMALISED_AREA = (2.0 * NORMALISED_MAX) ** 2
 
 
 # --------------------------------------------------------------------------- convergence
@@ -500,7 +635,7 @@ def simulate_servo(method: str, world_T_cam, world_T_camd, target_points, intrin
         raise ValueError(f"max_iterations must be a whole number, got {max_iterations!r}")
     monitor = ConvergenceMonitor(tolerance, int(max_iterations))
     goal_pts = transform_points(invert(Td), pts)
-    s_star = normalised_projection(goal_pts)
+    s_star = _normalised_projection(goal_pts)
     z_star = goal_pts[:, 2]
     if method == "ibvs":  # a degenerate target raises here, naming its points
         if len(pts) < 3:
@@ -514,7 +649,7 @@ def simulate_servo(method: str, world_T_cam, world_T_camd, target_points, intrin
     converged, k = False, 0
     while not converged:
         cam_pts = transform_points(invert(T), pts)
-        s = normalised_projection(cam_pts)
+        s = _normalised_projection(cam_pts)
         if intrinsics is not None:
             u = s[:, 0] * intrinsics.fx + intrinsics.cx
             v = s[:, 1] * intrinsics.fy + intrinsics.cy
@@ -667,7 +802,7 @@ def ibvs_step(detect, camd_T_target, intrinsics, depth: str = "image", margin_px
         _check_target_in_view(det, intrinsics, margin_px, required_points)
         s = _undistorted(det.corners_px, intrinsics)
         goal = transform_points(camd_T_target, det.object_points)
-        s_star, z_star = normalised_projection(goal), goal[:, 2]
+        s_star, z_star = _normalised_projection(goal), goal[:, 2]
         z = depth_at(frame, det.corners_px) if depth == "image" and frame.depth is not None \
             else np.full(len(s), np.nan)
         if not np.all(np.isfinite(z)):

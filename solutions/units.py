@@ -286,7 +286,9 @@ def check_motion_units(A: np.ndarray, B: np.ndarray, rvA: np.ndarray, rvB: np.nd
 
 def check_radians(value: float, name: str) -> float:
     """``value`` (an angle or an angular noise level in radians) as a float; ``ValueError`` when
-    it exceeds pi, which no angle in radians needs: it was given in degrees."""
+    it exceeds pi, which no angle in radians needs: it was given in degrees; NaN raises too."""
+    if math.isnan(value):
+        raise ValueError(f"{name} is NaN; give an angle in radians")
     if value > math.pi:
         raise ValueError(
             f"{name} = {value:g} rad is more than pi: it looks like degrees; pass "

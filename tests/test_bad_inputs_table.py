@@ -1,5 +1,7 @@
 """Bad inputs, one row each (issue 31): the pose math, the servo laws, rectangle_pose and the
-calibration files.
+calibration files; and issue 50's corpus, every class of bad input against every argument of
+the public functions of robots/geometry.py and solutions/{servoing, perception, registration,
+units}.py, generated from one spec per function (the section "issue 50: the corpus").
 
 Every row is (function, arguments, expected outcome), the outcome one of:
 
@@ -10,20 +12,18 @@ Every row is (function, arguments, expected outcome), the outcome one of:
 * ``Same(reference)``: lists, tuples and integer arrays give exactly the result of the
   float64 arrays in ``reference``, without a warning.
 * ``Ok(check)``: a correct result (``check(result)`` holds), without a warning.
-* ``Unvalidated(reason, check)``: a decision, not an accident: a fast path that solvers call
-  in their inner loops checks shapes and rigidity only, so NaN and reflections pass through
-  (the docstring says so); ``check`` pins down the documented behaviour.
 
 Decisions recorded here (see the docstrings):
 * ``invert``, ``compose``, ``relative``, ``transform_points``: shapes checked, and a rotation
   block not orthonormal within ``FAST_PATH_RIGID_TOL`` (1e-3) refused naming the argument
-  (issue 38: a student's scaled matrix used to come back as a wrong answer); NaN, det and the
-  bottom row are not checked.
+  (issue 38: a student's scaled matrix used to come back as a wrong answer); since issue 50
+  also NaN and inf, a bottom row other than [0, 0, 0, 1] and a reflection (det -1), at a cost
+  ``benchmarks/validation_cost.py`` measures. Nothing is left unvalidated on purpose.
 * ``pose_from_rotvec`` / ``rotation_from_rotvec``: an angle above 2 pi warns (degrees?) but
   does not raise, since OpenCV's LM refinement returns such unwrapped vectors; (pi, 2 pi]
   is legitimate and silent.
-* ``project_to_so3`` / ``rotation_error_deg``: no unique nearest rotation raises; two
-  reflections differ by a proper rotation, whose angle is returned.
+* ``project_to_so3``: no unique nearest rotation raises. ``rotation_error_deg``: each of A
+  and B must be a rotation (finite, orthonormal within 1e-3, det +1; issue 50).
 * ``ibvs_velocity``: a negative gain is allowed (the sign mistake the monitor catches).
 * ``saturate``: a limit of 0 stops that part, inf means no limit.
 """
@@ -67,12 +67,6 @@ class Same:
 
 @dataclass(frozen=True)
 class Ok:
-    check: Callable
-
-
-@dataclass(frozen=True)
-class Unvalidated:
-    reason: str
     check: Callable
 
 
@@ -147,14 +141,12 @@ row("invert-int", geo.invert, (EYE_INT,), Same((np.eye(4),)))
 row("invert-stack-list", geo.invert, ([T1, T2],), Same((np.stack([T1, T2]),)))
 row("invert-float32", geo.invert, (T1.astype(np.float32),),
     Ok(lambda out: out.dtype == np.float64 and np.allclose(out @ T1, np.eye(4), atol=1e-6)))
-row("invert-nan", geo.invert, (NAN_POSE,),
-    Unvalidated("fast path: NaN in, NaN out", lambda out: np.isnan(out[:3, 3]).all()))
+row("invert-nan", geo.invert, (NAN_POSE,), Raises(("invert: T", "NaN or inf", "(0, 3)")))
 row("invert-scaled", geo.invert, (SCALED,), Raises(("T", "not a rigid pose", "3.00e+00")))
 row("invert-stack-scaled", geo.invert, (np.stack([T1, SCALED]),),
     Raises(("T[1]", "not a rigid pose")))
 row("invert-reflection", geo.invert, (REFLECT_POSE,),
-    Unvalidated("fast path: reflections are inverted as they are",
-                lambda out: np.allclose(out, REFLECT_POSE)))
+    Raises(("invert: T", "det -1.0", "reflection", "handedness")))
 
 for rid, args, names in [
     ("None", (T1, None), ("compose argument 1", "None")),
@@ -170,11 +162,9 @@ row("compose-int", geo.compose, (EYE_INT, T1), Same((np.eye(4), T1)))
 row("compose-stack-broadcast", geo.compose, (STACK3, T2),
     Ok(lambda out: np.allclose(out[1], T2 @ T2)))
 row("compose-empty", geo.compose, (), Ok(lambda out: np.array_equal(out, np.eye(4))))
-row("compose-nan", geo.compose, (NAN_POSE, T2),
-    Unvalidated("fast path: NaN passes through", lambda out: np.isnan(out).any()))
+row("compose-nan", geo.compose, (NAN_POSE, T2), Raises(("compose argument 0", "NaN or inf")))
 row("compose-scaled", geo.compose, (T2, SCALED), Raises(("compose argument 1", "not a rigid")))
-row("relative-nan", geo.relative, (T1, NAN_POSE),
-    Unvalidated("fast path: NaN passes through", lambda out: np.isnan(out).any()))
+row("relative-nan", geo.relative, (T1, NAN_POSE), Raises(("relative: a_T_c", "NaN or inf")))
 row("relative-shape", geo.relative, (T1, np.eye(3)), Raises(("a_T_c", "(3, 3)")))
 row("relative-scaled", geo.relative, (SCALED, T1), Raises(("a_T_b", "not a rigid pose")))
 row("relative-lists", geo.relative, (T1.tolist(), T2.tolist()), Same((T1, T2)))
@@ -199,7 +189,7 @@ row("transform_points-tuple-point", geo.transform_points, (T1, (0.1, 0.2, 0.3)),
     Same((T1, np.array([0.1, 0.2, 0.3]))))
 row("transform_points-int-pose", geo.transform_points, (EYE_INT, PTS), Same((np.eye(4), PTS)))
 row("transform_points-nan", geo.transform_points, (T1, nan_at(PTS, (1, 2))),
-    Unvalidated("fast path: NaN in, NaN out", lambda out: np.isnan(out[1]).all()))
+    Raises(("points_b[1]", "not finite", "drop")))
 row("transform_points-scaled", geo.transform_points, (SCALED, PTS),
     Raises(("a_T_b", "not a rigid pose", "project_to_so3")))
 
@@ -229,22 +219,22 @@ row("project_to_so3-rank2-unique", geo.project_to_so3, (np.diag([1.0, 1.0, 0.0])
 row("project_to_so3-general", geo.project_to_so3, (rng.normal(size=(3, 3)),), Ok(is_proper))
 
 for rid, args, names in [
-    ("reflection-vs-identity", (REFLECT, np.eye(3)), ("A^T B", "no unique")),
-    ("identity-vs-reflection-pose", (np.eye(4), REFLECT_POSE), ("A^T B", "no unique")),
-    ("rank-deficient", (np.zeros((3, 3)), np.eye(3)), ("A^T B", "no unique")),
-    ("nan", (nan_at(T1, (0, 0)), T2), ("A^T B", "NaN")),
+    ("reflection-vs-identity", (REFLECT, np.eye(3)), ("A", "det -1.0", "reflection")),
+    ("identity-vs-reflection-pose", (np.eye(4), REFLECT_POSE), ("B", "reflection")),
+    ("rank-deficient", (np.zeros((3, 3)), np.eye(3)), ("A", "not orthonormal")),
+    ("nan", (nan_at(T1, (0, 0)), T2), ("A", "NaN")),
+    ("two-reflections", (REFLECT, REFLECT), ("A", "reflection")),
+    ("scaled", (np.eye(3), 2 * Rz90), ("B", "not orthonormal", "project_to_so3")),
     ("shape22", (np.eye(2), np.eye(3)), ("A", "(2, 2)")),
     ("string", (np.eye(3), "B"), ("B", "string")),
     ("None", (None, np.eye(3)), ("A", "None")),
     ("stacks-mismatch", (STACK3, STACK5), ("A", "B", "same length")),
     ("stack-with-reflection", (np.stack([np.eye(3), REFLECT]), np.stack([np.eye(3)] * 2)),
-     ("A^T B", "[1]", "no unique")),
+     ("A[1]", "reflection")),
 ]:
     row(f"rotation_error_deg-{rid}", geo.rotation_error_deg, args, Raises(names))
 row("rotation_error_deg-lists", geo.rotation_error_deg, (T1.tolist(), T2.tolist()), Same((T1, T2)))
 row("rotation_error_deg-int", geo.rotation_error_deg, (EYE_INT, T2), Same((np.eye(4), T2)))
-row("rotation_error_deg-two-reflections", geo.rotation_error_deg, (REFLECT, REFLECT),
-    Ok(lambda a: a == pytest.approx(0.0, abs=1e-9)))
 row("rotation_error_deg-rounded", geo.rotation_error_deg, (np.round(Rz90, 6), np.eye(3)),
     Ok(lambda a: a == pytest.approx(90.0, abs=1e-4)))
 row("rotation_angle_deg-reflection", geo.rotation_angle_deg, (REFLECT,),
@@ -252,7 +242,7 @@ row("rotation_angle_deg-reflection", geo.rotation_angle_deg, (REFLECT,),
 row("rotation_angle_deg-string", geo.rotation_angle_deg, ("R",), Raises(("R", "string")))
 row("rotation_angle_deg-list", geo.rotation_angle_deg, (Rz90.tolist(),), Same((Rz90,)))
 row("rotvec_from_rotation-reflection", geo.rotvec_from_rotation, (REFLECT,),
-    Raises(("R", "no unique")))
+    Raises(("rotvec_from_rotation: R", "det -1.0", "reflection")))
 row("rotvec_from_rotation-string", geo.rotvec_from_rotation, ("R",), Raises(("R", "string")))
 row("rotvec_from_rotation-shape", geo.rotvec_from_rotation, (np.eye(4),), Raises(("R", "(4, 4)")))
 row("rotvec_from_rotation-list", geo.rotvec_from_rotation, (Rz90.tolist(),), Same((Rz90,)))
@@ -333,9 +323,9 @@ for rid, args, names in [
     ("t-4", (None, [1, 2, 3, 1]), ("t", "(4,)")),
 ]:
     row(f"make_pose-{rid}", geo.make_pose, args, Raises(names))
-row("make_pose-t-nan", geo.make_pose, (None, [np.nan, 0, 0]),
-    Unvalidated("a constructor builds what it is given; as_pose refuses it",
-                lambda T: np.isnan(T[0, 3])))
+row("as_pose-one-pose-named-without-an-index", geo.as_pose, (NAN_POSE, "cam_T_rect"),
+    Raises(("cam_T_rect contains NaN or inf (at (0, 3))",)))
+row("make_pose-t-nan", geo.make_pose, (None, [np.nan, 0, 0]), Raises(("t", "NaN or inf")))
 row("make_pose-lists", geo.make_pose, (Rz90.tolist(), [1, 2, 3]),
     Same((Rz90, np.array([1.0, 2.0, 3.0]))))
 row("make_pose-int", geo.make_pose, (np.eye(3, dtype=int), np.array([1, 2, 3])),
@@ -755,16 +745,296 @@ row("save_calibration-list-pose", _save, (File("x.yaml", "missing"), GOOD_POSE.t
     Ok(lambda r: np.array_equal(r.pose, GOOD_POSE)))
 
 
+# --------------------------------------------------------------------------- issue 50: the corpus
+
+# Every class of bad input against every argument of the public functions of
+# robots/geometry.py, solutions/servoing.py, solutions/perception.py, solutions/registration.py
+# and solutions/units.py it applies to, generated from one spec per function: the call on
+# good arguments, and per argument its name (which the message must contain) and its bad
+# values by class. Only inputs that must raise are listed; the ones accepted by decision are
+# named in CORPUS_ACCEPTED with the reason, and a test holds them to it.
+#
+# Classes: nan, inf, reflection (det -1), non-orthonormal (a scaled block), bottom-row
+# (zeros), shape (a rotation for a pose, a pose for a rotation, (N, 2) for (N, 3), 2 or 4
+# numbers for 3), transposed ((3, N) for (N, 3); the ambiguous (3, 3) where it can be told),
+# empty, too-few, degenerate (collinear, coincident), mm-for-m, deg-for-rad, type (None,
+# strings). inf, empty and transposed-square were held out while the checks were written and
+# measured at the end (see the report of issue 50): they are included here as they came out.
+
+from solutions import registration as R  # noqa: E402
+from solutions import units as U  # noqa: E402
+
+_Rz = geo.rotation_from_rotvec([0.0, 0.0, 0.5])
+_SRC = np.random.default_rng(50).uniform(-0.2, 0.2, (8, 3))
+_DST = geo.transform_points(T1, _SRC)
+_PLANE = np.c_[_SRC[:, :2], 0.01 * _SRC[:, 0]]
+_CAM_PTS = PTS + [0.0, 0.0, 0.5]
+_INTR = default_intrinsics(320, 240)
+_DEPTH = np.full((240, 320), 0.5)
+_TWIST = np.array([0.01, 0.0, 0.02, 0.0, 0.05, 0.1])
+_FEATURES, _DESIRED = np.array([0.05, -0.02, 0.011, 0.3]), np.array([0.0, 0.0, 0.012, 0.1])
+_CORNERS = np.array([[100.0, 80], [220, 80], [220, 160], [100, 160]])
+
+
+def _edited(a, index, value):
+    a = np.array(a, dtype=float)
+    a[index] = value
+    return a
+
+
+def _bad_poses(T):
+    flipped = T.copy()
+    flipped[:3, :3] = flipped[:3, :3] @ np.diag([1.0, 1.0, -1.0])
+    scaled = T.copy()
+    scaled[:3, :3] *= 1.5
+    return {"nan": _edited(T, (0, 3), np.nan), "inf": _edited(T, (1, 1), np.inf),
+            "reflection": flipped, "non-orthonormal": scaled, "bottom-row": _edited(T, 3, 0.0),
+            "shape33": T[:3, :3].copy(), "transposed": T.T.copy(), "empty": np.zeros((0, 4)),
+            "None": None, "string": "T"}
+
+
+def _bad_rotations(Rm):
+    return {"nan": _edited(Rm, (0, 0), np.nan), "inf": _edited(Rm, (2, 1), np.inf),
+            "reflection": Rm @ np.diag([1.0, 1.0, -1.0]), "non-orthonormal": 1.5 * Rm,
+            "empty": np.zeros((0, 3)), "None": None}
+
+
+def _bad_points(P, dim=3):
+    return {"nan": _edited(P, (1, dim - 1), np.nan), "inf": _edited(P, (0, 0), np.inf),
+            "transposed": P.T.copy(), "shape": P[:, :dim - 1].copy(), "None": None,
+            "string": "points"}
+
+
+def _bad_vector3():
+    return {"nan": [np.nan, 0.0, 0.0], "inf": [0.0, np.inf, 0.0], "shape2": [0.0, 0.0],
+            "shape4": [0.0, 0.0, 0.0, 1.0], "empty": [], "None": None}
+
+
+def _bad_number(unit=None, value=1.0):
+    out = {"nan": np.nan, "inf": np.inf, "string": "1", "None": None, "negative": -value,
+           "zero": 0.0}
+    if unit == "m":
+        out["mm-for-m"] = value * 1000.0
+    return out
+
+
+def _stacks(bad, good, size):
+    return {k: np.stack([good, v, good]) for k, v in bad.items()
+            if isinstance(v, np.ndarray) and v.shape == (size, size)}
+
+
+def _without(cases, *classes):
+    return {k: v for k, v in cases.items() if k not in classes}
+
+
+CORPUS = [
+    ("as_rotation", geo.as_rotation, (_Rz,), {0: ("rotation", _bad_rotations(_Rz))}),
+    ("as_pose", geo.as_pose, (T1,), {0: ("pose", _bad_poses(T1))}),
+    ("as_poses", geo.as_poses, (STACK3,), {0: ("poses", _stacks(_bad_poses(T1), T1, 4))}),
+    ("make_pose", geo.make_pose, (_Rz, [0.1, 0.2, 0.3]),
+     {0: ("R", _without(_bad_rotations(_Rz), "None")), 1: ("t", _without(_bad_vector3(), "None"))}),
+    ("invert", geo.invert, (T1,), {0: ("T", _bad_poses(T1))}),
+    ("compose", geo.compose, (T1, T2), {1: ("compose argument 1", _bad_poses(T2))}),
+    ("compose-stack", geo.compose, (STACK3, T2),
+     {0: ("compose argument 0[1]", _stacks(_without(_bad_poses(T1), "transposed"), T1, 4))}),
+    ("relative", geo.relative, (T1, T2),
+     {0: ("a_T_b", _bad_poses(T1)), 1: ("a_T_c", _bad_poses(T2))}),
+    ("transform_points", geo.transform_points, (T1, PTS),
+     {0: ("a_T_b", _bad_poses(T1)), 1: ("points_b", _bad_points(PTS))}),
+    ("skew", geo.skew, ([0.1, 0.2, 0.3],), {0: ("v", _without(_bad_vector3(), "shape2"))}),
+    ("project_to_so3", geo.project_to_so3, (_Rz,),
+     {0: ("M", _without(_bad_rotations(_Rz), "non-orthonormal"))}),
+    ("pose_from_rotvec", geo.pose_from_rotvec, ([0.1, 0.2, 0.3], [0.1, 0.0, 0.0]),
+     {0: ("rotvec", _bad_vector3()), 1: ("t", _without(_bad_vector3(), "None"))}),
+    ("rotation_from_rotvec", geo.rotation_from_rotvec, ([0.1, 0.2, 0.3],),
+     {0: ("rotvec", _bad_vector3())}),
+    ("rotvec_from_rotation", geo.rotvec_from_rotation, (_Rz,), {0: ("R", _bad_rotations(_Rz))}),
+    ("rotvecs_from_rotations", geo.rotvecs_from_rotations, (np.stack([_Rz, _Rz.T]),),
+     {0: ("R[1]", _stacks(_bad_rotations(_Rz), _Rz, 3))}),
+    ("rotvec_from_pose", geo.rotvec_from_pose, (T1,), {0: ("pose", _bad_poses(T1))}),
+    ("pose_from_quat_xyzw", geo.pose_from_quat_xyzw, ([0.0, 0.0, 0.2, 1.0], [0.0, 0.0, 0.1]),
+     {0: ("quat_xyzw", {"nan": [np.nan, 0, 0, 1], "inf": [0, np.inf, 0, 1], "zero": [0, 0, 0, 0],
+                        "shape3": [0, 0, 1], "empty": [], "None": None}),
+      1: ("t", _without(_bad_vector3(), "None"))}),
+    ("quat_xyzw_from_rotation", geo.quat_xyzw_from_rotation, (_Rz,),
+     {0: ("R", _bad_rotations(_Rz))}),
+    ("quat_xyzw_from_pose", geo.quat_xyzw_from_pose, (T1,), {0: ("pose", _bad_poses(T1))}),
+    ("slerp_rotations", geo.slerp_rotations, (np.eye(3), _Rz, [0.0, 0.5, 1.0]),
+     {0: ("R0", _bad_rotations(np.eye(3))), 1: ("R1", _bad_rotations(_Rz)),
+      2: ("fractions", {"nan": [0.0, np.nan], "inf": [np.inf], "empty": [], "string": "half",
+                        "None": None})}),
+    ("pose_from_rpy", geo.pose_from_rpy, (0.1, 0.2, 0.3),
+     {0: ("roll", {"nan": np.nan, "inf": np.inf, "string": "0", "None": None}),
+      1: ("pitch", {"shape": [0.1, 0.2]})}),
+    ("pose_from_euler_zyx", geo.pose_from_euler_zyx, (0.1, 0.2, 0.3),
+     {2: ("roll", {"nan": np.nan, "inf": -np.inf})}),
+    ("rpy_from_pose", geo.rpy_from_pose, (T1,), {0: ("pose", _bad_poses(T1))}),
+    ("euler_zyx_from_pose", geo.euler_zyx_from_pose, (T1,), {0: ("pose", _bad_poses(T1))}),
+    ("rotation_angle_deg", geo.rotation_angle_deg, (_Rz,),
+     {0: ("R", _without(_bad_rotations(_Rz), "non-orthonormal", "empty"))}),
+    ("rotation_error_deg", geo.rotation_error_deg, (T1, T2),
+     {0: ("A", _without(_bad_poses(T1), "shape33", "transposed")),
+      1: ("B", _without(_bad_rotations(_Rz), "empty"))}),
+    ("translation_error", geo.translation_error, (T1, T2),
+     {0: ("A", _without(_bad_poses(T1), "transposed")),
+      1: ("B", _without(_bad_poses(T2), "transposed"))}),
+    ("chordal_mean_rotation", geo.chordal_mean_rotation, (np.stack([_Rz, _Rz.T, _Rz]), None),
+     {0: ("rotations[1]", _stacks(_without(_bad_rotations(_Rz), "non-orthonormal"), _Rz, 3)),
+      1: ("weights", {"nan": [1.0, np.nan, 1.0], "negative": [1.0, -1.0, 1.0],
+                      "shape": [1.0, 1.0]})}),
+    ("normalised_projection", S.normalised_projection, (_CAM_PTS,),
+     {0: ("points_cam", _bad_points(_CAM_PTS) | {
+         "transposed-square": _CAM_PTS[:3].T.copy()})}),
+    ("interaction_matrix", S.interaction_matrix, (PTS[:, :2] / PTS[:, 2:], PTS[:, 2]),
+     {0: ("points_xy", _bad_points(PTS[:, :2] / PTS[:, 2:], 2) | {"pixels": PTS[:, :2] * 300}),
+      1: ("depths", {"nan": _edited(PTS[:, 2], 1, np.nan), "inf": np.full(4, np.inf),
+                     "zero": np.zeros(4), "mm-for-m": PTS[:, 2] * 1000, "shape": np.ones(3)})}),
+    ("ibvs_velocity", S.ibvs_velocity, (PTS[:, :2] / PTS[:, 2:], PTS[:, :2] / PTS[:, 2:] * 0.9,
+                                         PTS[:, 2], 1.0),
+     {0: ("s", _bad_points(PTS[:, :2] / PTS[:, 2:], 2) | {"too-few": np.zeros((2, 2)),
+                                                           "degenerate": np.zeros((4, 2))}),
+      2: ("depths", {"mm-for-m": PTS[:, 2] * 1000, "nan": _edited(PTS[:, 2], 0, np.nan)}),
+      3: ("gain", {"nan": np.nan, "string": "1"})}),
+    ("pbvs_velocity", S.pbvs_velocity, (T1, T2, 1.0),
+     {0: ("cam_T_target", _bad_poses(T1)), 1: ("camd_T_target", _bad_poses(T2)),
+      2: ("gain", {"nan": np.nan, "inf": np.inf})}),
+    ("pbvs_error", S.pbvs_error, (T1, T2), {0: ("cam_T_target", _bad_poses(T1))}),
+    ("decoupled_velocity", S.decoupled_velocity, (_FEATURES, _DESIRED, 0.4),
+     {0: ("features", {"nan": _edited(_FEATURES, 0, np.nan), "inf": _edited(_FEATURES, 2, np.inf),
+                       "px2-area": _edited(_FEATURES, 2, 900.0), "empty": np.zeros(0),
+                       "px2-area-small": _edited(_FEATURES, 2, 100.0),
+                       "deg-angle": _edited(_FEATURES, 3, 30.0), "pixels": [200, 150, 0.01, 0]}),
+      1: ("desired", {"px2-area": _edited(_DESIRED, 2, 120.0), "shape": _DESIRED[:3]}),
+      2: ("depth", _bad_number("m", 0.4))}),
+    ("saturate", S.saturate, (_TWIST, 0.25, 1.0),
+     {0: ("twist", {"nan": _edited(_TWIST, 0, np.nan), "inf": _edited(_TWIST, 0, np.inf),
+                    "empty": np.zeros(0), "shape": np.zeros(3)}),
+      1: ("max_linear", {"nan": np.nan, "negative": -1.0, "string": "1"})}),
+    ("twist_transform", S.twist_transform, (T1,), {0: ("a_T_b", _bad_poses(T1))}),
+    ("cam_twist_to_flange", S.cam_twist_to_flange, (_TWIST, T1),
+     {0: ("v_cam", {"nan": _edited(_TWIST, 0, np.nan), "inf": _edited(_TWIST, 0, np.inf),
+                    "deg-for-rad": _edited(_TWIST, 5, 30.0)}),
+      1: ("flange_T_cam", _bad_poses(T1))}),
+    ("integrate_twist", S.integrate_twist, (T1, _TWIST, 0.1),
+     {0: ("a_T_frame", _bad_poses(T1)),
+      1: ("twist", {"nan": _edited(_TWIST, 0, np.nan), "inf": _edited(_TWIST, 0, np.inf),
+                    "deg-for-rad": _edited(_TWIST, 5, 30.0), "empty": np.zeros(0)}),
+      2: ("dt", {"nan": np.nan, "inf": np.inf, "string": "0.1", "None": None,
+                 "ms-for-s": 100.0})}),
+    ("fit_rigid", R.fit_rigid, (_SRC, _DST),
+     {0: ("src", _bad_points(_SRC) | {"too-few": _SRC[:2], "collinear": np.outer(
+         np.arange(8.0), [0.1, 0.0, 0.0])}),
+      1: ("dst", _bad_points(_DST) | {"too-few": _DST[:2]})}),
+    ("residuals", R.residuals, (T1, _SRC, _DST),
+     {0: ("dst_T_src", _bad_poses(T1)), 1: ("src", _bad_points(_SRC))}),
+    ("per_axis_rmse", R.per_axis_rmse, (T1, _SRC, _DST),
+     {0: ("dst_T_src", _bad_poses(T1)), 2: ("dst", _bad_points(_DST))}),
+    ("frame_from_three_points", R.frame_from_three_points,
+     ([0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]),
+     {0: ("p_origin", _bad_vector3()), 2: ("p_xy", _bad_vector3() | {"collinear": [0.2, 0, 0]})}),
+    ("calibrate_flange", R.calibrate_flange, (_SRC, _DST),
+     {0: ("cam_points", _bad_points(_SRC)), 1: ("base_points", _bad_points(_DST))}),
+    ("fit_plane_ransac", lambda p, t, it=50: SP.fit_plane_ransac(p, t, np.random.default_rng(0),
+                                                                 it), (_PLANE, 0.002, 50),
+     {0: ("points", _bad_points(_PLANE)),
+      1: ("threshold_m", _without(_bad_number("m", 0.002), "zero") | {"zero": 0.0}),
+      2: ("iterations", {"zero": 0, "float": 2.5, "string": "50"})}),
+    ("fit_flange", SP.fit_flange, (_DEPTH, _INTR, None, None),
+     {0: ("depth", {"mm-for-m": _DEPTH * 1000, "uint16-mm": (_DEPTH * 1000).astype(np.uint16),
+                    "empty": np.zeros((0, 0)), "transposed": _DEPTH.T.copy(),
+                    "no-valid-pixel": np.zeros((240, 320))}),
+      1: ("intrinsics", {"bare-K": _INTR.K, "None": None}),
+      2: ("roi", {"nan": [0, 0, np.nan, 10], "three-values": [0, 0, 10], "inf": [0, 0, np.inf, 10],
+                  "empty": [], "reversed": [100, 100, 10, 10], "outside": [400, 300, 500, 400]}),
+      3: ("radius_m", _without(_bad_number("m", 0.0315), "None"))}),
+    ("rectangle_pose", SP.rectangle_pose, (_CORNERS, 0.1, 0.066, _INTR),
+     {0: ("corners_px", {"nan": _edited(_CORNERS, (0, 0), np.nan), "transposed": _CORNERS.T.copy(),
+                         "too-few": _CORNERS[:3], "empty": np.zeros((0, 2))}),
+      1: ("width_m", _without(_bad_number(), "zero") | {"zero": 0.0}),
+      3: ("intrinsics", {"bare-K": _INTR.K})}),
+    ("heights_above_plane", SP.heights_above_plane,
+     (np.dstack([*np.meshgrid(np.linspace(-0.2, 0.2, 8), np.linspace(-0.1, 0.1, 6)),
+                 np.full((6, 8), 0.6)]), np.random.default_rng(0), np.random.default_rng(1), 0.002,
+      20),
+     {0: ("cloud", {"flat-N3": np.zeros((48, 3)), "mm-for-m": np.full((6, 8, 3), 600.0),
+                    "None": None}),
+      1: ("sample_rng", {"seed-int": 0, "None": None}),
+      3: ("threshold_m", {"mm-for-m": 2.0, "nan": np.nan}),
+      4: ("sample_size", {"zero": 0, "float": 10.5})}),
+    ("rectangle_pose_stability", SP.rectangle_pose_stability,
+     (geo.make_pose(t=[0.01, 0.0, 0.5]), 0.1, 0.066, _INTR, 0.5, 3),
+     {0: ("cam_T_rect", _bad_poses(geo.make_pose(t=[0.01, 0.0, 0.5]))),
+      1: ("width_m", {"nan": np.nan, "negative": -0.1}),
+      3: ("intrinsics", {"bare-K": _INTR.K}),
+      4: ("noise_px", {"nan": np.nan, "negative": -1.0, "string": "0.5"}),
+      5: ("trials", {"zero": 0, "float": 2.5})}),
+    ("check_radians", U.check_radians, (0.1, "angle"),
+     {0: ("angle", {"deg-for-rad": 30.0, "nan": np.nan})}),
+]
+
+#: Inputs of the classes above that are accepted by decision, each with the reason.
+CORPUS_ACCEPTED = [
+    ("as_poses, empty stack", lambda: geo.as_poses(np.zeros((0, 4, 4))),
+     "an empty list of poses is valid; callers that need some pass min_count"),
+    ("transform_points, no points", lambda: geo.transform_points(T1, np.zeros((0, 3))),
+     "mapping no points gives no points"),
+    ("rotvecs_from_rotations, empty stack", lambda: geo.rotvecs_from_rotations(np.zeros((0, 3, 3))),
+     "an empty stack has an empty answer"),
+    ("transform_points, (3, 3) points", lambda: geo.transform_points(T1, PTS[:3].T),
+     "rows are points; any 3 points are valid (in front of a camera or not), so a transposed "
+     "(3, 3) cannot be told apart in this fast path"),
+    ("fit_plane_ransac, (3, 3) points", lambda: SP.fit_plane_ransac(
+        _PLANE[:3].T, 0.002, np.random.default_rng(0)),
+     "any 3 points define a plane: a transposed (3, 3) cannot be told apart"),
+    ("rotation_angle_deg, a scaled matrix", lambda: geo.rotation_angle_deg(1.5 * _Rz),
+     "documented: the angle of the nearest rotation (as scipy); the autograder's mistake "
+     "finder measures students' matrices with it. rotation_error_deg refuses one"),
+    ("integrate_twist, a negative dt", lambda: S.integrate_twist(T1, _TWIST, -0.1),
+     "moving back in time is the inverse motion (finite differences use it)"),
+    ("pose_from_rotvec, 90 'radians'", lambda: geo.pose_from_rotvec([0, 0, 90.0]),
+     "warns, does not raise: OpenCV's LM refinement returns unwrapped vectors"),
+]
+
+for fid, fn, good, bad in CORPUS:
+    for index, (name, cases) in bad.items():
+        for cls, value in cases.items():
+            args = list(good)
+            args[index] = value
+            row(f"corpus-{fid}-{name.split()[-1]}-{cls}", fn, tuple(args), Raises((name,)))
+
+
+@pytest.mark.parametrize(("what", "call", "reason"), CORPUS_ACCEPTED,
+                         ids=[c[0] for c in CORPUS_ACCEPTED])
+def test_the_corpus_inputs_accepted_by_decision_are_accepted(what, call, reason):
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        out = call()
+    assert out is not None, (what, reason)
+
+
+def test_the_corpus_calls_every_spec_on_good_arguments_without_a_word():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for fid, fn, good, _ in CORPUS:
+            if fid != "fit_flange":  # a flat depth image holds no flange to find
+                fn(*good)
+
+
 # --------------------------------------------------------------------------- the test
 
 
-def _materialise(args, tmp_path):
+def _materialise(args, request):
+    """``args`` with each File written into a fresh tmp_path, made only for the rows that
+    have one: a temporary folder for each of the ~900 rows was most of the table's time."""
+    if not any(isinstance(a, File) for a in args):
+        return tuple(args)
+    tmp_path = request.getfixturevalue("tmp_path")
     return tuple(a.make(tmp_path) if isinstance(a, File) else a for a in args)
 
 
 @pytest.mark.parametrize(("fn", "args", "kwargs", "expect"), ROWS)
-def test_bad_input_table(fn, args, kwargs, expect, tmp_path):
-    args = _materialise(args, tmp_path)
+def test_bad_input_table(fn, args, kwargs, expect, request):
+    args = _materialise(args, request)
     if isinstance(expect, Raises):
         with pytest.raises(expect.exc) as err:
             fn(*args, **kwargs)
@@ -783,7 +1053,7 @@ def test_bad_input_table(fn, args, kwargs, expect, tmp_path):
         warnings.simplefilter("error")
         out = fn(*args, **kwargs)
         if isinstance(expect, Same):
-            reference = fn(*_materialise(expect.reference, tmp_path), **kwargs)
+            reference = fn(*_materialise(expect.reference, request), **kwargs)
             assert type(out) is type(reference)
             np.testing.assert_array_equal(out, reference)
             assert np.asarray(out).dtype == np.float64
@@ -794,6 +1064,6 @@ def test_bad_input_table(fn, args, kwargs, expect, tmp_path):
 def test_the_table_is_large_and_covers_every_outcome():
     kinds = {type(p.values[3]).__name__ for p in ROWS}
     assert len(ROWS) >= 200, len(ROWS)
-    assert kinds == {"Raises", "Warns", "Same", "Ok", "Unvalidated"}
+    assert kinds == {"Raises", "Warns", "Same", "Ok"}
     ids = [p.id for p in ROWS]
     assert len(ids) == len(set(ids))

@@ -147,7 +147,7 @@ def _with(T, index, value):
 SINGLE_POSES = {
     "clean, huge t": (geo.pose_from_rotvec([0.3, -1.0, 2.0], [1e308, -1e308, 1e308]), None),
     "nan in t": (_with(np.eye(4), (1, 3), np.nan), "NaN or inf"),
-    "inf - inf in t": (geo.make_pose(t=[np.inf, -np.inf, 0.0]), "NaN or inf"),
+    "inf - inf in t": (_with(_with(np.eye(4), (0, 3), np.inf), (1, 3), -np.inf), "NaN or inf"),
     "nan in R": (_with(np.eye(4), (1, 2), np.nan), "NaN or inf"),
     "bottom row": (_with(np.eye(4), (3, 2), 1e-6), "bottom row"),
     "bottom row off by rounding": (_with(np.eye(4), (3, 2), 1e-12), None),

@@ -120,11 +120,27 @@ def test_good_poses_give_exactly_the_unchecked_arithmetic():
                                   PTS @ T1[:3, :3].T + T1[:3, 3])
 
 
-def test_nan_still_passes_through_the_fast_paths():
+def test_nan_reflections_and_bad_bottom_rows_are_refused_by_the_fast_paths():
+    # Issue 50: they used to pass through (NaN in, NaN out; a reflection inverted as it is).
     bad = T1.copy()
     bad[0, 0] = np.nan
-    assert np.isnan(geo.invert(bad)[0, 0])
-    assert np.isnan(geo.compose(np.stack([T1, bad]), T2)[1]).any()
+    with pytest.raises(ValueError, match=re.escape("invert: T contains NaN or inf (at (0, 0))")):
+        geo.invert(bad)
+    with pytest.raises(ValueError, match=re.escape("compose argument 0[1] contains NaN")):
+        geo.compose(np.stack([T1, bad]), T2)
+    mirrored = T1 @ np.diag([1.0, -1.0, 1.0, 1.0])
+    for call, label in ((lambda: geo.invert(mirrored), "invert: T's"),
+                        (lambda: geo.compose(T1, np.stack([T2, mirrored])), "argument 1[1]'s"),
+                        (lambda: geo.relative(mirrored, T1), "a_T_b's"),
+                        (lambda: geo.transform_points(mirrored, PTS), "a_T_b's")):
+        with pytest.raises(ValueError, match=re.escape(f"{label} rotation block has det -1.0 "
+                                                       "(determinant): it is a reflection")):
+            call()
+    flat = T1.copy()
+    flat[3] = 0.0
+    for T in (flat, np.stack([T1, flat])):
+        with pytest.raises(ValueError, match=r"has bottom row \[0\.0, 0\.0, 0\.0, 0\.0\]"):
+            geo.compose(T2, T)
 
 
 # --------------------------------------------------------------------------- transposed points
@@ -259,3 +275,76 @@ def test_a_kinematic_servo_run_is_unchanged_by_the_checks():
         for method in ("ibvs", "pbvs"):
             result = S.simulate_servo(method, start, goal, square, intr)
             assert result.converged and result.position_error_m < 1e-3, result
+
+
+# --------------------------------------------------------------------------- issue 50, Required 7
+
+
+def _message(call) -> str:
+    with pytest.raises(ValueError) as err:
+        call()
+    return str(err.value)
+
+
+def test_the_named_findings_of_issue_50_name_the_argument_the_problem_and_the_fix():
+    from robots.interfaces import Intrinsics as Intr
+    from solutions import perception as SP
+
+    intr = Intr.from_K(K, 320, 240)
+    depth = np.full((240, 320), 0.5)
+    findings = [
+        # (call, the argument, the problem, the fix), each a piece of the message
+        (lambda: geo.make_pose(np.diag([1.0, 1.0, -1.0])), "R", "det -1", "left-handed frame"),
+        (lambda: geo.make_pose(None, [0.1, np.nan, 0.2]), "t", "NaN", "3 finite numbers"),
+        (lambda: geo.rotation_error_deg(2.0 * np.eye(3), np.eye(3)), "A", "not orthonormal",
+         "project_to_so3"),
+        (lambda: S.integrate_twist(T1, [0, 0, 0, 0, 0, 30.0], 0.1), "twist",
+         "30 rad/s, more than a turn per second", "np.radians(twist[3:]) (0.5236 rad/s)"),
+        (lambda: S.decoupled_velocity([0.01, 0.02, 900.0, 0.0], [0.0, 0.0, 0.01, 0.0], 0.5),
+         "features[2]", "looks like pixels^2", "Divide it by fx * fy"),
+        (lambda: S.normalised_projection(np.array([[0.1, 0.2, 1.0], [-0.1, 0.1, 1.2],
+                                                   [0.0, 0.3, 0.9]]).T),
+         "points_cam", "puts a point behind the camera", "transposed? pass points_cam.T"),
+        (lambda: SP.fit_flange(depth, intr, roi=[10, 10, np.nan, 100]), "roi", "NaN",
+         "4 finite pixel bounds"),
+        (lambda: SP.fit_flange(depth, intr, roi=[10, 10, 100]), "roi", "shape (3,)",
+         "(u0, v0, u1, v1)"),
+        (lambda: SP.fit_flange(depth, intr, radius_m=31.5), "radius_m", "millimetres",
+         "radius_m=0.0315"),
+        (lambda: SP.fit_flange(depth, K), "intrinsics", "ndarray of shape (3, 3)",
+         "Intrinsics.from_K"),
+    ]
+    for call, argument, problem, fix in findings:
+        message = _message(call)
+        for piece in (argument, problem, fix):
+            assert piece in message, (piece, message)
+
+
+def test_a_reflection_is_named_by_its_determinant_wherever_a_pose_goes():
+    mirrored = T1 @ np.diag([1.0, 1.0, -1.0, 1.0])
+    for call in (lambda: geo.invert(mirrored), lambda: geo.compose(T2, mirrored),
+                 lambda: geo.transform_points(mirrored, PTS),
+                 lambda: geo.rotation_error_deg(mirrored, T2),
+                 lambda: geo.translation_error(T2, mirrored)):
+        message = _message(call)
+        assert "det -1.0 (determinant): it is a reflection, not a rotation" in message, message
+        assert "handedness" in message, message
+
+
+def test_the_step_rule_of_integrate_twist_sits_at_half_a_turn():
+    w = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 6.0])  # under a turn per second: rad/s is plausible
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        S.integrate_twist(T1, w, 0.99 * np.pi / 6.0)
+        S.integrate_twist(T1, w, -0.99 * np.pi / 6.0)  # backwards in time: the inverse motion
+    assert "more than half a turn" in _message(lambda: S.integrate_twist(T1, w, 1.01 * np.pi / 6))
+
+
+def test_two_pixel_areas_give_the_right_twist_and_a_mixed_pair_is_refused():
+    # Only the ratio of the areas counts, so both in pixels^2 (under 400) is harmless.
+    fx_fy = 300.0 * 300.0
+    now, goal = np.array([0.02, 0.01, 0.0012, 0.0]), np.array([0.0, 0.0, 0.0016, 0.0])
+    in_pixels = S.decoupled_velocity(now * [1, 1, fx_fy, 1], goal * [1, 1, fx_fy, 1], 0.4)
+    np.testing.assert_allclose(in_pixels, S.decoupled_velocity(now, goal, 0.4), rtol=1e-12)
+    message = _message(lambda: S.decoupled_velocity(now * [1, 1, fx_fy, 1], goal, 0.4))
+    assert "features[2] looks like pixels^2 and desired[2] normalised" in message, message
