@@ -35,6 +35,8 @@ import course_kit as kit
 import pytest
 from test_browser_lab import LabServer, browser  # noqa: F401  (browser: the fixture)
 
+from autograder.page_policy import POLICY_META
+
 pytestmark = pytest.mark.slow
 ASSIGNMENT = "lab0_frames"
 STUDENT = "mallory"
@@ -310,6 +312,10 @@ def test_feedback_pages_and_class_report_are_inert(graded, server, browser):  # 
         visit.open_as_served(folder_page, "shown-folder-feedback")
         visit.open_as_served(report, "shown-report")
         assert "the class at a glance" in visit.text()
+        # cobotlab's own pages carry their policy, and it lets their figures load
+        assert all(POLICY_META in p.read_text() for p in (cobotlab_page, folder_page, report))
+        assert visit.page.evaluate(
+            "() => [...document.images].filter(i => i.naturalWidth > 100).length") == 3
         assert not visit.ran(), visit.ran()
     finally:
         visit.context.close()
