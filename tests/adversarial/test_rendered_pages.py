@@ -81,6 +81,31 @@ The inverse of a pose: ${FORMULA} = \\begin{{bmatrix}} R^\\top & -R^\\top t \\\\
 ![an attachment](attachment:evil.svg)
 """
 
+# Vectors held out while the sanitiser was written (measured once at the end: none ran; 9
+# of them ran unsanitised in the same page): mutation XSS, entity-hidden schemes, plugins,
+# <base>, refresh, SVG animation, autofocus, templates, CSS, broken markup.
+HELD_OUT = [
+    '<math><mtext><table><mglyph><style><img src=x onerror="{}">',
+    '<noscript><p title="</noscript><img src=x onerror={}>">',
+    '<a href="jav&#x09;ascript:{}">hostile tab link</a>',
+    '<a href="&#106;avascript:{}">hostile entity link</a>',
+    '<object data="javascript:{}"></object>', '<embed src="javascript:{}">',
+    '<base href="javascript:{}//">',
+    '<meta http-equiv="refresh" content="0;url=javascript:{}">',
+    '<svg><animate onbegin="{}" attributeName=x dur=1s>',
+    '<svg><a xlink:href="javascript:{}"><text x=20 y=20>hostile svg link</text></a></svg>',
+    '<input autofocus onfocus="{}">', '<video><source onerror="{}"></video>',
+    '<style>@import "javascript:{}";</style>', '<iframe src="javascript:{}"></iframe>',
+    '<form><button formaction="javascript:{}">hostile formaction</button></form>',
+    '<div style="background:url(javascript:{})">bg</div>',
+    '<select><template><img src=x onerror="{}"></template></select>',
+    '<scr<script>ipt>{}</scr</script>ipt>', '<<img src=x onerror="{}">',
+    '<img """><script>{}</script>">', '<marquee onstart="{}">m</marquee>',
+    '![md img](x" onerror="{})', '$<img src=x onerror={}>$ in math',
+]
+HELD_OUT_CELL = "\n\n".join(v.replace("{}", f"console.log('ran:held-{i}')")
+                              for i, v in enumerate(HELD_OUT))
+
 SVG = (f'<svg xmlns="http://www.w3.org/2000/svg" width="20" height="20" '
        f'onload="{attack("svg-onload")}"><script>{attack("svg-script")}</script>'
        '<rect width="20" height="20" fill="red"/></svg>')
@@ -122,6 +147,7 @@ def _hostile_notebook(course: Path, student: str) -> None:
          "attachments": {"evil.svg": {"image/svg+xml": evil_svg}},
          # nbformat refuses a tag with a comma (nbgrader would not grade the notebook)
          "metadata": {"tags": ['x" onmouseover="console.log(\'ran:tag\')"']}},
+        {"cell_type": "markdown", "source": HELD_OUT_CELL, "metadata": {}},
         {"cell_type": "raw", "source": _img("raw"), "metadata": {"raw_mimetype": "text/html"}},
         {"cell_type": "code", "source": OUTPUTS, "metadata": {}, "outputs": [],
          "execution_count": None},
