@@ -75,12 +75,33 @@ def _allowed_attribute(tag: str, name: str, value: str) -> bool:
 
 _CLEANER = bleach.Cleaner(tags=TAGS, attributes=_allowed_attribute,
                           protocols=[*_LINK_SCHEMES, "data"], strip=False, strip_comments=True)
+_TEXT_ONLY = bleach.Cleaner(tags=set(), strip=True, strip_comments=True)
+
+
+def _text(html_text: str) -> str:
+    return "".join(_TEXT_ONLY.clean(html_text).split())
+
+
+def _cleaned_whole(fragment: str) -> str | None:
+    """``fragment`` through the allow-list, or None when that lost some of its text: the
+    HTML5 parser moves what misnested markup holds (text and elements inside an unclosed
+    ``<table>``), and bleach drops part of what it moves. Safe either way; the grader must
+    still read everything the student wrote."""
+    cleaned = _CLEANER.clean(fragment)
+    return cleaned if len(_text(cleaned)) >= len(_text(fragment)) else None
+
+
+def _as_text(text: str) -> str:
+    return f"<pre>{html.escape(text)}</pre>"
 
 
 def inert_html(fragment: str) -> str:
     """``fragment`` (HTML a student controls) with every element and attribute outside the
-    allow-list shown as text or dropped: safe to put in a page of the grading server."""
-    return _CLEANER.clean(str(fragment))
+    allow-list shown as text or dropped: safe to put in a page of the grading server. Markup
+    the allow-list cannot pass whole (see :func:`_cleaned_whole`) is shown as its source."""
+    fragment = str(fragment)
+    cleaned = _cleaned_whole(fragment)
+    return cleaned if cleaned is not None else _as_text(fragment)
 
 
 def _one_block(html: str) -> str:
@@ -96,11 +117,11 @@ def inert_markdown(source: str, attachments: dict | None = None) -> str:
     ``attachments``), made inert; one ``<div>`` on one line (see the module's docstring)."""
     renderer = IPythonRenderer(escape=False, attachments=attachments or {})
     try:
-        rendered = MarkdownWithMath(renderer=renderer).render(str(source))
-    except InvalidNotebook:
-        # an ``attachment:`` the cell does not have: the grader reads the source instead
-        rendered = f"<pre>{html.escape(str(source))}</pre>"
-    return _one_block(inert_html(rendered))
+        cleaned = _cleaned_whole(MarkdownWithMath(renderer=renderer).render(str(source)))
+    except InvalidNotebook:   # an ``attachment:`` the cell does not have
+        cleaned = None
+    # what cannot be shown rendered and whole is shown as the student's source
+    return _one_block(cleaned if cleaned is not None else _as_text(str(source)))
 
 
 def image_html(mime: str, base64_data: str) -> str:
