@@ -45,16 +45,7 @@ FORMULA = r"T^{-1}"
 PLOT_TITLE = "my residuals"
 
 
-def attack(where: str, log: bool = True) -> str:
-    """JavaScript that, run in a page of the server's origin, writes ``PWNED-<where>`` into
-    the server's root (the course) through the contents API, with the ``_xsrf`` cookie of
-    the page, and (``log``) logs ``ran:<where>``. No ``/``, ``\\`` or ``"``: it fits in a
-    double-quoted attribute, and without the log in a folder name (255 bytes)."""
-    return ("p=String.fromCharCode(47);"
-            f"fetch(p+'api'+p+'contents'+p+'PWNED-{where}',{{method:'PUT',"
-            "headers:{'X-XSRFToken':document.cookie.split('_xsrf=')[1].split(';')[0]},"
-            "body:JSON.stringify({type:'file',format:'text',content:''})})"
-            + (f";console.log('ran:{where}')" if log else ""))
+attack = kit.page_attack
 
 
 def _img(where: str) -> str:
