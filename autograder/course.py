@@ -41,6 +41,8 @@ from autograder import (
     scratch,
 )
 from autograder.feedback_release import (
+    HOOK,
+    INERT,
     config_problem,
     unreleasable_note,
     write_exchange_files,
@@ -59,6 +61,16 @@ __all__ = ["LABS_DIR", "GRADE_COLUMNS", "init_course", "run_nbgrader_autograde",
 LABS_DIR = registry.builtin_folder()
 GRADE_COLUMNS = ["assignment", "duedate", "timestamp", "student_id", "last_name", "first_name",
                  "email", "raw_score", "late_submission_penalty", "score", "max_score", "flags"]
+
+# Formgrader and nbgrader's feedback show a student's notebook in the grading account's own
+# browser origin: what it holds must not run there (autograder.sanitize_notebook). Written by
+# `cobotlab course init` into a new course, and added to a course laid out before it.
+INERT_PAGES_CONFIG = f'''\
+# A submission rendered as HTML (formgrader's pages, generate_feedback's) is made inert
+# first: every HTMLExporter nbgrader makes reads this. (HTMLExporter.sanitize_html does not
+# reach formgrader's own templates.)
+c.HTMLExporter.preprocessors = ["{INERT}"]
+'''
 
 _CONFIG = '''\
 # nbgrader configuration written by cobotlab (autograder.course.init_course).
@@ -82,10 +94,11 @@ c.ExportPlugin.to = "nbgrader_grades.csv"
 c.GenerateFeedback.preprocessors = [
     "nbgrader.preprocessors.GetGrades",
     "autograder.nbgrader_hooks.HideHiddenTests",
+    "autograder.sanitize_notebook.InertSubmission",
     "autograder.nbgrader_hooks.AddCobotlabFeedback",
     "nbconvert.preprocessors.CSSHTMLHeaderPreprocessor",
 ]
-'''
+''' + INERT_PAGES_CONFIG
 
 
 def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobotlab",
@@ -139,6 +152,8 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
         else:
             os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
         config.write_text(text)
+    else:
+        _add_inert_pages(config)
     if not (root / "gradebook.db").exists():
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         gradebook.create(root, course_id)
@@ -169,6 +184,19 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
             if note:
                 print(f"cobotlab: warning: {note}", file=sys.stderr)
     return root
+
+
+def _add_inert_pages(config: Path) -> None:
+    """Bring a course's ``nbgrader_config.py`` written before issue 51 up to date: append
+    the lines that make formgrader's and the feedback's pages inert, and put the same step
+    into its feedback preprocessors (after ``GetGrades``, which brings the comments in)."""
+    text = config.read_text()
+    if INERT in text:
+        return
+    hook = f'    "{HOOK}",\n'
+    if hook in text:
+        text = text.replace(hook, f'    "{INERT}",\n' + hook, 1)
+    config.write_text(text + "\n" + INERT_PAGES_CONFIG)
 
 
 def _sync_folder(folder: Path, target: Path) -> None:

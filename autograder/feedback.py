@@ -23,6 +23,7 @@ from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
 from autograder.outcomes import Failed, student_words
+from autograder.page_policy import POLICY_META
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
 
@@ -316,7 +317,7 @@ def feedback_html(grade: SubmissionGrade) -> str:
     function the checks (error against tolerance, with units) and each distinct error once.
     Every text from the submission is escaped and capped; no test code or true answers."""
     title = f"{_esc(grade.assignment, 80)} feedback"
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{title}</title>"
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'>{POLICY_META}<title>{title}</title>"
              f"<style>{_STYLE}</style></head><body>",
              *_body(grade, f"{_esc(grade.assignment, 80)}: {_esc(grade.student_id, 80)}", ""),
              "</body></html>"]

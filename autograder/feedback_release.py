@@ -29,11 +29,13 @@ from pathlib import Path
 from autograder import freeze, record
 
 __all__ = ["SECTION", "HOOK", "write_exchange_files", "write_section", "section_path",
-           "config_problem", "unreleasable_note"]
+           "config_problem", "unreleasable_note", "INERT"]
 
 SECTION = "nbgrader_section.json"
 HOOK = "autograder.nbgrader_hooks.AddCobotlabFeedback"
 _HIDE = "autograder.nbgrader_hooks.HideHiddenTests"
+# Makes a submission inert before nbgrader renders it as HTML (formgrader, feedback pages).
+INERT = "autograder.sanitize_notebook.InertSubmission"
 
 
 def section_path(student: str, assignment: str) -> str:
@@ -85,12 +87,18 @@ def config_problem(root: Path) -> str | None:
         return ("nbgrader_config.py does not set nbgrader's feedback preprocessors: "
                 "`nbgrader generate_feedback` would show students the hidden tests and not "
                 "cobotlab's feedback. Add: c.GenerateFeedback.preprocessors = "
-                f'["nbgrader.preprocessors.GetGrades", "{_HIDE}", "{HOOK}", '
+                f'["nbgrader.preprocessors.GetGrades", "{_HIDE}", "{INERT}", "{HOOK}", '
                 '"nbconvert.preprocessors.CSSHTMLHeaderPreprocessor"]')
     if HOOK not in names:
         return (f'nbgrader_config.py (from an earlier `cobotlab course init`) lacks "{HOOK}" '
                 "in c.GenerateFeedback.preprocessors: nbgrader's feedback pages would not "
                 f'carry cobotlab\'s. Add it to that list, after "{_HIDE}"')
+    if INERT not in names or INERT not in _names(config.HTMLExporter.get("preprocessors", [])):
+        return ("nbgrader_config.py (from a `cobotlab course init` before issue 51) lets "
+                "formgrader and nbgrader's feedback pages run what a student's notebook holds "
+                "(HTML, scripts) in the grader's browser: run `cobotlab course init` on the "
+                "course again, which adds the lines (docs/instructors.md, *Pages that show a "
+                "submission*)")
     return None
 
 

@@ -92,8 +92,8 @@ def student_key(name: str) -> str:
     So no two folders share a key: every backslash in a refused name's key starts an escape
     (``key.encode("ascii", "backslashreplace").decode("unicode_escape")`` gives the name
     back), and no accepted id equals a refused one's key, because an accepted id has no
-    backslash, no surrounding blank, at most 128 characters and no leading ``- = + @``,
-    while each refused key has one of these. A spreadsheet shows the key as written: no
+    backslash, no surrounding blank, at most 128 characters, no leading ``- = + @`` and no
+    ``< > & "``, while each refused key has one of these. A spreadsheet shows the key as written: no
     cell of it starts a formula, so :func:`autograder.record.csv_cell` leaves it alone.
     (Percent-encoding is reversible too, but an accepted id may hold ``%``, so a refused
     name's encoding could be an accepted id; no accepted id holds a backslash.)
@@ -105,19 +105,28 @@ def student_key(name: str) -> str:
     return f"\\x{ord(key[0]):02x}{key[1:]}" if key[:1] in ("-", "=", "+", "@") else key
 
 
-def student_id_problem(student_id: str) -> str | None:
-    """Why ``student_id`` (a folder name in submitted/) cannot be used, or None."""
-    if not student_id or student_id in (".", ".."):
+def _name_problem(name: str) -> str | None:
+    """Why ``name`` (a folder or file name of a submission) cannot be used, or None."""
+    if not name or name in (".", ".."):
         return "empty or a dot name"
-    if len(student_id) > 128:
+    if len(name) > 128:
         return "longer than 128 characters"
-    if "/" in student_id or "\\" in student_id or os.sep in student_id:
+    if "/" in name or "\\" in name or os.sep in name:
         return "contains a path separator"
-    if printable(student_id, 10**6) != student_id or student_id != student_id.strip():
+    if printable(name, 10**6) != name or name != name.strip():
         return "contains control characters or surrounding blanks"
-    if student_id.startswith(("-", "=", "+", "@")):
+    if name.startswith(("-", "=", "+", "@")):
         return "starts with - = + or @ (an option or a spreadsheet formula)"
     return None
+
+
+def student_id_problem(student_id: str) -> str | None:
+    """Why ``student_id`` (a folder name in submitted/) cannot be used, or None."""
+    if set(student_id) & set('<>&"'):
+        # formgrader writes the id of a submission into some of its pages unescaped (its
+        # page for a missing notebook): HTML in it would run in the grader's browser
+        return 'contains < > & or " (HTML, which formgrader would show unescaped)'
+    return _name_problem(student_id)
 
 
 def _copy_submission(src: safe_files.Folder, dst: Path, caps: Caps, frozen: Frozen) -> None:
@@ -127,7 +136,7 @@ def _copy_submission(src: safe_files.Folder, dst: Path, caps: Caps, frozen: Froz
         src, dst, safe_files.TreeCaps(int(caps.file_mb * 2**20), int(caps.total_mb * 2**20),
                                       caps.files, caps.depth),
         ignore={".ipynb_checkpoints", "__pycache__"},
-        bad_name=lambda name: student_id_problem(name) is not None)
+        bad_name=lambda name: _name_problem(name) is not None)
     for skip in skipped:
         name = printable(skip.name)
         if skip.why is Why.TOO_DEEP:

@@ -40,6 +40,7 @@ import numpy as np
 from autograder import checks, gradebook, grading
 from autograder.course import kept_submissions
 from autograder.freeze import printable
+from autograder.page_policy import POLICY_META
 from cobotlab.report import _figure, _save, _table
 
 # --------------------------------------------------------------------------- the code compared
@@ -389,7 +390,8 @@ def _page(n: ClassNumbers, figs: dict, files: dict) -> str:
     skipped = "".join(f"<li>{e(printable(s, 80))}: {e(why)}</li>"
                       for s, why in n.not_rescored.items())
     return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>{e(n.assignment)}: the class at a glance</title>
+<html lang="en"><head><meta charset="utf-8">{POLICY_META}
+<title>{e(n.assignment)}: the class at a glance</title>
 <style>
 body {{ font-family: sans-serif; max-width: 1150px; margin: 1em auto; color: #222; }}
 table {{ border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }}

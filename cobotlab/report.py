@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from autograder.page_policy import POLICY_META
 from robots import geometry as geo
 
 
@@ -204,7 +205,7 @@ def write_report(settings, flange, eye, picks, elapsed_s: float) -> Path:
     s = settings
     when = datetime.now(timezone.utc).isoformat(timespec="seconds")
     page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>cobotlab demo report</title>
+<html lang="en"><head><meta charset="utf-8">{POLICY_META}<title>cobotlab demo report</title>
 <style>
 body {{ font-family: sans-serif; max-width: 1150px; margin: 1em auto; color: #222; }}
 table {{ border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }}

@@ -310,7 +310,8 @@ def submit_case(course: Path, assignment: str, name: str, case: dict) -> str:
 
 def corpus(lab: str = "lab0_frames") -> dict[str, dict]:
     """The adversarial cases written for ``lab``, by name."""
-    cases = {p.stem: parse_case(p) for p in sorted(ADVERSARIAL.glob("*.py"))}
+    cases = {p.stem: parse_case(p) for p in sorted(ADVERSARIAL.glob("*.py"))
+             if not p.name.startswith("test_")}   # a test file there is no case
     return {name: case for name, case in cases.items() if case["lab"] == lab}
 
 
@@ -482,3 +483,17 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html"),
                  *(course / "feedback_cobotlab").rglob("*.json")]:   # nbgrader's section too
         assert secret not in path.read_text(), path
+
+
+def page_attack(where: str, base: tuple[str, ...] = (), log: bool = True) -> str:
+    """JavaScript that, run in a page of a Jupyter server's origin, writes ``PWNED-<where>``
+    into the server's root through its contents API (under the URL path ``base``: on a hub,
+    ``("services", "cobotlab")``), with the ``_xsrf`` cookie of the page, and (``log``) logs
+    ``ran:<where>``: what a student's script in a grader's page would do (issue 51). No
+    ``/``, ``\\`` or ``"``: it fits in a double-quoted attribute."""
+    path = "+".join(f"p+'{part}'" for part in (*base, "api", "contents", f"PWNED-{where}"))
+    return ("p=String.fromCharCode(47);"
+            f"fetch({path},{{method:'PUT',"
+            "headers:{'X-XSRFToken':document.cookie.split('_xsrf=')[1].split(';')[0]},"
+            "body:JSON.stringify({type:'file',format:'text',content:''})})"
+            + (f";console.log('ran:{where}')" if log else ""))

@@ -105,13 +105,14 @@ def _get(url: str, timeout: float = 5.0) -> bytes:
 class LabServer:
     """``jupyter lab`` from this venv on 127.0.0.1, with every Jupyter dir inside ``root``.
 
-    The notebooks live in ``root / "notebooks"`` (the server's root_dir). The token is random
+    The notebooks live in ``notebooks`` (the server's root_dir and working directory; by
+    default ``root / "notebooks"``; a course folder for formgrader). The token is random
     and passed through the environment, so it is not in the process list.
     """
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, notebooks: Path | None = None):
         self.root = root
-        self.notebooks = root / "notebooks"
+        self.notebooks = notebooks or root / "notebooks"
         self.runtime_dir = root / "runtime"
         self.token = secrets.token_hex(16)
         self.port = _free_port()

@@ -194,3 +194,34 @@ def test_an_earlier_course_config_gets_the_line_to_add(tmp_path):
     oldest = current[:current.index("c.GenerateFeedback")]
     message = feedback_release.config_problem(_config(tmp_path / "oldest", oldest))
     assert "hidden tests" in message and "AddCobotlabFeedback" in message
+
+
+def test_a_course_laid_out_before_issue_51_gets_the_inert_pages_from_course_init(tmp_path):
+    """`cobotlab course init` run again on a course whose config predates the preprocessor
+    that makes formgrader's and the feedback's pages inert adds it, once, where nbgrader
+    reads it; `cobotlab grade`'s config check asks for it until then."""
+    import course_kit as kit
+
+    from autograder.course import INERT_PAGES_CONFIG, _add_inert_pages, init_course
+
+    course = kit.initialized_course(tmp_path)
+    config = course / "nbgrader_config.py"
+    inert_line = f'    "{feedback_release.INERT}",\n'
+    earlier = config.read_text().replace(INERT_PAGES_CONFIG, "").replace(inert_line, "")
+    assert feedback_release.INERT not in earlier
+    config.write_text(earlier)
+    assert "course init" in feedback_release.config_problem(course)
+
+    init_course(course, quiet=True)
+    assert feedback_release.config_problem(course) is None
+    upgraded = config.read_text()
+    _add_inert_pages(config)   # what the next `course init` does to it: nothing
+    assert config.read_text() == upgraded
+    from traitlets.config.loader import PyFileConfigLoader
+
+    loaded = PyFileConfigLoader("nbgrader_config.py", path=str(course)).load_config()
+    assert loaded.HTMLExporter.preprocessors == [feedback_release.INERT]
+    steps = loaded.GenerateFeedback.preprocessors
+    # after GetGrades (the comments) and before cobotlab's own section goes on top
+    assert steps.index("nbgrader.preprocessors.GetGrades") < steps.index(
+        feedback_release.INERT) == steps.index(feedback_release.HOOK) - 1

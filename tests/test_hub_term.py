@@ -648,6 +648,51 @@ def _give_lab_settings(user: str) -> None:
                    check=True)
 
 
+HOSTILE_WORDS = "Notes on the inverse"
+
+
+def _add_hostile_cell(notebook: Path) -> None:
+    """A markdown cell whose HTML would write a file through the grading service's API if
+    it ran in the instructor's formgrader page (issue 51), added to the saved notebook."""
+    attack = kit.page_attack("hub", ("services", "cobotlab"))
+    nb = json.loads(notebook.read_text())
+    nb["cells"].insert(1, {"cell_type": "markdown", "metadata": {}, "source":
+                           f"{HOSTILE_WORDS}: $T^{{-1}}$ <img src=x onerror=\"{attack}\">"})
+    notebook.write_text(json.dumps(nb))   # in place: the student keeps the file
+
+
+def _hostile_cell_is_inert(teacher, course: Path, student: str) -> None:
+    """The student's submission page in formgrader shows the hostile cell's text and runs
+    none of it; a script that did run in that page could write (the control)."""
+    import sqlite3
+
+    with sqlite3.connect(course / "gradebook.db") as db:
+        (submission,) = db.execute(
+            "select submitted_notebook.id from submitted_notebook join submitted_assignment "
+            "on submitted_notebook.assignment_id = submitted_assignment.id "
+            "where submitted_assignment.student_id = ?", (student,)).fetchone()
+    ran: list[str] = []
+    # a tab of its own: the page's MathJax, from a CDN this closed network does not reach,
+    # raises in it, which is no error of the term's
+    tab = teacher.context.new_page()
+    tab.on("console", lambda message: ran.append(message.text))
+    try:
+        tab.goto(f"{teacher.hub.url}{teacher.FORMGRADER}/submissions/{submission}/")
+        teacher.wait(f"() => document.body.textContent.includes('{HOSTILE_WORDS}')",
+                     "the hostile submission's page in formgrader", STEP_TIMEOUT_S, page=tab)
+        teacher.shot("hostile-submission", tab)
+        tab.wait_for_timeout(1500)
+        assert not [m for m in ran if "ran:" in m] and not list(course.glob("PWNED-*")), ran
+        tab.evaluate(f"() => {{ {kit.page_attack('control', ('services', 'cobotlab'))} }}")
+        deadline = time.monotonic() + STEP_TIMEOUT_S
+        while not (course / "PWNED-control").exists() and time.monotonic() < deadline:
+            time.sleep(0.25)
+        assert (course / "PWNED-control").exists(), "the control script could not write"
+        (course / "PWNED-control").unlink()
+    finally:
+        tab.close()
+
+
 def _grades(course: Path) -> dict[str, dict]:
     return kit.read_grades(course)
 
@@ -716,6 +761,7 @@ def test_a_term_in_chromium(hub, browser):
                             hub.course / ".deadline.done", STEP_TIMEOUT_S) == "0"
         time.sleep(1.1)   # the late one's timestamp is strictly after
         students[s3].save()
+        _add_hostile_cell(students[s3].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
         students[s3].submit()
 
         # each submission went into its student's own folder of the private exchange, which
@@ -745,6 +791,7 @@ def test_a_term_in_chromium(hub, browser):
         teacher.wait(f"() => document.body.textContent.includes('{s3}')",
                      "formgrader's list of lab 0's submissions", STEP_TIMEOUT_S)
         teacher.shot("submissions")
+        _hostile_cell_is_inert(teacher, hub.course, s3)
 
         grades = _grades(hub.course)
         assert set(grades) == set(STUDENTS), grades
