@@ -408,7 +408,7 @@ def test_set_up_refuses_what_would_leave_work_exposed(machine, tmp_path):
         lister.start()
     roster = tmp_path / "roster.csv"
     roster.write_text("student,name\nana,Ana\n")
-    with pytest.raises(ValueError, match="no 'id' column"):
+    with pytest.raises(ValueError, match="no id column"):
         exchange.read_roster(roster)
 
 
