@@ -48,6 +48,7 @@ from autograder.feedback_release import (
     write_section,
 )
 from autograder.freeze import printable
+from autograder.nbgrader_cells import cell_role
 from autograder.outcomes import Flag, about_function
 from autograder.practice import releasable, save_practice
 from autograder.safe_files import Refused, Why, move_aside, read_file
@@ -224,11 +225,11 @@ def run_nbgrader_autograde(course_dir, assignment: str, student_id,
 
 
 def _source_cells(root: Path, assignment: str):
-    """(grade id, nbgrader metadata, source) of every cell of the source notebooks."""
+    """(:class:`~autograder.nbgrader_cells.CellRole`, source) of every cell of the source
+    notebooks."""
     for path in sorted((root / "source" / assignment).glob("*.ipynb")):
         for cell in json.loads(path.read_text()).get("cells", []):
-            meta = cell.get("metadata", {}).get("nbgrader", {})
-            yield meta.get("grade_id", ""), meta, "".join(cell.get("source", ""))
+            yield cell_role(cell), "".join(cell.get("source", ""))
 
 
 def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
@@ -239,8 +240,9 @@ def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
     """
     names = [s.name for s in checks.SPECS.get(assignment, ())]
     mapping = {}
-    for grade_id, meta, source in _source_cells(root, assignment):
-        if not (meta.get("grade") and grading.HIDDEN_MARK in source):
+    for role, source in _source_cells(root, assignment):
+        grade_id = role.grade_id
+        if not (role.grade and grading.HIDDEN_MARK in source):
             continue
         called = [n for n in names if re.search(rf"\b{re.escape(n)}\s*\(", source)]
         by_name = [n for n in names if grade_id == f"test_{n}"]
@@ -253,8 +255,9 @@ def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
     """graded function name -> grade_id of the solution cell that defines it (where
     formgrader shows a comment box)."""
     mapping = {}
-    for grade_id, meta, source in _source_cells(root, assignment):
-        if not meta.get("solution"):
+    for role, source in _source_cells(root, assignment):
+        grade_id = role.grade_id
+        if not role.solution:
             continue
         for spec in checks.SPECS.get(assignment, ()):
             if grade_id == spec.name or (spec.name not in mapping and re.search(
@@ -411,9 +414,7 @@ def _course(course_dir, assignment: str) -> Path:
     names the known ones."""
     root = Path(course_dir).resolve()
     registry.use_course(root)
-    if assignment not in checks.SPECS:
-        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
-                         f"known assignments: {sorted(checks.SPECS)}")
+    grading.specs_of(assignment)
     return root
 
 
@@ -1092,7 +1093,7 @@ def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | Non
             "last_name": who.get("last_name", ""), "first_name": who.get("first_name", ""),
             "email": who.get("email", ""), "raw_score": raw_score,
             "late_submission_penalty": penalty,
-            "score": max(0.0, round(raw_score - penalty, 2)),
+            "score": gradebook.net_score(raw_score, penalty),
             "max_score": max_score, "flags": flags}
 
 

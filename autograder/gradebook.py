@@ -40,7 +40,7 @@ from pathlib import Path
 from autograder.freeze import printable
 
 __all__ = ["CellScore", "problem", "backup", "restore", "create", "duedate", "results",
-           "require_assignment", "net_scores", "cells_and_comments",
+           "require_assignment", "net_score", "net_scores", "cells_and_comments",
            "write_nbgrader_cells", "write_cobotlab", "withdraw_scores", "set_duedate",
            "template_cells", "read_scratch_scores", "class_scores",
            "remove_assignment"]
@@ -196,8 +196,15 @@ def require_assignment(root: Path, assignment: str) -> None:
                              f"`nbgrader generate_assignment {assignment}` there first") from None
 
 
+def net_score(raw: float, penalty: float) -> float:
+    """A submission's score: ``raw`` points less the late ``penalty`` (points), rounded to
+    0.01 and never below 0 (a penalty takes off at most what was earned, as nbgrader's
+    late-submission plugin rules). The one place a net score is computed."""
+    return max(0.0, round(float(raw) - float(penalty or 0.0), 2))
+
+
 def net_scores(root: Path, assignment: str) -> dict[str, float]:
-    """{student: total score less the late penalty, in points rounded to 0.01} of every
+    """{student: :func:`net_score`} of every
     submission of ``assignment`` in ``root/gradebook.db``, as nbgrader's API computes the
     total (a manual score counts over the automatic one). nbgrader's errors pass through."""
     from nbgrader.api import Gradebook
@@ -205,8 +212,7 @@ def net_scores(root: Path, assignment: str) -> dict[str, float]:
     out = {}
     with Gradebook(f"sqlite:///{root / 'gradebook.db'}") as gb:
         for sub in gb.assignment_submissions(assignment):
-            out[sub.student.id] = round(float(sub.score) - float(
-                sub.late_submission_penalty or 0), 2)
+            out[sub.student.id] = net_score(sub.score, sub.late_submission_penalty)
     return out
 
 
@@ -486,7 +492,7 @@ def class_scores(root: Path, assignment: str) -> dict:
             penalty = float(sub.late_submission_penalty or 0.0)
             st = sub.student
             out[sub.student.id] = {
-                "score": None if ungraded else max(0.0, round(raw - penalty, 2)),
+                "score": None if ungraded else net_score(raw, penalty),
                 "raw_score": raw, "penalty": penalty, "max_score": float(sub.max_score or 0.0),
                 "manual": sorted(g.name for g in grades if g.manual_score is not None),
                 "timestamp": sub.timestamp, "duedate": sub.duedate,
