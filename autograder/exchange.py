@@ -44,7 +44,7 @@ from pathlib import Path
 from nbgrader.exchange import default
 from nbgrader.utils import ignore_patterns, notebook_hash
 
-from autograder import roster
+from autograder.roster import roster_ids
 from autograder.safe_files import Refused, TreeCaps, copy_tree, open_folder
 
 __all__ = ["MODES", "set_up", "read_roster", "config_block", "write_config", "layout_problem",
@@ -86,7 +86,7 @@ def read_roster(path) -> list[str]:
     """The student ids of a roster (:mod:`autograder.roster`'s format: a CSV file with an
     ``id`` column, the file ``nbgrader db student import`` takes), each id a student's Unix
     user name."""
-    return roster.roster_ids(path)
+    return roster_ids(path)
 
 
 @dataclass
