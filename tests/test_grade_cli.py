@@ -191,6 +191,9 @@ def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tm
     points = {s.name: s.points for s in checks.SPECS[ASSIGNMENT]}
     record.write_csv(job, GRADES_CSV, GRADE_COLUMNS,
                      [grade_row(ASSIGNMENT, sid, {}, 99.0, 99.0, "") for sid in ("ada", "cy")])
+    gradebook.write_cobotlab(job, ASSIGNMENT, "cy", "", {f"test_{name}": 1.0 for name in points},
+                             {})   # every cell of cy's full marks in the job's gradebook
+    assert gradebook.net_scores(job, ASSIGNMENT)["cy"] == sum(points.values())
     forged_page = job / "feedback_cobotlab" / "cy" / ASSIGNMENT / "feedback.html"
     forged_page.parent.mkdir(parents=True)
     forged_page.write_text("forged")
@@ -198,6 +201,7 @@ def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tm
     scores = {r["student_id"]: float(r["raw_score"]) for r in merged}
     assert scores == {"ada": sum(points.values()), "cy": points["invert_pose"]}
     assert {s: float(r["score"]) for s, r in kit.read_grades(home).items()} == scores
+    assert gradebook.net_scores(home, ASSIGNMENT) == scores
     cells = _gradebook_cells(home, ["ada", "cy"])
     assert all(cells.values())
     for sid in ("ada", "cy"):
