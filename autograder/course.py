@@ -39,6 +39,7 @@ from autograder import (
     registry,
     sandbox,
     scratch,
+    shard_job,
 )
 from autograder.feedback_release import (
     HOOK,
@@ -49,6 +50,7 @@ from autograder.feedback_release import (
     write_section,
 )
 from autograder.freeze import printable
+from autograder.nbgrader_cells import cell_role
 from autograder.outcomes import Flag, about_function
 from autograder.practice import releasable, save_practice
 from autograder.safe_files import Refused, Why, move_aside, read_file
@@ -251,11 +253,11 @@ def run_nbgrader_autograde(course_dir, assignment: str, student_id,
 
 
 def _source_cells(root: Path, assignment: str):
-    """(grade id, nbgrader metadata, source) of every cell of the source notebooks."""
+    """(:class:`~autograder.nbgrader_cells.CellRole`, source) of every cell of the source
+    notebooks."""
     for path in sorted((root / "source" / assignment).glob("*.ipynb")):
         for cell in json.loads(path.read_text()).get("cells", []):
-            meta = cell.get("metadata", {}).get("nbgrader", {})
-            yield meta.get("grade_id", ""), meta, "".join(cell.get("source", ""))
+            yield cell_role(cell), "".join(cell.get("source", ""))
 
 
 def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
@@ -266,8 +268,9 @@ def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
     """
     names = [s.name for s in checks.SPECS.get(assignment, ())]
     mapping = {}
-    for grade_id, meta, source in _source_cells(root, assignment):
-        if not (meta.get("grade") and grading.HIDDEN_MARK in source):
+    for role, source in _source_cells(root, assignment):
+        grade_id = role.grade_id
+        if not (role.grade and grading.HIDDEN_MARK in source):
             continue
         called = [n for n in names if re.search(rf"\b{re.escape(n)}\s*\(", source)]
         by_name = [n for n in names if grade_id == f"test_{n}"]
@@ -280,8 +283,9 @@ def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
     """graded function name -> grade_id of the solution cell that defines it (where
     formgrader shows a comment box)."""
     mapping = {}
-    for grade_id, meta, source in _source_cells(root, assignment):
-        if not meta.get("solution"):
+    for role, source in _source_cells(root, assignment):
+        grade_id = role.grade_id
+        if not role.solution:
             continue
         for spec in checks.SPECS.get(assignment, ()):
             if grade_id == spec.name or (spec.name not in mapping and re.search(
@@ -395,13 +399,15 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     run = _begin(course_dir, assignment, workers, limits, fresh, nonce, quiet, cluster, rescore)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         frozen = _freeze(run.root, assignment, Path(store), caps, students)
-        problems = grading.HiddenProblems(assignment, run.secret, run.nonce)
+        problems = _problems(run, frozen)
         if rescore:
             executed = _kept_executions(run, frozen, problems, progress)
         else:
             executed = _execute(run, frozen, problems, Path(store), workers, run_nbgrader,
                                 nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
                                 progress, cluster, template and cluster is None)
+    if run.problems == "job":   # a shard job: home scores what it kept (autograder.shards)
+        return _end_job(run, frozen, problems, executed, quiet)
     grades = [_score(run, sub, problems, executed[sub.student_id]) for sub in frozen]
     rows = _record(run, frozen, problems, executed, grades, run_nbgrader)
     _end_run(run, rows, grades, executed)
@@ -425,21 +431,37 @@ class GradeRun:
     assignment: str
     secret: str
     nonce: str | None
-    problems: str              # "fixed", "fresh", "replay" or "rescore" (runs.jsonl)
+    problems: str              # "fixed", "fresh", "replay", "rescore" or "job" (runs.jsonl)
     limits: grading.Limits
     notes: list[str]
     started: float
 
 
-def _course_and_secret(course_dir, assignment: str) -> tuple[Path, str]:
-    """(the course's root, its grading secret), its labs registered, ``assignment`` one of
-    them; ValueError names the known ones."""
+def _course(course_dir, assignment: str) -> Path:
+    """The course's root, its labs registered, ``assignment`` one of them; ValueError
+    names the known ones."""
     root = Path(course_dir).resolve()
     registry.use_course(root)
-    if assignment not in checks.SPECS:
-        raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
-                         f"known assignments: {sorted(checks.SPECS)}")
+    grading.specs_of(assignment)
+    return root
+
+
+def _course_and_secret(course_dir, assignment: str) -> tuple[Path, str]:
+    """(the course's root, its grading secret): see :func:`_course`."""
+    root = _course(course_dir, assignment)
     return root, grading.load_secret(root)
+
+
+def _secret_or_job(root: Path, assignment: str, fresh, nonce, rescore, cluster) -> str:
+    """The course's grading secret; "" for a shard job's copy, which must hold none and
+    runs only the problems home wrote for it (:mod:`autograder.shard_job`)."""
+    if not shard_job.is_job(root, assignment):
+        return grading.load_secret(root)
+    shard_job.refuse_secret(root)
+    if fresh or nonce or rescore or cluster is not None:
+        raise ValueError("this course is a shard job's copy: it executes the problems home "
+                         "wrote for it, and takes no fresh, replay, rescore or cluster")
+    return ""
 
 
 def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce,
@@ -448,7 +470,8 @@ def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce
     the gradebook; the run's shared values."""
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    root, secret = _course_and_secret(course_dir, assignment)
+    root = _course(course_dir, assignment)
+    secret = _secret_or_job(root, assignment, fresh, nonce, rescore, cluster)
     if fresh and nonce:
         raise ValueError("fresh=True draws new problems; nonce= replays a fresh run's: pass "
                          "one of them")
@@ -458,7 +481,8 @@ def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce
     if nonce is not None and not re.fullmatch(r"[0-9a-f]{16,64}", nonce):
         raise ValueError(f"nonce {printable(nonce, 80)!r} is not one `cobotlab grade --fresh` "
                          "draws (16-64 hex digits): copy it from .cobotlab/runs.jsonl")
-    problems = "rescore" if rescore else "fresh" if fresh else ("replay" if nonce else "fixed")
+    problems = "job" if not secret else "rescore" if rescore else "fresh" if fresh else (
+        "replay" if nonce else "fixed")
     nonce = secrets.token_hex(16) if fresh else nonce
     private = _private_dir(root)
     started = time.monotonic()
@@ -510,6 +534,25 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
                              f"{submitted}; check the --students list")
         frozen = [f for f in frozen if f.student_id in set(wanted)]
     return frozen
+
+
+# ----------------------------------------------------------------- stage 3: draw
+
+
+def _problems(run: GradeRun, frozen):
+    """Every submission's hidden problems: drawn from the secret here, or, in a shard job,
+    the inputs home wrote for each (refused, naming them, when some are missing)."""
+    if run.problems != "job":
+        return grading.HiddenProblems(run.assignment, run.secret, run.nonce)
+    problems = shard_job.BundledProblems(run.root, run.assignment)
+    missing = problems.missing([s.student_id for s in frozen if s.accepted and s.notebooks])
+    if missing:
+        raise ValueError(
+            f"this shard job holds no problems of {run.assignment} for "
+            f"{', '.join(printable(m, 80) for m in missing[:20])}: write them at home "
+            "(`python -m autograder.shards job HOME ASSIGNMENT JOB --students @FILE`), or "
+            "leave them out of --students")
+    return problems
 
 
 # ----------------------------------------------------------------- stage 4: execute
@@ -702,8 +745,7 @@ _KEPT = "executions"
 
 def kept_path(assignment: str, student_id: str) -> str:
     """Where, below the course's private folder, a student's kept execution is."""
-    key = hashlib.sha256(student_id.encode("utf-8", "backslashreplace")).hexdigest()[:40]
-    return f"{_KEPT}/{assignment}/{key}.json"
+    return f"{_KEPT}/{assignment}/{executions.file_key(student_id)}.json"
 
 
 def _keep(run: GradeRun, problems: grading.HiddenProblems, student_id: str,
@@ -711,15 +753,20 @@ def _keep(run: GradeRun, problems: grading.HiddenProblems, student_id: str,
     """Keep what a submission's code did, for ``rescore``: its execution, the problems'
     inputs digest and nonce it ran on, nbgrader's flags and notes of that run, and the
     digest of the frozen submission it belongs to."""
+    record.write_file(run.private, kept_path(run.assignment, student_id),
+                      kept_bytes(run, problems.of(student_id), done))
+
+
+def kept_bytes(run: GradeRun, problems: grading.Problems, done: Executed) -> bytes:
+    """The kept form of ``done`` (see :func:`_keep`) for ``problems``' student."""
     ex = done.execution
-    kept = {"format": executions.FORMAT, "student_id": student_id,
+    kept = {"format": executions.FORMAT, "student_id": problems.student_id,
             "assignment": run.assignment, "nonce": run.nonce, "submission": done.submission,
-            "inputs": executions.inputs_digest(problems.of(student_id), ex.kernel_runs),
+            "inputs": executions.inputs_digest(problems, ex.kernel_runs),
             "execution": executions.to_wire(ex), "grader_errors": done.grader_errors,
             "nbgrader": None if done.nbgrader is None else {
                 "flags": list(done.nbgrader.flags), "notes": list(done.nbgrader.notes)}}
-    record.write_file(run.private, kept_path(run.assignment, student_id),
-                      json.dumps(kept).encode("utf-8"))
+    return json.dumps(kept).encode("utf-8")
 
 
 def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
@@ -757,6 +804,16 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
     data = _read_private(run.private, kept_path(run.assignment, sub.student_id))
     if data is None:
         return "no execution kept: never graded by this version of cobotlab, or not graded"
+    return use_kept(run, problems, sub, done, data)
+
+
+def use_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+             done: Executed, data: bytes, from_job: bool = False) -> str | None:
+    """Fill ``done`` from ``data``, a kept execution of ``sub`` (untrusted bytes: this
+    course's, or a shard job's with ``from_job``, whose nbgrader findings are its word and
+    are dropped); None, or why it cannot be used: another format or submission, another
+    nonce than a job runs on, problems whose inputs are not those drawn here, or not one
+    outcome per problem."""
     try:
         kept = json.loads(data)
         if not isinstance(kept, dict) or kept.get("format") != executions.FORMAT:
@@ -771,9 +828,10 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
                                          sub.student_id, {Path(p).name for p in sub.notebooks})
     except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         return f"its kept execution is unreadable: {printable(exc, 200)}"
+    if from_job and nonce is not None:
+        return "a shard job runs the course's fixed problems, and this one names a nonce"
     mine = problems.of(sub.student_id) if nonce == run.nonce else grading.draw_problems(
         run.assignment, sub.student_id, run.secret, nonce, problems.kernel)
-    problems.keep(mine)
     now = executions.inputs_digest(mine, execution.kernel_runs)
     before = kept.get("inputs") if isinstance(kept.get("inputs"), dict) else {}
     changed = sorted({name.removeprefix("kernel:") for name, digest in now.items()
@@ -781,16 +839,30 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
     if changed:
         return ("the lab's change altered the problems' inputs of " + ", ".join(changed)
                 + ": the code must run on the new ones")
+    uneven = _uneven_counts(mine, execution)
+    if uneven:
+        return f"not one outcome per problem of {', '.join(uneven)}"
+    problems.keep(mine)
     done.execution = execution
     errors = kept.get("grader_errors")
     done.grader_errors = [printable(e, 400) for e in errors[:8]] if isinstance(errors, list) \
         else []
     nb = kept.get("nbgrader")
-    if isinstance(nb, dict):
+    if isinstance(nb, dict) and not from_job:
         done.nbgrader = scratch.ScratchResult(
             flags=[printable(f, 200) for f in nb.get("flags", [])[:64]],
             notes=[printable(n, 1000) for n in nb.get("notes", [])[:64]])
     return None
+
+
+def _uneven_counts(problems: grading.Problems, execution: grading.Execution) -> list[str]:
+    """The functions of ``execution`` whose outcomes are not one per problem (hidden, or
+    the kernel seeds' of a ``hidden_test``); a function stopped as forbidden scores zero
+    whatever it has."""
+    uneven = [r.name for r in execution.functions if not r.forbidden
+              and len(r.outcomes) != len(problems.trials[r.name])]
+    return uneven + [f"hidden_test({name})" for name, r in execution.kernel_runs.items()
+                     if not r.forbidden and len(r.outcomes) != len(problems.kernel_trials(name))]
 
 
 @dataclass
@@ -894,6 +966,11 @@ def _record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
     present = {p.stem for p in sub.notebooks}
     gradebook.write_nbgrader_cells(root, assignment, sub.student_id, sub.timestamp,
                                    result.cells, present)
+    _write_autograded(root, assignment, sub, result)
+
+
+def _write_autograded(root: Path, assignment: str, sub: freeze.Frozen,
+                      result: scratch.ScratchResult) -> None:
     for name, data in result.notebooks.items():
         record.write_file(root, f"autograded/{sub.student_id}/{assignment}/{name}.ipynb", data)
     if result.notebooks:   # what nbgrader's release_feedback reads beside them
@@ -976,6 +1053,37 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
     return rows
 
 
+def _end_job(run: GradeRun, frozen, problems, executed: dict[str, Executed],
+             quiet: bool) -> list[dict]:
+    """A shard job's end: each execution kept for home to score (``cobotlab merge``), the
+    autograded notebooks of nbgrader's run for formgrader at home, the run's log; nothing
+    scored, no grades.csv, nothing in the gradebook. Returns a row (no score) for each
+    submission the grader failed on, so the CLI's exit status says so."""
+    failed, kept = [], 0
+    for sub in frozen:
+        done = executed[sub.student_id]
+        if done.execution is None:
+            if sub.accepted and sub.notebooks:
+                failed.append(grade_row(run.assignment, sub.student_id, {}, None, 0.0,
+                                        "grader_error", sub.timestamp))
+            continue
+        _keep(run, problems, sub.student_id, done)
+        kept += 1
+        if done.nbgrader is not None:
+            _write_autograded(run.root, run.assignment, sub, done.nbgrader)
+    run.notes.append(f"shard job: {kept} execution(s) kept for the home course to score")
+    _end_run(run, failed, [], executed)
+    if not quiet:
+        print(f"{run.assignment}: executed {kept} submission(s); nothing was scored here. "
+              f"Bring back {run.root / grading.PRIVATE_DIR / _KEPT} and "
+              f"{run.root / 'autograded'}, then run `cobotlab merge` at home")
+        if failed:
+            print(f"NOT EXECUTED ({len(failed)}): "
+                  + ", ".join(printable(r["student_id"], 80) for r in failed)
+                  + f" (see {run.root / grading.PRIVATE_DIR / 'last_run.log'})")
+    return failed
+
+
 def _withdraw_ungraded(root: Path, assignment: str, grades, frozen, run_notes) -> None:
     """No score in gradebook.db for a submission the grader failed on: grades.csv leaves
     its score empty, and nbgrader's export and formgrader must not show one that cobotlab
@@ -1013,7 +1121,7 @@ def grade_row(assignment: str, student_id: str, nb: dict, raw_score: float | Non
             "last_name": who.get("last_name", ""), "first_name": who.get("first_name", ""),
             "email": who.get("email", ""), "raw_score": raw_score,
             "late_submission_penalty": penalty,
-            "score": max(0.0, round(raw_score - penalty, 2)),
+            "score": gradebook.net_score(raw_score, penalty),
             "max_score": max_score, "flags": flags}
 
 

@@ -29,7 +29,6 @@ This module runs in every student's server: it imports nbgrader, the standard li
 
 from __future__ import annotations
 
-import csv
 import glob
 import grp
 import os
@@ -45,6 +44,7 @@ from pathlib import Path
 from nbgrader.exchange import default
 from nbgrader.utils import ignore_patterns, notebook_hash
 
+from autograder.roster import roster_ids
 from autograder.safe_files import Refused, TreeCaps, copy_tree, open_folder
 
 __all__ = ["MODES", "set_up", "read_roster", "config_block", "write_config", "layout_problem",
@@ -83,22 +83,10 @@ _SETUP = "sudo cobotlab course exchange ROOT --students ROSTER --instructors GRO
 
 
 def read_roster(path) -> list[str]:
-    """The student ids of a roster: a CSV file with an ``id`` column (the file
-    ``nbgrader db student import`` takes), each id a student's Unix user name."""
-    path = Path(path)
-    with path.open(newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        if not reader.fieldnames or "id" not in reader.fieldnames:
-            raise ValueError(f"{path}: no 'id' column in its first line; a roster is a CSV "
-                             "file whose header names an id column (as for `nbgrader db "
-                             "student import`), one student's Unix user name per row")
-        ids = [(row.get("id") or "").strip() for row in reader]
-    if not any(ids):
-        raise ValueError(f"{path}: no student in the roster")
-    blank = [n for n, sid in enumerate(ids, 2) if not sid]
-    if blank:
-        raise ValueError(f"{path}: empty id on line(s) {blank}; remove those rows")
-    return list(dict.fromkeys(ids))
+    """The student ids of a roster (:mod:`autograder.roster`'s format: a CSV file with an
+    ``id`` column, the file ``nbgrader db student import`` takes), each id a student's Unix
+    user name."""
+    return roster_ids(path)
 
 
 @dataclass

@@ -26,7 +26,7 @@ from autograder.grading import CellOrigin, CellRun, Execution, FunctionRun, Prob
 from autograder.inside import wire
 from autograder.outcomes import Cause, Failed, Failure, Note, TrialOutcome, student_words
 
-__all__ = ["FORMAT", "ExecutionRefused", "to_wire", "from_wire", "problems_to_wire",
+__all__ = ["FORMAT", "ExecutionRefused", "file_key", "to_wire", "from_wire", "problems_to_wire",
            "problems_from_wire", "inputs_digest"]
 
 FORMAT = 1
@@ -34,6 +34,12 @@ FORMAT = 1
 
 class ExecutionRefused(ValueError):
     """An encoded execution (or problem set) failed validation: nothing of it is used."""
+
+
+def file_key(student_id: str) -> str:
+    """The name (without extension) of a student's file of executions or problems: a hash,
+    so that no student id, however it is spelt, becomes a path."""
+    return hashlib.sha256(student_id.encode("utf-8", "backslashreplace")).hexdigest()[:40]
 
 
 # --------------------------------------------------------------------------- checked reading

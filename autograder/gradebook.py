@@ -11,7 +11,7 @@ late penalty is points taken off the total, times are nbgrader's (naive UTC ``da
   before every run and :func:`restore` of that copy when the check fails afterwards;
   :func:`create` makes the empty one of a new course.
 * Read from it: :func:`duedate`, :func:`results` (each student's cells, names, timestamp and
-  penalty), :func:`require_assignment`, :func:`read_submissions` (a shard's copy, checked),
+  penalty), :func:`require_assignment`,
   :func:`net_scores` and :func:`cells_and_comments` (what the benchmarks compare),
   :func:`class_scores` (each submission's total, penalty and manual cells: the LMS export
   and the class report).
@@ -40,7 +40,7 @@ from pathlib import Path
 from autograder.freeze import printable
 
 __all__ = ["CellScore", "problem", "backup", "restore", "create", "duedate", "results",
-           "require_assignment", "read_submissions", "net_scores", "cells_and_comments",
+           "require_assignment", "net_score", "net_scores", "cells_and_comments",
            "write_nbgrader_cells", "write_cobotlab", "withdraw_scores", "set_duedate",
            "template_cells", "read_scratch_scores", "class_scores",
            "remove_assignment"]
@@ -196,41 +196,15 @@ def require_assignment(root: Path, assignment: str) -> None:
                              f"`nbgrader generate_assignment {assignment}` there first") from None
 
 
-def read_submissions(db: Path, named: Path, assignment: str, students: list[str]) -> dict:
-    """{student: (timestamp, {(notebook, grade id): (score, points)}, {comment: text})} of
-    ``assignment`` in the gradebook at ``db`` (a private copy of another course's, called
-    ``named`` in messages); the timestamp as ISO text ("" when unset), each auto comment cut
-    to 4000 characters.
-
-    Raises ValueError when a student has no submission, or a cell's score is not a finite
-    number within 0..its points (a missing auto score reads as 0)."""
-    from nbgrader.api import Gradebook, MissingEntry
-
-    out = {}
-    with Gradebook(f"sqlite:///{db}") as gb:
-        for sid in students:
-            try:
-                sub = gb.find_submission(assignment, sid)
-            except MissingEntry:
-                raise ValueError(f"{named} has no submission of {assignment!r} by {sid}, yet its "
-                                 "grades.csv has a row: the shard's copy is incomplete") from None
-            scores, comments = {}, {}
-            for nb in sub.notebooks:
-                for g in nb.grades:
-                    value, top = float(g.auto_score or 0.0), float(g.max_score or 0.0)
-                    if not (math.isfinite(value) and 0.0 <= value <= top):
-                        raise ValueError(f"{named}: cell {g.name!r} of {sid} scores {value:g} "
-                                         f"of {top:g} points")
-                    scores[(nb.name, g.name)] = (value, top)
-                for c in nb.comments:
-                    if c.auto_comment:  # written by the job's trusted process; capped anyway
-                        comments[c.name] = str(c.auto_comment)[:4000]
-            out[sid] = (sub.timestamp.isoformat() if sub.timestamp else "", scores, comments)
-    return out
+def net_score(raw: float, penalty: float) -> float:
+    """A submission's score: ``raw`` points less the late ``penalty`` (points), rounded to
+    0.01 and never below 0 (a penalty takes off at most what was earned, as nbgrader's
+    late-submission plugin rules). The one place a net score is computed."""
+    return max(0.0, round(float(raw) - float(penalty or 0.0), 2))
 
 
 def net_scores(root: Path, assignment: str) -> dict[str, float]:
-    """{student: total score less the late penalty, in points rounded to 0.01} of every
+    """{student: :func:`net_score`} of every
     submission of ``assignment`` in ``root/gradebook.db``, as nbgrader's API computes the
     total (a manual score counts over the automatic one). nbgrader's errors pass through."""
     from nbgrader.api import Gradebook
@@ -238,8 +212,7 @@ def net_scores(root: Path, assignment: str) -> dict[str, float]:
     out = {}
     with Gradebook(f"sqlite:///{root / 'gradebook.db'}") as gb:
         for sub in gb.assignment_submissions(assignment):
-            out[sub.student.id] = round(float(sub.score) - float(
-                sub.late_submission_penalty or 0), 2)
+            out[sub.student.id] = net_score(sub.score, sub.late_submission_penalty)
     return out
 
 
@@ -519,7 +492,7 @@ def class_scores(root: Path, assignment: str) -> dict:
             penalty = float(sub.late_submission_penalty or 0.0)
             st = sub.student
             out[sub.student.id] = {
-                "score": None if ungraded else max(0.0, round(raw - penalty, 2)),
+                "score": None if ungraded else net_score(raw, penalty),
                 "raw_score": raw, "penalty": penalty, "max_score": float(sub.max_score or 0.0),
                 "manual": sorted(g.name for g in grades if g.manual_score is not None),
                 "timestamp": sub.timestamp, "duedate": sub.duedate,

@@ -55,10 +55,11 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, sandbox
+from autograder import checks, safe_files, sandbox
 from autograder.forbidden import ALWAYS_FORBIDDEN, static_hits
 from autograder.inside import wire
 from autograder.inside.worker import WALL_STRETCH
+from autograder.nbgrader_cells import cell_role
 from autograder.outcomes import Cause, Failed, Failure, Flag, Note
 
 __all__ = [
@@ -70,6 +71,7 @@ __all__ = [
     "CellOrigin",
     "CellRun",
     "load_secret",
+    "specs_of",
     "create_secret",
     "problem_rng",
     "extract_code",
@@ -195,13 +197,27 @@ def create_secret(course_dir) -> Path:
     return path
 
 
+_SECRET_CAP = 4096   # bytes: a secret is 64 hex digits; anything past this is no secret
+
+
 def load_secret(course_dir=None) -> str:
-    """The grading secret: ``$COBOTLAB_GRADING_SECRET``, else ``<course>/.cobotlab/secret``."""
+    """The grading secret: ``$COBOTLAB_GRADING_SECRET``, else ``<course>/.cobotlab/secret``,
+    read through :mod:`autograder.safe_files` (a regular file, no link followed below the
+    course: a link there could hand the grader a secret someone else chose, or leak which
+    file it points at). ValueError names the problem and the fix."""
     value = os.environ.get(SECRET_ENV, "").strip()
     if not value and course_dir is not None:
-        path = Path(course_dir) / PRIVATE_DIR / SECRET_FILE
-        if path.is_file():
-            value = path.read_text().strip()
+        try:
+            data = safe_files.read_file(Path(course_dir), [PRIVATE_DIR, SECRET_FILE],
+                                        _SECRET_CAP)
+        except safe_files.Refused as exc:
+            if exc.why is not safe_files.Why.MISSING:
+                raise ValueError(f"the grading secret {Path(course_dir) / PRIVATE_DIR / SECRET_FILE}"
+                                 f" is refused: {exc.detail} ({exc.where}). Make it a regular "
+                                 "file of the course (copy the content in, mode 0600), or set "
+                                 f"${SECRET_ENV}") from None
+            data = b""
+        value = data.decode("utf-8", "replace").strip()
     if len(value) < 16:
         raise ValueError(
             f"no grading secret (at least 16 characters) found: set ${SECRET_ENV} or run "
@@ -257,9 +273,7 @@ class CellOrigin:
 
 def _is_test_cell(cell: dict) -> bool:
     """An nbgrader autograder-test cell (graded, not a solution), by its metadata."""
-    meta = cell.get("metadata")
-    meta = meta.get("nbgrader") if isinstance(meta, dict) else None
-    return isinstance(meta, dict) and meta.get("grade") is True and not meta.get("solution")
+    return cell_role(cell).autograder_test
 
 
 def extract_code(notebook_paths, with_origins: bool = False, tests: set[int] | None = None):
@@ -860,7 +874,7 @@ class KernelTrials:
     class (they are the same for everyone) and when first asked for."""
 
     def __init__(self, assignment: str):
-        self.specs = {s.name: s for s in _specs(assignment)}
+        self.specs = {s.name: s for s in specs_of(assignment)}
         self._drawn: dict[str, list[checks.Trial]] = {}
         self._lock = threading.Lock()
 
@@ -907,11 +921,13 @@ def draw_problems(assignment: str, student_id: str, secret: str, nonce: str | No
     """One student's hidden problems of ``assignment`` (see :func:`problem_rng`)."""
     trials = {spec.name: checks.make_trials(spec, problem_rng(secret, nonce, assignment,
                                                               student_id, spec.name))
-              for spec in _specs(assignment)}
+              for spec in specs_of(assignment)}
     return Problems(assignment, student_id, trials, kernel or KernelTrials(assignment))
 
 
-def _specs(assignment: str):
+def specs_of(assignment: str):
+    """The graded functions' specs of ``assignment``, in the lab's order; ValueError, naming
+    the known assignments, when none is registered (the one place that says so)."""
     specs = checks.SPECS.get(assignment)
     if specs is None:
         raise ValueError(f"no graded functions are registered for assignment {assignment!r}; "
@@ -979,7 +995,7 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
     ``execution.profile`` says where the wall-clock time went.
     """
     started = time.monotonic()
-    specs = _specs(problems.assignment)
+    specs = specs_of(problems.assignment)
     run = Execution(student_id=problems.student_id, assignment=problems.assignment)
     tests: set[int] | None = set() if run_tests else None
     cells, run.cell_origins, run.notes = extract_code(notebook_paths, with_origins=True,
@@ -1073,7 +1089,7 @@ class NotebookRunner:
                  cpu_s: int | None = None, run_tests: bool = False, batch_calls: bool = False):
         run = execution if execution is not None else Execution(student_id="", assignment="")
         if cpu_s is None:
-            cpu_s = limits.worker_cpu_s(_specs(run.assignment))
+            cpu_s = limits.worker_cpu_s(specs_of(run.assignment))
         self.cells, self.limits, self.execution, self.tests = cells, limits, run, set(tests)
         self.cgroup, self.template, self.routines, self.cpu_s = cgroup, template, routines, cpu_s
         self.run_tests, self.batch_calls = run_tests, batch_calls
@@ -1204,7 +1220,7 @@ def score_execution(problems: Problems, execution: Execution) -> SubmissionGrade
     routine scores zero, flagged ``forbidden:<routine>``; each ``hidden_test(f)`` of the
     test cells gets its verdict in ``kernel_checks`` (None: passed), scored as the in-kernel
     hidden test scores it (:data:`checks.KERNEL_SEEDS`) but here."""
-    specs = {s.name: s for s in _specs(problems.assignment)}
+    specs = {s.name: s for s in specs_of(problems.assignment)}
     grade = SubmissionGrade(student_id=execution.student_id, assignment=execution.assignment,
                             notes=list(execution.notes), seconds=execution.seconds,
                             cell_origins=list(execution.cell_origins),
@@ -1226,7 +1242,7 @@ def score_execution(problems: Problems, execution: Execution) -> SubmissionGrade
 def kernel_verdicts(problems: Problems, execution: Execution) -> dict[str, str | None]:
     """The verdict of each ``hidden_test(f)`` of the test cells, in order (None: passed,
     else why not), scored as the in-kernel hidden test scores it but here."""
-    specs = {s.name: s for s in _specs(problems.assignment)}
+    specs = {s.name: s for s in specs_of(problems.assignment)}
     banned = {r.name: r.forbidden for r in execution.functions if r.forbidden}
     return {name: _kernel_verdict(name, specs, banned, problems, execution)
             for name in execution.kernel_tests}

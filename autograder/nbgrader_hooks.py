@@ -20,6 +20,7 @@ from nbformat.v4 import new_code_cell, new_output
 from traitlets import Bool, List, Unicode
 
 from autograder import feedback_release, safe_files
+from autograder.nbgrader_cells import nbgrader_metadata
 
 __all__ = ["HideHiddenTests", "AddCobotlabFeedback"]
 
@@ -66,8 +67,8 @@ class HideHiddenTests(Preprocessor):
                            ).tag(config=True)
 
     def preprocess_cell(self, cell, resources, index):
-        meta = cell.get("metadata", {}).get("nbgrader", {})
-        comment = meta.get("comment") if isinstance(meta, dict) else None
+        meta = nbgrader_metadata(cell)
+        comment = meta.get("comment")
         if isinstance(comment, str) and comment.startswith("cobotlab:"):
             meta["comment"] = "\n".join(
                 line for line in comment.split("\n")

@@ -1,247 +1,229 @@
-"""Bring the grades of shard jobs (``cobotlab grade --students``) into the home course.
+"""The home side of shard jobs: their problems drawn here, their executions scored here.
 
 A class past one machine is graded in shards, each job on its own copy of the course
-(docs/instructors.md). ``merge_shard(HOME, ASSIGNMENT, SHARD)`` takes one job's copy back:
-its students' cell scores and comments into HOME's ``gradebook.db`` (through nbgrader's API,
-so formgrader, manual overrides and ``nbgrader export`` see them as if HOME had graded),
-their rows into HOME's ``grades.csv``, their feedback pages and autograded notebooks, and the
-cross-check ledger, so the next regrade at home still compares with nbgrader's own values.
+(docs/instructors.md), and no job holds the grading secret (:mod:`autograder.shard_job`
+says how a job runs without it):
 
-The shard's files are read as data, as a submission is (through
-:mod:`autograder.safe_files`: regular files only, no link followed at any depth), student
-ids that are safe folder names, scores that are numbers within their cell's points, and
-only for students whose row the shard's ``grades.csv`` has. A row of a refused folder
-(flagged ``rejected_student_id``, keyed by :func:`autograder.freeze.student_key`) is
-carried over as a row only: it has nothing in the gradebook and no files.
-HOME's gradebook is backed up first and checked after, as in ``grade_course``; a late
-penalty is HOME's rule again.
+- :func:`write_job` draws the hidden problems of the job's students from HOME's secret and
+  writes their inputs, never a truth or a tolerance, into the job's copy;
+- the job executes (``cobotlab grade JOB ASSIGNMENT --students @FILE``) and keeps what
+  each student's code did, as a grade run keeps it for ``--rescore``;
+- :func:`merge_shard` (``cobotlab merge``) brings those executions home and rescores them
+  here: the problems drawn again from the secret, each execution checked to be the
+  submission HOME holds, run on the inputs HOME drew, with one outcome per problem, then
+  scored and recorded by ``grade_course(..., rescore=True)``.
+
+A job's files are data. Nothing it returns sets a score: its grades.csv, gradebook and
+feedback pages are never read, and a returned value earns what it earns against the truth
+drawn here. A returned execution that fails a check refuses the whole merge, naming each,
+and nothing is written. What is copied besides: the autograded notebooks of nbgrader's run
+(for formgrader), read without following links; the files nbgrader's release_feedback
+reads beside them come from HOME's own submission.
 """
 
 from __future__ import annotations
 
-import csv
 import fnmatch
-import io
 import json
-import math
+import os
+import sys
 import tempfile
+import time
 from pathlib import Path
 
-from autograder import (
-    checks,
-    course,
-    feedback_release,
-    freeze,
-    gradebook,
-    grading,
-    record,
-    registry,
-    safe_files,
-)
+from autograder import course, executions, freeze, gradebook, grading, record, safe_files
+from autograder.feedback_release import write_exchange_files
+from autograder.shard_job import FORMAT, bundle_path
 
-__all__ = ["merge_shard"]
+__all__ = ["write_job", "merge_shard"]
 
-_CAP_BYTES = 64 * 2**20  # one feedback page or autograded notebook, or grades.csv
-_GRADEBOOK_CAP = 4 * 2**30
+_CAP_BYTES = 64 * 2**20  # one autograded notebook, or one kept execution
 
 
-def _read(shard: Path, relative: str, what: str) -> bytes:
+def _submitted_ids(home: Path, assignment: str) -> list[str]:
+    """The ids of HOME's submitted folders of ``assignment`` that are safe folder names."""
     try:
-        return safe_files.read_file(shard, relative, _CAP_BYTES)
+        with safe_files.open_folder(home, "submitted") as top:
+            names = sorted(e.name for e in top.entries())
     except safe_files.Refused as exc:
-        raise ValueError(f"{what}: {exc}") from None
+        raise ValueError(f"no submissions to write problems for: {exc}") from None
+    return [n for n in names if freeze.student_id_problem(n) is None
+            and (home / "submitted" / n / assignment).is_dir()]
 
 
-def _refused_row(row: dict) -> bool:
-    """Whether a grades.csv row is a refused folder's (``rejected_student_id``): a row only,
-    nothing in the gradebook, no feedback."""
-    return "rejected_student_id" in row.get("flags", "").split(";")
+def write_job(home, assignment: str, job, students=None) -> list[str]:
+    """At home: write the inputs of the hidden problems of ``assignment`` of each of
+    ``students`` (default: every student with a submission in HOME) into the job's copy of
+    the course at ``job``: the course's fixed problems, drawn from HOME's secret, as
+    :func:`autograder.executions.problems_to_wire` carries them to a Dask worker. Returns
+    the student ids written.
 
-
-def _shard_rows(shard: Path, assignment: str) -> list[dict]:
-    text = _read(shard, course.GRADES_CSV, "the shard's grades").decode("utf-8")
-    rows = [r for r in csv.DictReader(io.StringIO(text)) if r.get("assignment") == assignment]
-    if not rows:
-        raise ValueError(f"{shard / course.GRADES_CSV} has no row of {assignment!r}: grade the "
-                         "shard first (cobotlab grade SHARD ASSIGNMENT --students @FILE)")
-    max_points = sum(s.points for s in checks.SPECS[assignment])
-    for row in rows:
-        if row.get("raw_score") == "" and "grader_error" in row.get("flags", "").split(";"):
-            continue   # the shard's grader failed on it: nothing to merge (see merge_shard)
-        sid = row.get("student_id", "")
-        problem = freeze.student_id_problem(sid)
-        if _refused_row(row):
-            # its key must be one no accepted id can be (freeze.student_key), so that it can
-            # never stand in for a student's real row at home
-            if problem is None or freeze.printable(sid, 10**6) != sid:
-                raise ValueError(f"the shard's grades.csv flags {freeze.printable(sid, 80)!r} "
-                                 "as a refused folder, but that is not how a refused folder "
-                                 "is named there: was the file edited?")
-        elif problem:
-            raise ValueError(f"the shard's grades.csv names a student id that is {problem}: "
-                             f"{freeze.printable(sid, 80)!r}")
-        try:
-            raw, top = float(row["raw_score"]), float(row["max_score"])
-        except (KeyError, ValueError):
-            raise ValueError(f"the shard's row of {sid} has no numeric raw_score / max_score") \
-                from None
-        if _refused_row(row) and raw != 0:
-            raise ValueError(f"the shard's row of the refused folder {freeze.printable(sid, 80)!r}"
-                             f" scores {raw:g}: a refused folder is never graded")
-        if not (math.isfinite(raw) and abs(top - max_points) < 1e-9 and 0 <= raw <= top):
-            raise ValueError(
-                f"the shard's row of {sid} scores {raw:g} / {top:g}, but {assignment} is out of "
-                f"{max_points:g} here: was the shard graded with another version of the lab?")
-    return rows
-
-
-def _shard_gradebook(shard: Path, assignment: str, students: list[str]) -> dict:
-    """{student: (timestamp, {(notebook, grade id): (score, points)}, {comment: text})}
-    from the shard's gradebook, scores checked against their cells' points."""
-    with tempfile.TemporaryDirectory(prefix="cobotlab-shard-") as private:
-        copy = Path(private) / "gradebook.db"   # nbgrader opens a path: a private copy's
-        try:
-            safe_files.copy_file(shard, "gradebook.db", copy, _GRADEBOOK_CAP)
-        except safe_files.Refused as exc:
-            raise ValueError(f"the shard's gradebook: {exc}") from None
-        return gradebook.read_submissions(copy, shard / "gradebook.db", assignment, students)
-
-
-def _copy_outputs(home: Path, shard: Path, assignment: str, sid: str, notes: list[str]) -> None:
-    """The student's feedback page and section, autograded notebooks and the exchange files
-    nbgrader's release_feedback reads beside them, regular files only."""
-    exchange = freeze.EXCHANGE_FILES
-    for folder, patterns in (("feedback_cobotlab", ("feedback.html", feedback_release.SECTION)),
-                             ("autograded", ("*.ipynb", *exchange))):
-        relative = f"{folder}/{sid}/{assignment}"
-        try:
-            base = safe_files.open_folder(shard, relative)
-        except safe_files.Refused as exc:
-            if exc.why is not safe_files.Why.MISSING:
-                notes.append(f"{sid}: {relative} not copied: {freeze.printable(exc)}")
-            continue
-        with base:
-            for entry in base.entries():
-                if not any(fnmatch.fnmatchcase(entry.name, p) for p in patterns):
-                    continue
-                try:
-                    data = base.read(entry.name, _CAP_BYTES)
-                    problem = freeze.exchange_file_problem(entry.name, data) \
-                        if entry.name in exchange else None
-                    if problem:
-                        raise ValueError(problem)
-                    record.write_file(home, f"{relative}/{entry.name}", data)
-                except (OSError, ValueError) as exc:   # safe_files.Refused is a ValueError
-                    notes.append(f"{sid}: {folder}/{freeze.printable(entry.name)} not copied: "
-                                 f"{freeze.printable(exc)}")
-
-
-def _write(home, shard, private, assignment, students, cells, theirs, notes) -> None:
-    """The shard's students into HOME: gradebook cells and comments, ledger, files."""
-    ledger = course._load_ledger(private)
-    mine = ledger.setdefault(assignment, {})
+    Refuses (ValueError) a job folder that is the course itself or that holds the secret,
+    and a student id that is no safe folder name."""
+    home, job = Path(home).resolve(), Path(job).resolve()
+    if home == job:
+        raise ValueError("the job folder is the course itself: pass the job's copy of it")
+    root, secret = course._course_and_secret(home, assignment)
+    students = list(dict.fromkeys(_submitted_ids(root, assignment) if students is None
+                                  else students))
+    if not students:
+        raise ValueError(f"students: none to write problems of {assignment} for: collect the "
+                         "submissions first, or name the shard's students")
     for sid in students:
-        timestamp, scores, comments = cells[sid]
-        # nbgrader's cell results first (every cell, a notebook's missing ones at 0), then the
-        # comments with cobotlab's findings: the same two writes `cobotlab grade` makes.
-        gradebook.write_nbgrader_cells(
-            home, assignment, sid, timestamp,
-            [gradebook.CellScore(nb, gid, value, top)
-             for (nb, gid), (value, top) in scores.items()],
-            {nb for nb, _ in scores})
-        gradebook.write_cobotlab(home, assignment, sid, timestamp, {}, comments)
-        entry = theirs.get(sid)
-        if isinstance(entry, dict) and isinstance(entry.get("cells"), dict):
-            mine[sid] = {"timestamp": entry.get("timestamp"), "cells": entry["cells"]}
-        else:
-            mine.pop(sid, None)
-        _copy_outputs(home, shard, assignment, sid, notes)
-        _copy_kept_execution(shard, private, assignment, sid, notes)
-    record.write_file(private, course._LEDGER, json.dumps(ledger).encode("utf-8"))
+        problem = freeze.student_id_problem(sid)
+        if problem:
+            raise ValueError(f"students: {freeze.printable(sid, 80)!r} is {problem}")
+    held = job / grading.PRIVATE_DIR / grading.SECRET_FILE
+    if os.path.lexists(held):   # the job's copy must not carry the secret out
+        raise ValueError(f"the job's copy holds the grading secret ({held}): delete it; a "
+                         "shard job needs none")
+    kernel = grading.KernelTrials(assignment)
+    for sid in students:
+        problems = grading.draw_problems(assignment, sid, secret, None, kernel)
+        data = {"format": FORMAT, "assignment": assignment, "student_id": sid,
+                "nonce": None, "problems": executions.problems_to_wire(problems)}
+        record.write_file(job / grading.PRIVATE_DIR, bundle_path(assignment, sid),
+                          json.dumps(data).encode("utf-8"))
+    return students
 
 
-def _copy_kept_execution(shard: Path, private: Path, assignment: str, sid: str,
-                         notes: list[str]) -> None:
-    """What the student's code did in the shard's run, so that ``cobotlab grade --rescore``
-    works at home (read without following links; checked again when it is used)."""
-    relative = course.kept_path(assignment, sid)
+def _copy_autograded(home: Path, shard: Path, assignment: str, sub: freeze.Frozen,
+                     notes: list[str]) -> None:
+    """The student's autograded notebooks from the job (for formgrader; data, regular files
+    only), and beside them the exchange files from HOME's own frozen submission."""
+    relative = f"autograded/{sub.student_id}/{assignment}"
     try:
-        data = safe_files.read_file(shard / grading.PRIVATE_DIR, relative, _CAP_BYTES)
+        base = safe_files.open_folder(shard, relative)
     except safe_files.Refused as exc:
         if exc.why is not safe_files.Why.MISSING:
-            notes.append(f"{sid}: its kept execution not copied: {freeze.printable(exc)}")
+            notes.append(f"{sub.student_id}: {relative} not copied: {freeze.printable(exc)}")
         return
-    record.write_file(private, relative, data)
+    copied = 0
+    with base:
+        for entry in base.entries():
+            if not fnmatch.fnmatchcase(entry.name, "*.ipynb"):
+                continue
+            try:
+                record.write_file(home, f"{relative}/{entry.name}",
+                                  base.read(entry.name, _CAP_BYTES))
+                copied += 1
+            except (OSError, ValueError) as exc:   # safe_files.Refused is a ValueError
+                notes.append(f"{sub.student_id}: {freeze.printable(entry.name)} not copied: "
+                             f"{freeze.printable(exc)}")
+    if copied:   # what nbgrader's release_feedback reads beside them
+        write_exchange_files(home, assignment, sub)
+
+
+def _returned(run: course.GradeRun, problems, shard: Path, frozen) -> tuple[dict, list, list]:
+    """({student: the kept form, rebuilt here, of the job's execution}, [student: why
+    refused], [students the job has problems of but no execution]) of HOME's submissions
+    whose student the job was given problems of or kept an execution of."""
+    private, assignment = shard / grading.PRIVATE_DIR, run.assignment
+    clean, refused, missing = {}, [], []
+    for sub in frozen:
+        sid = sub.student_id
+        try:
+            data = safe_files.read_file(private, course.kept_path(assignment, sid), _CAP_BYTES)
+        except safe_files.Refused as exc:
+            if exc.why is not safe_files.Why.MISSING:
+                refused.append(f"{freeze.printable(sid, 80)} ({freeze.printable(exc, 200)})")
+            elif os.path.lexists(private / bundle_path(assignment, sid)):
+                missing.append(sid)
+            continue
+        if not (sub.accepted and sub.notebooks):
+            refused.append(f"{freeze.printable(sid, 80)} (an execution of a submission HOME "
+                           "refused or holds no notebook of)")
+            continue
+        done = course.Executed(submission=course._submission_digest(sub))
+        why = course.use_kept(run, problems, sub, done, data, from_job=True)
+        if why:
+            refused.append(f"{freeze.printable(sid, 80)} ({why})")
+        else:
+            clean[sid] = course.kept_bytes(run, problems.of(sid), done)
+    return clean, refused, missing
 
 
 def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> list[dict]:
-    """Merge one shard job's grades of ``assignment`` into ``course_dir`` (see the module
-    docstring). The students must be in HOME's gradebook's class or are added to it (their
-    names stay HOME's); the assignment must exist there (``nbgrader generate_assignment``).
+    """Score at home what one shard job executed of ``assignment`` (see the module
+    docstring) and record it in ``course_dir`` as ``cobotlab grade --rescore`` does:
+    gradebook.db (backed up first, checked after), grades.csv, the feedback pages, the
+    kept executions. The assignment must be in HOME's gradebook (``nbgrader
+    generate_assignment``), and HOME must hold the submissions the job executed.
 
-    Returns the rows written to ``course_dir/grades.csv`` (one per student of the shard).
-    """
+    Returns the rows written to ``course_dir/grades.csv``, one per merged student. Raises
+    ValueError, naming each, when any returned execution fails its checks (nothing is
+    written then)."""
     home, shard = Path(course_dir).resolve(), Path(shard_dir).resolve()
     if home == shard:
         raise ValueError("the shard is the course itself: pass the job's copy of the course")
-    registry.use_course(home)   # an instructor's lab is found in the home course's folders
-    if assignment not in checks.SPECS:
-        raise ValueError(f"no graded functions are registered for assignment {assignment!r}")
-    rows = _shard_rows(shard, assignment)
-    ungraded = [r["student_id"] for r in rows if r.get("raw_score") == ""]
-    rows = [r for r in rows if r.get("raw_score") != ""]
-    refused = [r for r in rows if _refused_row(r)]   # rows only: no gradebook entry, no files
-    rows = [r for r in rows if not _refused_row(r)]
-    if not rows and not refused:
-        raise ValueError(f"the shard {shard} graded none of its students (grader errors: "
-                         f"{', '.join(ungraded)}): grade the shard again")
-    students = [r["student_id"] for r in rows]
-    cells = _shard_gradebook(shard, assignment, students)
-    theirs = course._load_ledger(shard / grading.PRIVATE_DIR).get(assignment, {})
-
-    gradebook.require_assignment(home, assignment)
-
-    private = course._private_dir(home)
-    notes = course._begin_run(home, private)
-    try:
-        _write(home, shard, private, assignment, students, cells, theirs, notes)
-    except BaseException:
-        # Nothing half-merged: the gradebook as it was before, and no run left marked.
-        gradebook.restore(home, private / "gradebook.backup.db")
-        (private / record.RUN_MARKER).unlink(missing_ok=True)
-        raise
-    damaged = course._check_gradebook(home, private, notes)
-
-    now = {} if damaged else gradebook.results(home, assignment, students)
-    merged = []
-    for row in rows:
-        nb = now.get(row["student_id"], {})
-        theirs_cells = {gid for _, gid in cells[row["student_id"]][1]}
-        if not damaged and set(nb.get("cells", {})) != theirs_cells:
-            notes.append(f"{row['student_id']}: the shard's gradebook has cells "
-                         f"{sorted(theirs_cells)}, this course's {sorted(nb.get('cells', {}))}: "
-                         "were both made from the same source notebook?")
-        flags = ";".join(f for f in (row.get("flags", ""),
-                                     "gradebook_restored" if damaged else "") if f)
-        nb = {**nb, "duedate": nb.get("duedate") or row.get("duedate", "")}
-        merged.append(course.grade_row(assignment, row["student_id"], nb,
-                                       float(row["raw_score"]), float(row["max_score"]), flags,
-                                       row.get("timestamp", "")))
-    for row in refused:
-        merged.append(course.grade_row(assignment, row["student_id"],
-                                       {"duedate": row.get("duedate", "")},
-                                       float(row["raw_score"]), float(row["max_score"]),
-                                       row.get("flags", ""), row.get("timestamp", "")))
-    record.update_csv(home, course.GRADES_CSV, course.GRADE_COLUMNS, merged,
-                      key=("assignment", "student_id"))
-    notes.append(f"merged {len(merged)} student(s) from the shard {shard}")
-    if ungraded:
-        notes.insert(0, f"not merged, the shard's grader failed on them (no score): "
-                        f"{', '.join(ungraded)}: grade them again")
-    course._end_run(course.GradeRun(home, private, assignment, "", None, "merged",
-                                    grading.Limits(), notes, 0.0), merged, [], {})
+    root, secret = course._course_and_secret(home, assignment)
+    gradebook.require_assignment(root, assignment)
+    run = course.GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "merge",
+                          grading.Limits(), [], time.monotonic())
+    problems = grading.HiddenProblems(assignment, secret, None)
+    notes: list[str] = []
+    with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
+        frozen = course._freeze(root, assignment, Path(store), freeze.Caps())
+        clean, refused, missing = _returned(run, problems, shard, frozen)
+        if refused:
+            raise ValueError(
+                f"the shard {shard} returned executions this course cannot score, and nothing "
+                "was merged: " + "; ".join(refused[:20])
+                + (f"; and {len(refused) - 20} more" if len(refused) > 20 else "")
+                + ". Run the job again on its students' current submissions")
+        usable = {s.student_id for s in frozen if s.accepted and s.notebooks}
+        zero = [sid for sid in missing if sid not in usable]   # scored zero, no code to run
+        failed = [sid for sid in missing if sid in usable]
+        if not clean and not zero:
+            raise ValueError(f"the shard {shard} holds no execution of {assignment} of a "
+                             "submission of this course: run the job first (cobotlab grade "
+                             "JOB ASSIGNMENT --students @FILE)")
+        private = course._private_dir(root)
+        for sid, data in clean.items():
+            record.write_file(private, course.kept_path(assignment, sid), data)
+        rows = course.grade_course(root, assignment, students=[*clean, *zero], rescore=True,
+                                   quiet=True)
+        for sub in frozen:
+            if sub.student_id in clean:
+                _copy_autograded(root, shard, assignment, sub, notes)
+    if failed:
+        notes.insert(0, "not merged, the job executed no code of theirs (a grader failure?): "
+                        + ", ".join(freeze.printable(f, 80) for f in failed)
+                        + ": grade them again")
     if not quiet:
-        print(f"{assignment}: merged {len(merged)} student(s) from {shard} into {home}")
-        for note in notes[:-1]:
+        print(f"{assignment}: scored {len(rows)} student(s) of the shard {shard} in {home} "
+              "(no student code ran here)")
+        for note in notes:
             print(f"  note: {freeze.printable(note)}")
-    return merged
+    return rows
+
+
+def main(argv=None) -> int:
+    """``python -m autograder.shards job HOME ASSIGNMENT JOB [STUDENT ...]``: write a
+    shard job's problems (:func:`write_job`) before the job runs."""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m autograder.shards",
+        description="Write the inputs of a shard job's hidden problems into its copy of the "
+                    "course (drawn here from the grading secret, which the job never gets).")
+    sub = parser.add_subparsers(dest="command", required=True)
+    job = sub.add_parser("job", help="write a job's problems into its copy of the course")
+    job.add_argument("home", metavar="HOME", help="the home course (holds the secret)")
+    job.add_argument("assignment", metavar="ASSIGNMENT")
+    job.add_argument("job", metavar="JOB", help="the job's copy of the course")
+    job.add_argument("students", metavar="STUDENT", nargs="*",
+                     help="the job's students (default: everyone who submitted)")
+    args = parser.parse_args(argv)
+    try:
+        written = write_job(args.home, args.assignment, args.job, args.students or None)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.assignment}: the problems of {len(written)} student(s) written into "
+          f"{Path(args.job).resolve() / grading.PRIVATE_DIR / 'job'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

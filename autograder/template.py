@@ -42,6 +42,7 @@ from pathlib import Path
 
 from autograder import grading, sandbox
 from autograder.grading import TemplateUnavailable
+from autograder.nbgrader_cells import cell_role
 
 __all__ = ["Template", "TemplateUnavailable", "ForkedProcess", "imported_modules",
            "leading_cells"]
@@ -51,9 +52,7 @@ CONTROL_TIMEOUT_S = 30.0
 
 
 def _locked_code(cell: dict) -> bool:
-    meta = cell.get("metadata", {}).get("nbgrader", {})
-    return (cell.get("cell_type") == "code" and meta.get("locked") is True
-            and not meta.get("grade") and not meta.get("solution"))
+    return cell.get("cell_type") == "code" and cell_role(cell).read_only
 
 
 def imported_modules(notebook: Path) -> list[str]:

@@ -131,13 +131,14 @@ def _build_parser() -> argparse.ArgumentParser:
 
     merge = sub.add_parser(
         "merge",
-        help="bring shard jobs' grades (cobotlab grade --students) into this course",
+        help="score here what shard jobs executed (cobotlab grade --students) and record it",
         description=(
-            "Merge the grades of ASSIGNMENT from each SHARD (a job's copy of the course, "
-            "graded there with `cobotlab grade SHARD ASSIGNMENT --students @FILE`) into "
-            "COURSE: cell scores and comments into gradebook.db (backed up first), rows into "
-            "grades.csv, feedback pages and autograded notebooks. The shard's files are read "
-            "as data; nothing of it runs."),
+            "Score the executions of ASSIGNMENT that each SHARD (a job's copy of the course, "
+            "its problems written by `python -m autograder.shards job`, executed there with "
+            "`cobotlab grade SHARD ASSIGNMENT --students @FILE`, without the secret) "
+            "returned, against the truth drawn here, and record them in COURSE as "
+            "`cobotlab grade --rescore` does. The shard's files are read as data; none sets "
+            "a score, and nothing of it runs."),
     )
     merge.add_argument("course_dir", metavar="COURSE", help="the home course directory")
     merge.add_argument("assignment", metavar="ASSIGNMENT", help="e.g. lab0_frames")

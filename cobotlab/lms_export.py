@@ -42,11 +42,11 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from autograder import gradebook, record
+from autograder import gradebook, record, roster
 from autograder.freeze import printable
 
 FORMATS = ("canvas", "moodle", "csv")
-ROSTER_ID = "student_id"
+ROSTER_ID = roster.ID   # the roster's id column, as autograder.roster reads it
 CANVAS_IDENTITY = ("Student", "ID", "SIS User ID", "SIS Login ID", "Section")
 CANVAS_POINTS_ROW = "Points Possible"
 MOODLE_IDS = ("email", "idnumber", "username")
@@ -80,19 +80,10 @@ class Exported:
 
 
 def read_roster(path, fmt: str, moodle_id: str = "email") -> list[dict[str, str]]:
-    """The roster's rows (dicts by column), checked for ``fmt``: a ``student_id`` column,
-    no blank or repeated id, and the identity the LMS matches on in every row. Raises
-    ValueError naming the row and the fix."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")   # a spreadsheet's byte-order mark is fine
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read the roster {path}: {exc}") from None
-    reader = csv.DictReader(io.StringIO(text))
-    header = [h.strip() for h in (reader.fieldnames or [])]
-    if ROSTER_ID not in header:
-        raise ValueError(f"the roster {path} has no {ROSTER_ID!r} column (its header: "
-                         f"{header}); add one holding each student's nbgrader id")
+    """The roster's rows (:func:`autograder.roster.read_roster`: the one roster format, each
+    row's student id in ``"id"``), checked for ``fmt``: the identity the LMS matches on in
+    every row. Raises ValueError naming the row and the fix."""
+    rows = roster.read_roster(path)
     needed: tuple[str, ...] = ()
     if fmt == "canvas":
         needed = CANVAS_IDENTITY
@@ -100,21 +91,14 @@ def read_roster(path, fmt: str, moodle_id: str = "email") -> list[dict[str, str]
         if moodle_id not in MOODLE_IDS:
             raise ValueError(f"--moodle-id {moodle_id!r}: use one of {', '.join(MOODLE_IDS)}")
         needed = (moodle_id,)
-    absent = [c for c in needed if c not in header]
+    absent = [c for c in needed if c not in rows[0]]
     if absent:
         raise ValueError(f"the roster {path} lacks the column(s) {absent} that {fmt} needs: "
                          "copy them from the LMS's own gradebook export (see docs/"
                          "instructors.md, Grades to the LMS)")
-    rows, seen, seen_lms = [], {}, {}
-    for n, raw in enumerate(reader, start=2):
-        row = {(k or "").strip(): (v or "").strip() for k, v in raw.items()}
-        sid = row.get(ROSTER_ID, "")
-        if not sid:
-            raise ValueError(f"{path} line {n}: empty {ROSTER_ID}")
-        if sid in seen:
-            raise ValueError(f"{path} line {n}: student {sid!r} is listed again (line "
-                             f"{seen[sid]}); one row per student")
-        seen[sid] = n
+    seen_lms: dict[str, str] = {}
+    for n, row in enumerate(rows, start=2):
+        sid = row[ROSTER_ID]
         if fmt == "canvas" and not (row["ID"] or row["SIS User ID"]):
             raise ValueError(f"{path} line {n} ({sid}): neither ID nor SIS User ID is set; "
                              "Canvas needs one to find the student")
@@ -127,9 +111,6 @@ def read_roster(path, fmt: str, moodle_id: str = "email") -> list[dict[str, str]
                 raise ValueError(f"{path} line {n} ({sid}): {moodle_id} {who!r} is also "
                                  f"{seen_lms[who]}'s")
             seen_lms[who] = sid
-        rows.append(row)
-    if not rows:
-        raise ValueError(f"the roster {path} lists no student")
     return rows
 
 

@@ -52,6 +52,7 @@ import numpy as np
 
 from autograder import checks, fairness, grading, registry
 from autograder.inside import wire
+from autograder.nbgrader_cells import cell_role, nbgrader_metadata
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
@@ -109,16 +110,11 @@ def _cells(path: Path) -> list[dict]:
     return json.loads(path.read_text(encoding="utf-8"))["cells"]
 
 
-def _meta(cell: dict) -> dict:
-    meta = cell.get("metadata", {}).get("nbgrader", {})
-    return meta if isinstance(meta, dict) else {}
-
-
 def _solution_defs(cells: list[dict]) -> dict[str, list[ast.FunctionDef]]:
     """{function name: its defs} in the notebook's solution cells."""
     found: dict[str, list] = {}
     for cell in cells:
-        if cell.get("cell_type") != "code" or not _meta(cell).get("solution"):
+        if cell.get("cell_type") != "code" or not cell_role(cell).solution:
             continue
         try:
             tree = ast.parse(grading.cell_source(cell))
@@ -146,8 +142,8 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
                                 "reference code of each graded function between them, in a "
                                 "cell whose nbgrader metadata says solution"))
     defs = _solution_defs(cells)
-    tests = {_meta(c).get("grade_id"): c for c in cells
-             if c.get("cell_type") == "code" and _meta(c).get("grade")}
+    tests = {cell_role(c).grade_id: c for c in cells
+             if c.get("cell_type") == "code" and cell_role(c).grade}
     for spec in specs:
         name = spec.name
         if name not in defs:
@@ -185,7 +181,7 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
         if f"check({name}" not in grading.cell_source(test):
             findings.append(Finding("test cell", f"{notebook}: cell test_{name} does not call "
                                     f"check({name}); students see their score there", name))
-        points = _meta(test).get("points")
+        points = nbgrader_metadata(test).get("points")
         if not isinstance(points, (int, float)) or not math.isclose(points, spec.points):
             findings.append(Finding("points", f"{notebook}: cell test_{name} is worth {points} "
                                     f"points, the spec {spec.points:g}; nbgrader's total and "
@@ -321,11 +317,11 @@ def reference_notebook(source: Path) -> dict:
     from cobotlab.labs import release_notebook
 
     released = release_notebook(source)
-    solutions = {_meta(c).get("grade_id"): grading.cell_source(c) for c in _cells(source)
-                 if _meta(c).get("solution")}
+    solutions = {cell_role(c).grade_id: grading.cell_source(c) for c in _cells(source)
+                 if cell_role(c).solution}
     for cell in released.cells:
-        grade_id = _meta(cell).get("grade_id")
-        if grade_id in solutions:
+        grade_id = cell_role(cell).grade_id
+        if grade_id and grade_id in solutions:
             cell.source = "\n".join(line for line in solutions[grade_id].splitlines()
                                     if line.strip() not in (SOLUTION_BEGIN, SOLUTION_END))
     return nbformat.from_dict(released)

@@ -408,7 +408,7 @@ def test_set_up_refuses_what_would_leave_work_exposed(machine, tmp_path):
         lister.start()
     roster = tmp_path / "roster.csv"
     roster.write_text("student,name\nana,Ana\n")
-    with pytest.raises(ValueError, match="no 'id' column"):
+    with pytest.raises(ValueError, match="no id column"):
         exchange.read_roster(roster)
 
 
@@ -459,12 +459,14 @@ def _imports(path: Path) -> set[str]:
 
 def test_the_module_imports_only_what_a_student_server_has():
     """It runs in each student's server (the Assignments tab): the standard library,
-    nbgrader (which that tab is) and autograder.safe_files, which needs the library only."""
+    nbgrader (which that tab is), autograder.safe_files and autograder.roster, which need
+    the library only."""
     package = Path(exchange.__file__).parent
     outside = {n for n in _imports(package / "exchange.py")
                if n.split(".")[0] not in sys.stdlib_module_names}
     # autograder.gradebook only inside PrivateCollect, which runs on the instructors' side
     assert outside == {"nbgrader.exchange", "nbgrader.utils", "autograder.safe_files",
-                       "autograder.gradebook"}
-    assert all(n.split(".")[0] in sys.stdlib_module_names
-               for n in _imports(package / "safe_files.py")), _imports(package / "safe_files.py")
+                       "autograder.roster", "autograder.gradebook"}
+    for light in ("safe_files.py", "roster.py"):
+        assert all(n.split(".")[0] in sys.stdlib_module_names
+                   for n in _imports(package / light)), _imports(package / light)

@@ -18,9 +18,9 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import checks, gradebook, record, sandbox
-from autograder.course import grade_course
-from autograder.shards import merge_shard
+from autograder import checks, executions, gradebook, grading, record, sandbox
+from autograder.course import GRADE_COLUMNS, GRADES_CSV, grade_course, grade_row, kept_path
+from autograder.shards import merge_shard, write_job
 from cobotlab.cli import _student_ids
 
 pytestmark = pytest.mark.slow
@@ -137,61 +137,135 @@ def _submit_class(course: Path) -> None:
     kit.submit(course, ASSIGNMENT, "cy", replace={"invert_pose": solutions["invert_pose"]})
 
 
-def test_a_shard_grades_only_its_students_and_merges_back_into_the_home_course(released,
-                                                                              tmp_path):
-    shard = kit.fresh_course(released, tmp_path / "job")  # a cluster job's copy of the course
+def _kept(course: Path, sid: str) -> Path:
+    return course / ".cobotlab" / kept_path(ASSIGNMENT, sid)
+
+
+def _forge(job: Path, sid: str, edit) -> None:
+    """Edit the execution the job returns for ``sid`` as a job node an escaped sandbox
+    controls could: ``edit(kept)`` changes the decoded JSON in place."""
+    kept = json.loads(_kept(job, sid).read_text())
+    edit(kept)
+    _kept(job, sid).write_text(json.dumps(kept))
+
+
+def _outcomes(kept: dict, name: str) -> list[dict]:
+    return next(f for f in kept["execution"]["functions"] if f["name"] == name)["outcomes"]
+
+
+def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tmp_path,
+                                                                   monkeypatch):
+    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
     home = kit.fresh_course(released, tmp_path / "home")
-    for course in (shard, home):
+    job = kit.fresh_course(released, tmp_path / "job")  # a cluster job's copy of the course
+    for course in (home, job):
         _submit_class(course)
     # as `nbgrader submit` leaves it: release_feedback at home needs it beside ada's notebook
-    (shard / "submitted" / "ada" / ASSIGNMENT / "submission_secret.txt").write_text("ab" * 64)
-    calls = []
-    rows = grade_course(shard, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
-                        run_nbgrader=True,  # as the CLI does: autograded notebooks too
-                        progress=lambda done, total, sid: calls.append((done, total, sid)))
-    assert sorted(r["student_id"] for r in rows) == ["ada", "cy"]
-    assert calls[0] == (0, 2, "")
-    assert sorted(calls[1:]) == [(1, 2, calls[1][2]), (2, 2, calls[2][2])]
-    assert {calls[1][2], calls[2][2]} == {"ada", "cy"}
-    with pytest.raises(ValueError, match="no submission .* by dee"):
-        grade_course(shard, ASSIGNMENT, quiet=True, students=["ada", "dee"])
+    (home / "submitted" / "ada" / ASSIGNMENT / "submission_secret.txt").write_text("ab" * 64)
+    with pytest.raises(ValueError, match="holds the grading secret"):
+        write_job(home, ASSIGNMENT, job, ["ada", "cy"])
+    (job / ".cobotlab" / "secret").unlink()
+    # the step docs/instructors.md gives, as a command
+    written = subprocess.run([sys.executable, "-m", "autograder.shards", "job", str(home),
+                              ASSIGNMENT, str(job), "ada", "cy"], cwd=REPO, capture_output=True,
+                             text=True, timeout=120, check=False)
+    assert written.returncode == 0 and "of 2 student(s) written" in written.stdout, written
+    bundle = "".join(p.read_text() for p in (job / ".cobotlab" / "job").rglob("*.json"))
+    assert grading.load_secret(home) not in bundle and '"tol"' not in bundle
 
-    # Back home: the gradebook (where formgrader and nbgrader export look), grades.csv, the
-    # feedback pages and the cross-check ledger hold what the job graded, bo untouched.
-    merged = merge_shard(home, ASSIGNMENT, shard, quiet=True)
-    by_id = {r["student_id"]: r for r in rows}
-    assert {r["student_id"]: float(r["raw_score"]) for r in merged} == {
-        sid: float(r["raw_score"]) for sid, r in by_id.items()}
-    assert float(by_id["ada"]["raw_score"]) > float(by_id["cy"]["raw_score"]) > 0
-    ours, theirs = (_gradebook_cells(c, ["ada", "cy"]) for c in (home, shard))
-    assert ours == theirs and all(ours.values())
-    assert set(kit.read_grades(home)) == {"ada", "cy"}
+    monkeypatch.setenv(grading.SECRET_ENV, grading.load_secret(home))
+    with pytest.raises(ValueError, match="needs none and must not hold one"):
+        grade_course(job, ASSIGNMENT, quiet=True, students=["ada"])
+    monkeypatch.delenv(grading.SECRET_ENV)
+    with pytest.raises(ValueError, match="holds no problems of .* for bo"):
+        grade_course(job, ASSIGNMENT, quiet=True, students=["ada", "bo"])
+    calls = []
+    failed = grade_course(job, ASSIGNMENT, workers=2, quiet=True, students=["cy", "ada"],
+                          run_nbgrader=True,  # as the CLI does: autograded notebooks too
+                          progress=lambda done, total, sid: calls.append((done, total, sid)))
+    assert failed == [] and calls[0] == (0, 2, "") and len(calls) == 3
+    assert _kept(job, "ada").is_file() and _kept(job, "cy").is_file()
+    assert not (job / "grades.csv").exists()   # the job scores nothing
+
+    # A forged grades.csv, feedback page and gradebook score in the job's copy are never read.
+    points = {s.name: s.points for s in checks.SPECS[ASSIGNMENT]}
+    record.write_csv(job, GRADES_CSV, GRADE_COLUMNS,
+                     [grade_row(ASSIGNMENT, sid, {}, 99.0, 99.0, "") for sid in ("ada", "cy")])
+    gradebook.write_cobotlab(job, ASSIGNMENT, "cy", "", {f"test_{name}": 1.0 for name in points},
+                             {})   # every cell of cy's full marks in the job's gradebook
+    assert gradebook.net_scores(job, ASSIGNMENT)["cy"] == sum(points.values())
+    forged_page = job / "feedback_cobotlab" / "cy" / ASSIGNMENT / "feedback.html"
+    forged_page.parent.mkdir(parents=True)
+    forged_page.write_text("forged")
+    merged = merge_shard(home, ASSIGNMENT, job, quiet=True)
+    scores = {r["student_id"]: float(r["raw_score"]) for r in merged}
+    assert scores == {"ada": sum(points.values()), "cy": points["invert_pose"]}
+    assert {s: float(r["score"]) for s, r in kit.read_grades(home).items()} == scores
+    assert gradebook.net_scores(home, ASSIGNMENT) == scores
+    cells = _gradebook_cells(home, ["ada", "cy"])
+    assert all(cells.values())
     for sid in ("ada", "cy"):
-        assert float(kit.read_grades(home)[sid]["score"]) == float(by_id[sid]["score"])
         page = home / "feedback_cobotlab" / sid / ASSIGNMENT / "feedback.html"
-        assert page.read_bytes() == (shard / page.relative_to(home)).read_bytes()
+        assert "forged" not in page.read_text() and "points" in page.read_text()
         notebook = home / "autograded" / sid / ASSIGNMENT / f"{ASSIGNMENT}.ipynb"
-        assert notebook.read_bytes() == (shard / notebook.relative_to(home)).read_bytes()
-        for copied in (page.with_name("nbgrader_section.json"),
-                       notebook.with_name("timestamp.txt")):
-            assert copied.read_bytes() == (shard / copied.relative_to(home)).read_bytes()
+        assert notebook.read_bytes() == (job / notebook.relative_to(home)).read_bytes()
     secret = home / "autograded" / "ada" / ASSIGNMENT / "submission_secret.txt"
-    assert secret.read_text() == "ab" * 64
-    assert not (home / "autograded" / "cy" / ASSIGNMENT / "submission_secret.txt").exists()
-    ledger = json.loads((home / ".cobotlab" / "nbgrader_cells.json").read_text())
-    assert set(ledger[ASSIGNMENT]) == {"ada", "cy"}
+    assert secret.read_text() == "ab" * 64   # from HOME's submission, not the job's
     assert gradebook.problem(home / "gradebook.db") is None
     assert not (home / ".cobotlab" / record.RUN_MARKER).exists()
+    # what home kept is rescored again at home, with no student code run
+    assert {r["student_id"]: float(r["raw_score"]) for r in grade_course(
+        home, ASSIGNMENT, quiet=True, students=["ada", "cy"], rescore=True)} == scores
 
-    # A shard whose grades.csv was tampered with (or graded another lab version) is refused,
-    # and nothing of it is written.
-    before = (home / "gradebook.db").read_bytes()
-    text = (shard / "grades.csv").read_text()
-    (shard / "grades.csv").write_text(text.replace(f",{by_id['ada']['raw_score']},",
-                                                   ",99.0,", 1))
-    with pytest.raises(ValueError, match="scores 99"):
-        merge_shard(home, ASSIGNMENT, shard, quiet=True)
-    assert (home / "gradebook.db").read_bytes() == before
+    # Returned values earn what they earn against the truth drawn at home: ada's answers
+    # (to ada's problems) pasted into cy's execution raise cy's grade by nothing.
+    ada = json.loads(_kept(job, "ada").read_text())
+    _forge(job, "cy", lambda kept: kept["execution"].update(functions=[
+        f if f["name"] == "invert_pose" else next(
+            a for a in ada["execution"]["functions"] if a["name"] == f["name"])
+        for f in kept["execution"]["functions"]]))
+    forged = json.loads(_kept(job, "cy").read_text())
+    expected = grading.score_execution(
+        grading.draw_problems(ASSIGNMENT, "cy", grading.load_secret(home), None),
+        executions.from_wire(forged["execution"], ASSIGNMENT, "cy")).score
+    merged = merge_shard(home, ASSIGNMENT, job, quiet=True)
+    assert {r["student_id"]: float(r["raw_score"]) for r in merged}["cy"] == expected
+    assert expected <= points["invert_pose"] + 1e-9
+
+    # Executions that do not answer the problems sent, or are another submission's, are
+    # refused by name, and nothing of the shard is merged.
+    before = (home / "gradebook.db").read_bytes(), (home / "grades.csv").read_bytes()
+    forgeries = {
+        "one outcome dropped": (
+            "cy", lambda kept: _outcomes(kept, "invert_pose").pop(),
+            "not one outcome per problem of invert_pose"),
+        "ada's execution as bo's, who got no problems": (
+            "bo", lambda kept: kept.update(ada, student_id="bo", execution={
+                **ada["execution"], "student_id": "bo"}),
+            "altered the problems' inputs|submitted again"),
+        "another submission's digest": (
+            "cy", lambda kept: kept.update(submission="0" * 64), "submitted again"),
+        "a nonce of its own": (
+            "cy", lambda kept: kept.update(nonce="ab" * 16), "names a nonce"),
+        "an infinite time": (
+            "cy", lambda kept: kept["execution"].update(seconds=float("inf")), "seconds"),
+    }
+    saved = _kept(job, "cy").read_bytes()
+    for what, (sid, edit, why) in forgeries.items():
+        if sid == "bo":
+            _kept(job, "bo").parent.mkdir(parents=True, exist_ok=True)
+            _kept(job, "bo").write_text(json.dumps(ada))
+        _forge(job, sid, edit)
+        with pytest.raises(ValueError, match=why):
+            merge_shard(home, ASSIGNMENT, job, quiet=True)
+        assert ((home / "gradebook.db").read_bytes(), (home / "grades.csv").read_bytes()) \
+            == before, what
+        _kept(job, "bo").unlink(missing_ok=True)
+        _kept(job, "cy").write_bytes(saved)
+    # an execution of a student HOME has no submission of is never looked at
+    (_kept(job, "dee")).write_text(json.dumps({**ada, "student_id": "dee"}))
+    assert {r["student_id"] for r in merge_shard(home, ASSIGNMENT, job, quiet=True)} == \
+        {"ada", "cy"}
     with pytest.raises(ValueError, match="the course itself"):
         merge_shard(home, ASSIGNMENT, home, quiet=True)
 

@@ -227,24 +227,3 @@ def test_every_refused_folder_gets_a_row_of_its_own_and_accepted_rows_stay(tmp_p
     # the summary cuts a long id to fit, but still tells the two apart
     long = [line.split()[0] for line in summary.splitlines() if line.startswith("x" * 40)]
     assert len(long) == 2 and long[0] != long[1], summary
-
-
-def test_a_shard_s_refused_rows_merge_as_rows_and_cannot_pose_as_a_student(tmp_path):
-    from autograder import shards
-    from autograder.course import GRADE_COLUMNS, GRADES_CSV, grade_row
-
-    def shard_rows(*rows):
-        record.write_csv(tmp_path, GRADES_CSV, GRADE_COLUMNS, list(rows))
-        return shards._shard_rows(tmp_path, ASSIGNMENT)
-
-    ana = grade_row(ASSIGNMENT, "ana", {}, 7.0, 10.0, "")
-    refused = [grade_row(ASSIGNMENT, freeze.student_key(name), {}, 0.0, 10.0,
-                         "rejected_student_id") for name in TWINS]
-    got = shard_rows(ana, *refused)
-    assert sorted(r["student_id"] for r in got) == sorted(["ana", *TWINS.values()])
-    # a row flagged as a refused folder under an accepted id would replace that student's
-    # row at home: the shard is refused instead, as it is for a refused row with points
-    with pytest.raises(ValueError, match="not how a refused folder is named"):
-        shard_rows(ana, grade_row(ASSIGNMENT, "bo", {}, 0.0, 10.0, "rejected_student_id"))
-    with pytest.raises(ValueError, match="never graded"):
-        shard_rows(ana, {**refused[0], "raw_score": 5.0})

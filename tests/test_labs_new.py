@@ -280,28 +280,34 @@ def test_the_command_reports_a_bad_name_in_one_line(tmp_path):
 
 @pytest.mark.skipif(not sandbox.capabilities().bwrap, reason="grading runs in bubblewrap")
 def test_a_course_lab_grades_in_a_shard_and_merges_into_the_home_course(tmp_path):
-    """A cluster job grades its copy of the course (the lab's folder and private spec come
-    with it); `merge` at home finds the lab in the home course's own folders."""
+    """A cluster job executes its copy of the course (the lab's folder and private spec
+    come with it, the secret does not); `merge` at home finds the lab in the home course's
+    own folders and scores what the job did."""
     import course_kit as kit
 
     from autograder.course import grade_course, init_course
-    from autograder.shards import merge_shard
+    from autograder.grading import SECRET_ENV
+    from autograder.shards import merge_shard, write_job
 
     home = tmp_path / "home" / "course"
     new_lab("gauge", home)
     init_course(home)
     kit.nbgrader(home, "generate_assignment", "gauge")
-    job = kit.fresh_course(home, tmp_path / "job")
-    source = (job / "source" / "gauge" / "gauge.ipynb").read_text()
+    source = (home / "source" / "gauge" / "gauge.ipynb").read_text()
     wrong = source.replace("measured - commanded, axis", "commanded - measured, axis")
     assert wrong != source
     for student, text in (("ref", source), ("wrong", wrong)):
-        folder = job / "submitted" / student / "gauge"
+        folder = home / "submitted" / student / "gauge"
         folder.mkdir(parents=True)
         (folder / "gauge.ipynb").write_text(text)
+    job = kit.fresh_course(home, tmp_path / "job")
+    (job / ".cobotlab" / "secret").unlink()
+    assert write_job(home, "gauge", job) == ["ref", "wrong"]
     registry.use_course(None)
-    rows = grade_course(job, "gauge", quiet=True, students=["ref", "wrong"], run_nbgrader=True)
-    assert {r["student_id"]: float(r["score"]) for r in rows} == {"ref": 2.0, "wrong": 0.0}
+    with pytest.MonkeyPatch.context() as env:
+        env.delenv(SECRET_ENV, raising=False)
+        assert grade_course(job, "gauge", quiet=True, students=["ref", "wrong"],
+                            run_nbgrader=True) == []
 
     registry.use_course(None)
     merged = merge_shard(home, "gauge", job, quiet=True)

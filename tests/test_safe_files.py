@@ -188,3 +188,41 @@ def test_update_csv_reads_no_grades_csv_through_a_linked_folder(tree):
                           [{"assignment": "lab", "student_id": "ana", "score": 1}],
                           key=("assignment", "student_id"))
     assert (elsewhere / "a" / "grades.csv").read_text().endswith("lab,eve,10\n")
+
+
+@pytest.mark.parametrize("linked", [".cobotlab", ".cobotlab/secret"])
+def test_the_grading_secret_is_read_without_following_a_link(tmp_path, monkeypatch, linked):
+    """grading.load_secret reads `.cobotlab/secret` through safe_files: a link to another
+    file (someone else's secret, or one chosen to be guessed) is refused with the fix."""
+    from autograder import grading
+
+    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    course, elsewhere = tmp_path / "course", tmp_path / "elsewhere"
+    for top in (course, elsewhere):
+        (top / ".cobotlab").mkdir(parents=True)
+    (elsewhere / ".cobotlab" / "secret").write_text("chosen-by-someone-else-0123456789\n")
+    (course / ".cobotlab" / "secret").write_text("the-course-s-own-secret-0123456789\n")
+    assert grading.load_secret(course) == "the-course-s-own-secret-0123456789"
+
+    target = course / linked
+    if target.is_dir():
+        os.rename(target, tmp_path / "moved")
+    else:
+        target.unlink()
+    os.symlink(elsewhere / linked, target)
+    with pytest.raises(ValueError, match="grading secret .* is refused: .*symlink.*regular file"):
+        grading.load_secret(course)
+    monkeypatch.setenv(grading.SECRET_ENV, "from-the-environment-0123")   # it wins, as before
+    assert grading.load_secret(course) == "from-the-environment-0123"
+
+
+def test_a_missing_or_short_secret_names_the_fix(tmp_path, monkeypatch):
+    from autograder import grading
+
+    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    with pytest.raises(ValueError, match="no grading secret .* `cobotlab course init DIR`"):
+        grading.load_secret(tmp_path)
+    (tmp_path / ".cobotlab").mkdir()
+    (tmp_path / ".cobotlab" / "secret").write_text("short\n")
+    with pytest.raises(ValueError, match="at least 16 characters"):
+        grading.load_secret(tmp_path)
