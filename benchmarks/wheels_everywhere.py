@@ -1,6 +1,7 @@
 """Does every install resolve to wheels only, on every system students and lab staff use?
 
-Run:  .venv/bin/python benchmarks/wheels_everywhere.py [--workers 4] [--systems win,mac-arm]
+Run:  .venv/bin/python benchmarks/wheels_everywhere.py [--workers 16]
+                                                       [--systems win-amd64,mac-arm64]
 
 Asks the package registry, with pip's own resolver (``pip install --dry-run --report
 --only-binary :all: --platform ... --python-version ...``, installed packages ignored), for
@@ -16,8 +17,9 @@ with CPython 3.10 to 3.13. Per target it checks
 
 One pip call per target asks for all three at once (a set that resolves has subsets that do);
 only when it fails are the installs asked one by one, to name the one that breaks. Each "no
-wheel" cell of the table costs one more small call (``--no-deps``). pip's HTTP cache keeps the
-registry's index pages for a few minutes, so a second run asks the network for little.
+wheel" cell of the table costs one more small call (``--no-deps``). All calls run at once:
+each mostly waits on the registry (pip's HTTP cache keeps the files' metadata, but pip
+revalidates every index page it reads, one round trip each).
 
 pip evaluates environment markers (``pywinpty; os_name == "nt"``, ``tomli; python_version <
 '3.11'``) against the Python running it, not the target, even with ``--platform``: each call
@@ -306,18 +308,24 @@ class TargetReport:
     calls: int
 
 
-def check_target(target: Target, table) -> TargetReport:
-    """Every install on one target: one call for all that should resolve, then one small
-    call per SDK the table says has no wheel there."""
-    have, lack = expected_sdks(table, target)
-    groups = {"student install": student_requirements(),
-              "course install": course_requirements(),
-              "real extra (SDKs with a wheel per the table)": course_requirements() + have}
-    together = resolve(target, sorted(set().union(*groups.values())))
-    results = [together]
+def _groups(have: list[str]) -> dict[str, list[str]]:
+    return {"student install": student_requirements(),
+            "course install": course_requirements(),
+            "real extra (SDKs with a wheel per the table)": course_requirements() + have}
+
+
+def _together(have: list[str]) -> list[str]:
+    return sorted(set().union(*_groups(have).values()))
+
+
+def _report(target: Target, have: list[str], together: Resolution,
+            absent: dict[str, Resolution]) -> TargetReport:
+    """Judge one target from its calls; when the joint call failed, ask each install alone
+    (rare, so sequential) to name the one that breaks."""
+    results = [together, *absent.values()]
     failures = []
     if not together.ok:
-        for group, requirements in groups.items():
+        for group, requirements in _groups(have).items():
             alone = resolve(target, requirements)
             results.append(alone)
             if not alone.ok:
@@ -326,9 +334,7 @@ def check_target(target: Target, table) -> TargetReport:
         if not failures:
             failures.append(f"all installs together: no wheel for {together.missing} on "
                             f"{target.name}\n{together.errors}")
-    for requirement in lack:
-        alone = resolve(target, [requirement], no_deps=True)
-        results.append(alone)
+    for requirement, alone in absent.items():
         if alone.ok:
             failures.append(f"{SDK_TABLE_DOC.name}'s '{SDK_TABLE_TITLE}' says {requirement} "
                             f"has no wheel on {target.name}, but the registry has "
@@ -337,11 +343,22 @@ def check_target(target: Target, table) -> TargetReport:
                         sum(r.cpu_s for r in results), len(results))
 
 
-def check_targets(targets, workers: int = 4) -> list[TargetReport]:
+def check_targets(targets, workers: int = 16) -> list[TargetReport]:
+    """Every install on each target: one call for all that should resolve there, and one
+    small call (``--no-deps``) per SDK the table says has no wheel there, all at once.
+
+    Each call spends most of its time waiting on the registry (pip revalidates every index
+    page it reads), so many run in parallel; their CPU is what they cost.
+    """
     table = sdk_wheel_table()
-    # Threads only wait on pip subprocesses; the work is in those.
+    plans = [(target, *expected_sdks(table, target)) for target in targets]
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(lambda t: check_target(t, table), targets))
+        together = {t: pool.submit(resolve, t, _together(have)) for t, have, _ in plans}
+        absent = {(t, req): pool.submit(resolve, t, [req], no_deps=True)
+                  for t, _, lack in plans for req in lack}
+        return [_report(t, have, together[t].result(),
+                        {req: absent[t, req].result() for req in lack})
+                for t, have, lack in plans]
 
 
 # --- the command line ------------------------------------------------------------------------
@@ -363,7 +380,7 @@ def _print_matrix(reports: list[TargetReport]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--workers", type=int, default=4,
+    parser.add_argument("--workers", type=int, default=16,
                         help="pip calls at once (they mostly wait on the network)")
     parser.add_argument("--systems", default=",".join(s.key for s in SYSTEMS),
                         help="comma-separated: " + ", ".join(s.key for s in SYSTEMS))
