@@ -2,9 +2,12 @@
 
 Asks the package registry with pip's own resolver (benchmarks/wheels_everywhere.py), with no
 compiler in sight: ``--only-binary :all:`` for a target platform and Python. One target per
-system here, the four Pythons spread over them (the slice costs about 5-8 pip calls of a few
-CPU seconds each, all at once); ``benchmarks/wheels_everywhere.py`` runs all 20 targets.
-The rest are checks of the pieces that need no network.
+system here, the four Pythons spread over them: 5 joint pip calls (student, course and the
+SDKs with a wheel; about 7 CPU seconds each, most of it pip parsing the big index pages of
+NumPy, SciPy, OpenCV and MuJoCo) and 11 small ones (an SDK the table says has no wheel), all
+at once: about 50 s of CPU and a minute of wall time, most of it waiting on the registry.
+``benchmarks/wheels_everywhere.py`` runs all 20 targets. The rest are checks of the pieces
+that need no network.
 """
 
 from __future__ import annotations
