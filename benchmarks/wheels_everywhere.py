@@ -346,14 +346,14 @@ def _report(target: Target, have: list[str], together: Resolution,
                         sum(r.cpu_s for r in results), len(results))
 
 
-def check_targets(targets, workers: int = 16) -> list[TargetReport]:
+def check_targets(targets, workers: int = 16, table=None) -> list[TargetReport]:
     """Every install on each target: one call for all that should resolve there, and one
     small call (``--no-deps``) per SDK the table says has no wheel there, all at once.
 
     Each call spends most of its time waiting on the registry (pip revalidates every index
     page it reads), so many run in parallel; their CPU is what they cost.
     """
-    table = sdk_wheel_table()
+    table = sdk_wheel_table() if table is None else table
     plans = [(target, *expected_sdks(table, target)) for target in targets]
     with ThreadPoolExecutor(max_workers=workers) as pool:
         together = {t: pool.submit(resolve, t, _together(have)) for t, have, _ in plans}
