@@ -143,6 +143,19 @@ def test_the_wheel_holds_no_solutions(wheel):
     assert any(n.startswith("sim_backends/urdf/") for n in names)
 
 
+def test_students_md_installs_the_wheel_built_here(wheel):
+    """docs/students.md's steps are this test's: a venv, pip install of this very wheel
+    (on Windows through the venv's Scripts folder), then JupyterLab from the venv."""
+    text = (ROOT / "docs" / "students.md").read_text()
+    posix, windows = (text.split(f"```{kind}\n", 1)[1].split("```", 1)[0]
+                      for kind in ("sh", "powershell"))
+    assert "python3 -m venv ~/cobotlab-env" in posix
+    assert f"~/cobotlab-env/bin/pip install {wheel.name}" in posix, posix
+    assert "~/cobotlab-env/bin/jupyter lab" in posix
+    assert f"Scripts\\pip install {wheel.name}" in windows, windows
+    assert "Scripts\\jupyter lab" in windows
+
+
 def test_student_pyproject_keeps_up_with_the_main_one():
     main = tomllib.loads((ROOT / "pyproject.toml").read_text())
     student = tomllib.loads((ROOT / "student" / "pyproject.toml").read_text())
