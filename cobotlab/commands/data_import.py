@@ -124,9 +124,9 @@ def _target(args):
     from solutions import capture_import as ci
 
     if args.images is None:
-        if args.board is not None or args.tag is not None:
-            raise ValueError("--board and --tag go with --images (the corners file holds the "
-                             "board)")
+        for flag, value in (("--board", args.board), ("--tag", args.tag)):
+            if value is not None:
+                raise ValueError(f"{flag} goes with --images (the corners file holds the board)")
         return None
     kind = args.target
     markers = kind in ("aruco", "apriltag")
