@@ -357,17 +357,25 @@ def _rows(table: PoseTable, keep) -> PoseTable:
 
 def _resolve_half_turns(capture: Capture):
     """The capture with every view's corner order the one the robot's motion agrees with, the
-    ``PoseChoice`` and its ``Decision``."""
+    ``PoseChoice`` and its ``Decision`` (views named by the capture's view numbers)."""
     capture, choice = resolve_capture_half_turns(capture)
-    views = [int(capture.pose_indices[k]) for k in choice.changed]
-    value = f"views {views} turned half a turn" if views else "as detected"
-    evidence = choice.summary()
-    if choice.changed:  # name the views as the capture folder and the pose file do
-        evidence = evidence.replace(f"views {list(choice.changed)}", f"views {views}", 1)
+    number = [int(v) for v in capture.pose_indices]
+    turned = [number[k] for k in choice.changed]
+    if turned:
+        value = f"views {turned} turned half a turn"
+        evidence = ("with the detected order they disagree with the robot's motion by a median "
+                    + ", ".join(f"{choice.alternative_deg[k]:.1f}" for k in choice.changed)
+                    + " deg, turned by "
+                    + ", ".join(f"{choice.mismatch_deg[k]:.2f}" for k in choice.changed)
+                    + " deg (the angle the flange turns between two views against the one the "
+                      "camera sees the board turn)")
+    else:
+        value = "as detected"
+        evidence = (f"every view agrees with the robot's motion as detected (median mismatch at "
+                    f"most {np.max(choice.mismatch_deg):.2f} deg)")
     if choice.unclear:
-        unclear = [int(capture.pose_indices[k]) for k in choice.unclear]
-        evidence = evidence.replace(f"views {list(choice.unclear)} are not",
-                                    f"views {unclear} are not")
+        evidence += (f"; views {[number[k] for k in choice.unclear]} are not decided by the "
+                     "motion (distrust them)")
     return capture, choice, Decision("corner order", value, "from the robot's motion", evidence)
 
 
