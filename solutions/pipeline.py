@@ -40,13 +40,15 @@ LARGE_VIEW_FACTOR = 5.0
 class CornerFit:
     """What the corner fit (``mle.calibrate_from_corners``) chose: ``choice`` (the model
     fitted, with its inner cross-validated score), ``choices`` (every candidate, chosen first),
-    ``board_scale`` (the fitted factor on the board's stated size; 1 when not fitted) and
-    ``reprojection_rms_px`` over all views' corners."""
+    ``board_scale`` (the fitted factor on the board's stated size; 1 when not fitted),
+    ``reprojection_rms_px`` over all views' corners and ``refinement``, the fit itself (X, Y,
+    and the start ``mle.fit_candidate`` refits that model from)."""
 
     choice: mle.CornerNoiseChoice
     choices: tuple
     board_scale: float
     reprojection_rms_px: float
+    refinement: mle.HandEyeRefinement | None = None
 
 
 @dataclass(frozen=True)
@@ -210,7 +212,7 @@ def _corner_fit(board, pixels, K, dist, F, C, mount: str):
     raw candidate list ``choices`` of ``mle.calibrate_from_corners``)."""
     fit, choices = mle.calibrate_from_corners(board, pixels, K, dist, F, mount, C)
     summary = CornerFit(choice=choices[0], choices=tuple(choices), board_scale=fit.board_scale,
-                        reprojection_rms_px=fit.reprojection_rms_px)
+                        reprojection_rms_px=fit.reprojection_rms_px, refinement=fit)
     return fit, summary, choices
 
 
@@ -330,7 +332,14 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
     typical = max(float(np.median(trans)) * LARGE_VIEW_FACTOR, 1e-3)
     large = tuple(int(v) for v, t in zip(views, trans) if t > typical and int(v) not in flagged)
     held_out = None
-    if len(F) >= 4 and with_corners:
+    diagnosed = (np.array([v.held_out_px for v in diagnosis.views]) if diagnosis is not None
+                 else None)
+    if len(F) >= 4 and diagnosed is not None and np.all(np.isfinite(diagnosed)):
+        # The diagnosis has already refitted the chosen model without each view and predicted
+        # it: the same numbers mle.held_out_view_rms gives (tests/test_import_targets_cli.py),
+        # so the corner fit's n refits are not done twice.
+        held_out = HeldOut(per_view_px=diagnosed, views=np.asarray(views), model_kept=True)
+    elif len(F) >= 4 and with_corners:
         held_out = held_out_error(refit, board, pixels, capture, F, views,
                                   model_kept=method == CORNERS_METHOD)
     return Calibration(X=X, mount=mount, method=method, method_note=note, views=views,

@@ -16,7 +16,7 @@ import pytest
 from cobotlab.cli import main
 from cobotlab.commands.calibrate import INCONSISTENT_EXIT, print_calibration
 from robots.capture import load_capture, save_capture
-from solutions import pipeline
+from solutions import mle, pipeline
 
 DATA = Path(__file__).resolve().parents[1] / "autograder" / "data" / "visp_franka"
 # franka_camera.xml: ViSP's perspective model without distortion
@@ -61,9 +61,20 @@ def test_eye_in_hand_resolves_view_7_and_tells_the_board_scale_with_x_both_ways(
     assert np.linalg.norm(scale.X_stated[:3, 3] - VISP_T) < 0.005, scale.X_stated
     np.testing.assert_allclose(scale.X_fitted, result.X)
     assert any("stated size" in w and "fitted size" in w for w in result.warnings)
-    # the diagnosis's held-out error is the pipeline's one held-out error, view by view
-    np.testing.assert_allclose([v.held_out_px for v in d.views], result.held_out.per_view_px,
-                               rtol=1e-6)
+    # the held-out error reported (the diagnosis's) is mle.held_out_view_rms of the chosen
+    # model, view by view
+    fit = result.corner_fit
+    board, pixels = pipeline.board_corners(capture, np.arange(len(capture)))
+    F, C = capture.pose_pairs()
+    K, dist = capture.intrinsics.K, capture.intrinsics.dist
+
+    def refit(keep):
+        return mle.fit_candidate(fit.choice, board, pixels[keep], K, dist, F[keep], C[keep],
+                                 "eye_in_hand", fit.refinement)
+
+    expected = mle.held_out_view_rms(refit, board, pixels, K, dist, F)
+    np.testing.assert_allclose(result.held_out.per_view_px, expected, rtol=1e-6)
+    np.testing.assert_allclose([v.held_out_px for v in d.views], expected, rtol=1e-6)
 
     print_calibration(result, capture, "capture")
     printed = capsys.readouterr().out
