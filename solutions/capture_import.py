@@ -22,6 +22,12 @@ decision comes back as a ``Decision`` with its evidence:
   beside it.
 
 Where the data cannot tell, ``ValueError`` asks for the flag that names the choices.
+
+The target in the images is a ``Target`` (a ``robots.targets`` detector: chessboard, ChArUco,
+ArUco/AprilTag markers, circle grids). A chessboard or a symmetric circle grid may be listed
+half a turn round; once the rotations are read (and before the direction, which a turned view
+would mislead), each view's corner order is chosen from the robot's motion
+(``robots.half_turn``) and reported as a ``Decision`` too.
 """
 
 from __future__ import annotations

@@ -8,10 +8,13 @@ A notebook and ``cobotlab calibrate`` make the same calls::
     capture = load_capture("my_capture")                  # or robots.pose_files' importer
     result = pipeline.calibrate_capture(capture, "eye_in_hand")   # a Calibration
     result.X, result.held_out.median_px, result.flagged_views
+    result.diagnosis.table(), result.diagnosis.board_scale, result.warnings
     pipeline.save_calibration_result(result, capture, "flange_T_cam.yaml")
 
-Each stage returns a typed value (``Calibration``, ``CornerFit``, ``HeldOut``); the command
-line only prints them. X is ``flange_T_cam`` (eye-in-hand) or ``base_T_cam`` (eye-to-hand),
+Each stage returns a typed value (``Calibration``, ``CornerFit``, ``HeldOut``,
+``solutions.trust.CalibrationDiagnosis``); the command line only prints them. A capture
+whose views cannot be made consistent raises ``solutions.trust.InconsistentCaptureError``
+(its ``diagnosis`` the evidence). X is ``flange_T_cam`` (eye-in-hand) or ``base_T_cam`` (eye-to-hand),
 metres; view numbers are the capture's ``pose_indices`` (the commanded pose each view came
 from), so they name the same views as the capture folder's images.
 """
