@@ -206,3 +206,11 @@ def test_a_charuco_capture_from_the_simulator_imports_and_calibrates_to_the_trut
     # (measured here: 0.2 mm, 0.03 deg)
     assert geo.translation_error(X, true_X) < 0.001, (X, true_X)
     assert geo.rotation_error_deg(X, true_X) < 0.2
+
+
+def test_the_commands_target_kinds_are_the_importers():
+    from cobotlab.commands import data_import
+    from solutions import capture_import
+
+    assert data_import.TARGET_KINDS == capture_import.TARGET_KINDS
+    assert set(data_import.BOARD_FORMS) == set(data_import.TARGET_KINDS)
