@@ -117,8 +117,9 @@ def board_pose_from_views(base_T_flange, cam_T_target, X, mount="eye_in_hand"):
 
 
 def methods():
-    """(label, solve(fold) -> (X, Y or None[, board scale])) for every method of ours, then
-    OpenCV's; each solves for the fold's mount."""
+    """(label, solve(fold) -> (X, Y or None[, board scale, K, dist])) for every method of
+    ours, then OpenCV's; each solves for the fold's mount (K, dist: the intrinsics the model
+    refined, None when it kept the fold's)."""
     def report(method):
         def solve(f):
             calibrate = (handeye.calibrate_eye_in_hand_report if f.mount == "eye_in_hand"
@@ -153,7 +154,8 @@ def methods():
     def default(f):
         r, _ = mle.calibrate_from_corners(f.board_points, f.pixels, f.K, f.dist,
                                           f.base_T_flange, f.mount, f.cam_T_target)
-        return r.X, r.Y, r.board_scale
+        # the model predicts with its own intrinsics when it refined them (predicted_corners)
+        return r.X, r.Y, r.board_scale, r.camera_matrix, r.dist_coeffs
 
     rows = [(m, report(m)) for m in ("tsai", "park", "daniilidis", "axes_ls")]
     rows.append(("nonlinear (pose MLE)", pose_mle))
@@ -173,13 +175,20 @@ def methods():
 
 def held_out_rms(X, Y, base_T_flange_i, board_points, pixels_i, K, dist, mount="eye_in_hand"):
     """RMS pixel error of the corners predicted through inv(X) @ H_i @ Y (eye-in-hand:
-    inv(base_T_flange_i @ X) @ Y)."""
-    cam_T_target = geo.invert(X) @ _chain(base_T_flange_i, mount) @ Y
-    rvec, _ = cv2.Rodrigues(cam_T_target[:3, :3])
-    proj, _ = cv2.projectPoints(board_points, rvec, cam_T_target[:3, 3], K, dist)
-    d = proj.reshape(-1, 2) - pixels_i
-    ok = np.all(np.isfinite(d), axis=1)
-    return float(np.sqrt(np.mean(np.sum(d[ok] ** 2, axis=1))))
+    inv(base_T_flange_i @ X) @ Y): one view's term of ``mle.held_out_view_rms`` (the project's
+    one held-out error: ``mle.predicted_corners`` then ``mle.view_rms_px``).
+
+    The folds are not that function's own loop because they differ in what it holds fixed:
+    a fold's intrinsics are recalibrated without the held-out view (the KUKA captures come
+    without the camera's), ``--train-views`` fits on a drawn subset of the other views, and
+    the folds run in parallel processes with each method timed; the error of a view is the
+    same."""
+    fit = mle.HandEyeRefinement(X=X, Y=Y, mount=mount, rotation_sigma_rad=0.0,
+                                translation_sigma_m=0.0, weights=np.ones(1), outlier_indices=(),
+                                cost=float("nan"), n_iterations=0, converged=True)
+    predicted = mle.predicted_corners(fit, board_points, K, dist,
+                                      np.asarray(base_T_flange_i)[None])
+    return float(mle.view_rms_px(predicted, np.asarray(pixels_i, float)[None])[0])
 
 
 SYNTHETIC_VIEWS = 28
@@ -241,12 +250,13 @@ def run_fold(args):
     for label, solve in methods():
         start = time.process_time()
         try:
-            X, Y, *scale = solve(fold)
+            X, Y, *model = solve(fold)
             if Y is None:
                 Y = board_pose_from_views(fold.base_T_flange, fold.cam_T_target, X, fold.mount)
-            board = cap.board_points_m * (scale[0] if scale else 1.0)
-            err = held_out_rms(X, Y, cap.base_T_flange[i], board, cap.pixels[i], fold.K,
-                               fold.dist, fold.mount)
+            scale, K, dist = (model + [1.0, None, None])[:3]
+            K, dist = (fold.K, fold.dist) if K is None else (K, dist)
+            err = held_out_rms(X, Y, cap.base_T_flange[i], cap.board_points_m * scale,
+                               cap.pixels[i], K, dist, fold.mount)
         except Exception as exc:  # noqa: BLE001 - a refusal counts as a failure of that method
             print(f"{sequence} view {i}: {label} failed: {exc}", file=sys.stderr)
             err = np.nan

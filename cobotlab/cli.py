@@ -316,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "demo":
             _demo(args)
         elif args.command == "calibrate":
-            calibrate_command.run(args)
+            return calibrate_command.run(args)
         elif args.command == "data":
             data_command.run(args)
         elif args.command == "labs":

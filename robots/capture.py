@@ -492,12 +492,15 @@ class ViewCorners:
     """Corners found per view, before any pose is solved: ``corners`` (per view an (N_i, 2)
     pixel array or None when the target was not found), ``object_points`` (per view (N_i, 3)
     metres, target frame, or None), ``image_size`` (width, height) and the RGB ``images``
-    (empty when the corners came from a file)."""
+    (empty when the corners came from a file); ``reasons``: per view the detector's refusal
+    with its rule, "" where the target was found (empty when the corners came from a file)."""
 
     corners: list
     object_points: list
     image_size: tuple[int, int]
     images: list = field(default_factory=list)
+    #: per view, why its target was not found ("" when found or not said)
+    reasons: list = field(default_factory=list)
 
 
 def image_files(images_dir) -> list[Path]:
@@ -513,31 +516,38 @@ def image_files(images_dir) -> list[Path]:
                                                     ".tiff"))
 
 
-def corners_from_images(images_dir, n_views: int, board) -> ViewCorners:
-    """Detect a chessboard (``board`` = (inner columns, inner rows, square m)) in each image
-    of ``images_dir`` (one per pose, sorted by name)."""
+def corners_from_images(images_dir, n_views: int, board=None, detect=None,
+                        intrinsics: Intrinsics | None = None) -> ViewCorners:
+    """Detect the target in each image of ``images_dir`` (one per pose, sorted by name).
+
+    ``detect(frame, intrinsics) -> Detection | None``: any detector of ``robots.targets`` (a
+    refusal's ``reason`` is kept per view), or ``board`` = (inner columns, inner rows,
+    square m) for a plain chessboard. ``intrinsics``: the camera's, when known; the detectors
+    also solve a pose, so without them a nominal camera stands in and only the corners are
+    kept (the intrinsics may be calibrated from them next)."""
     import cv2
 
-    cols, rows, square_m = board
+    if (board is None) == (detect is None):
+        raise ValueError("give either board = (inner columns, inner rows, square_m) or detect")
+    if detect is None:
+        detect = chessboard_detector(*board)
     files = image_files(images_dir)
     if len(files) != n_views:
         raise ValueError(f"{images_dir} has {len(files)} images but the pose file {n_views} poses; "
                          "keep one image per pose, named so that they sort in pose order")
-    detect = chessboard_detector(cols, rows, square_m)
-    images, corners, objects, size = [], [], [], None
+    images, corners, objects, reasons, size = [], [], [], [], None
     for path in files:
         rgb = _read_png(cv2, path)
         size = (rgb.shape[1], rgb.shape[0])
-        # The detector also solves a pose, which needs intrinsics; these may not be known yet
-        # (they may be calibrated from the corners next), so a nominal camera stands in and
-        # only the corners are kept.
-        nominal = Intrinsics(float(size[0]), float(size[0]), size[0] / 2, size[1] / 2,
-                             size[0], size[1])
-        found = detect(Frame(rgb=rgb, depth=None, timestamp=0.0), nominal)
+        camera = intrinsics or Intrinsics(float(size[0]), float(size[0]), size[0] / 2,
+                                          size[1] / 2, size[0], size[1])
+        found = detect(Frame(rgb=rgb, depth=None, timestamp=0.0), camera)
+        ok = found is not None and found.ok
         images.append(rgb)
-        corners.append(None if found is None else found.corners_px)
-        objects.append(None if found is None else found.object_points)
-    return ViewCorners(corners, objects, size, images)
+        corners.append(found.corners_px if ok else None)
+        objects.append(found.object_points if ok else None)
+        reasons.append("" if ok or found is None else found.reason)
+    return ViewCorners(corners, objects, size, images, reasons)
 
 
 def corners_from_file(corners_file, n_views: int) -> ViewCorners:
@@ -564,16 +574,24 @@ def corners_from_file(corners_file, n_views: int) -> ViewCorners:
     return ViewCorners(corners, objects, size)
 
 
-def _refusal(found) -> str:
+#: With the camera's intrinsics given, a pose needs only 4 points (solvePnP on a planar
+#: target, e.g. one marker's corners); MIN_CORNERS holds when they are calibrated from the views.
+MIN_CORNERS_GIVEN_INTRINSICS = 4
+
+
+def _refusal(found, reason: str, needed: int) -> str:
+    if reason:
+        return reason
     n = 0 if found is None else len(found)
-    return (f"board not found: {n} corners found, at least {MIN_CORNERS} needed" if n
+    return (f"board not found: {n} corners found, at least {needed} needed" if n
             else "board not found: no corners detected")
 
 
 def solve_board_poses(views: ViewCorners, intrinsics: Intrinsics | None = None):
     """Each kept view's ``cam_T_target`` (m) and the intrinsics used.
 
-    A view is kept with at least ``MIN_CORNERS`` corners. Given ``intrinsics`` are used as
+    A view is kept with at least ``MIN_CORNERS`` corners (``MIN_CORNERS_GIVEN_INTRINSICS``
+    when the intrinsics are given: one marker's 4 corners then fix a pose). Given ``intrinsics`` are used as
     they are (``cv2.solvePnP`` per view); without them the camera is calibrated from every
     kept view's corners (``cv2.calibrateCamera``: K; k1, k2, p1, p2, k3) and the board poses
     are that calibration's. Returns (intrinsics, cam_T_target (M, 4, 4), kept view indices
@@ -583,14 +601,20 @@ def solve_board_poses(views: ViewCorners, intrinsics: Intrinsics | None = None):
 
     n = len(views.corners)
     counts = [0 if c is None else len(c) for c in views.corners]
-    keep = [i for i in range(n) if counts[i] >= MIN_CORNERS]
+    needed = MIN_CORNERS if intrinsics is None else MIN_CORNERS_GIVEN_INTRINSICS
+    keep = [i for i in range(n) if counts[i] >= needed]
     refused = [i for i in range(n) if i not in keep]
+    reasons = [_refusal(views.corners[i], views.reasons[i] if views.reasons else "", needed)
+               for i in refused]
     if len(keep) < 3:
+        why = "; ".join(f"view {i}: {r}" for i, r in zip(refused, reasons))
         raise ValueError(
-            f"the board was found in only {len(keep)} of {n} views; at least 3 are needed, "
-            f"and a view counts with at least {MIN_CORNERS} corners (corners found per view: "
-            f"{counts}). Check the board size (inner corners, not squares) and that the images "
-            "are in pose order")
+            f"the target was found in only {len(keep)} of {n} views; at least 3 are needed, "
+            f"and a view counts with at least {needed} corners"
+            + (" (6 when the intrinsics are calibrated from the views; give the camera's own "
+               "calibration to need 4)" if intrinsics is None else "")
+            + f" (corners found per view: {counts}; {why}). Check the target's geometry flags "
+              "and that the images are in pose order")
     obj = [views.object_points[i].astype(np.float32) for i in keep]
     img = [views.corners[i].astype(np.float32).reshape(-1, 1, 2) for i in keep]
     if intrinsics is None:
@@ -606,7 +630,6 @@ def solve_board_poses(views: ViewCorners, intrinsics: Intrinsics | None = None):
             tvecs.append(t)
     cam_T_target = np.array([np.vstack([np.hstack([cv2.Rodrigues(r)[0], t.reshape(3, 1)]),
                                         [0.0, 0.0, 0.0, 1.0]]) for r, t in zip(rvecs, tvecs)])
-    reasons = [_refusal(views.corners[i]) for i in refused]
     return intrinsics, cam_T_target, np.array(keep, dtype=np.int64), np.array(refused, dtype=np.int64), reasons
 
 
@@ -652,12 +675,15 @@ def import_pose_text_capture(poses_file, corners_file=None, images_dir=None, boa
                               intrinsics, robot_name, camera_name)
 
 
-def read_views(n_views: int, corners_file=None, images_dir=None, board=None) -> ViewCorners:
-    """The corners of ``n_views`` views from ``corners_file`` or ``images_dir`` + ``board``."""
+def read_views(n_views: int, corners_file=None, images_dir=None, board=None, detect=None,
+               intrinsics: Intrinsics | None = None) -> ViewCorners:
+    """The corners of ``n_views`` views from ``corners_file``, or ``images_dir`` with ``board``
+    (a chessboard) or ``detect`` (a ``robots.targets`` detector; ``corners_from_images``)."""
     if (corners_file is None) == (images_dir is None):
         raise ValueError("give either corners_file (an .npz of corners) or images_dir with board")
     if corners_file is not None:
         return corners_from_file(corners_file, n_views)
-    if board is None:
-        raise ValueError("images_dir needs board = (inner columns, inner rows, square_m)")
-    return corners_from_images(images_dir, n_views, board)
+    if board is None and detect is None:
+        raise ValueError("images_dir needs board = (inner columns, inner rows, square_m) or a "
+                         "detector (detect=)")
+    return corners_from_images(images_dir, n_views, board, detect, intrinsics)

@@ -22,6 +22,12 @@ decision comes back as a ``Decision`` with its evidence:
   beside it.
 
 Where the data cannot tell, ``ValueError`` asks for the flag that names the choices.
+
+The target in the images is a ``Target`` (a ``robots.targets`` detector: chessboard, ChArUco,
+ArUco/AprilTag markers, circle grids). A chessboard or a symmetric circle grid may be listed
+half a turn round; once the rotations are read (and before the direction, which a turned view
+would mislead), each view's corner order is chosen from the robot's motion
+(``robots.half_turn``) and reported as a ``Decision`` too.
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from robots import geometry as geo
+from robots import targets
 from robots.capture import Capture, capture_from_views, read_views
+from robots.half_turn import resolve_capture_half_turns
 from robots.interfaces import Intrinsics
 from robots.pose_files import PoseConvention, PoseTable, read_poses, to_base_T_flange
 from solutions import diagnostics
@@ -62,16 +70,69 @@ class Decision:
         return f"{self.what}: {self.value} ({self.how}){tail}"
 
 
+#: ``Target.kind`` values, for the command line's ``--target``.
+TARGET_KINDS = ("chessboard", "charuco", "aruco", "apriltag", "circles")
+
+
+@dataclass(frozen=True)
+class Target:
+    """The calibration target of a capture's images: ``kind`` (one of ``TARGET_KINDS``),
+    ``detect(frame, intrinsics) -> Detection`` (``robots.targets``), ``half_turn_ambiguous``
+    (True for a plain chessboard or a symmetric circle grid, whose corner order is then
+    resolved from the robot's motion) and ``description`` (for messages)."""
+
+    kind: str
+    detect: object
+    half_turn_ambiguous: bool
+    description: str
+
+
+def chessboard_target(cols: int, rows: int, square_m: float) -> Target:
+    """A plain chessboard of ``cols`` x ``rows`` inner corners, squares ``square_m`` metres."""
+    return Target("chessboard", targets.chessboard_with_reasons(cols, rows, square_m), True,
+                  f"{cols} x {rows} chessboard, {square_m * 1000:g} mm squares")
+
+
+def circle_grid_target(cols: int, rows: int, spacing_m: float, asymmetric: bool) -> Target:
+    """A circle grid (``targets.circle_grid_detector``); only a symmetric one can flip."""
+    return Target("circles", targets.circle_grid_detector(cols, rows, spacing_m, asymmetric),
+                  not asymmetric, f"{cols} x {rows} {'asymmetric ' if asymmetric else ''}"
+                                  f"circle grid, {spacing_m * 1000:g} mm spacing")
+
+
+def charuco_target(squares_x: int, squares_y: int, square_m: float, marker_m: float,
+                   dictionary: str, legacy: bool = False) -> Target:
+    """A ChArUco board (``targets.charuco_detector``): its markers fix the corner order."""
+    return Target("charuco", targets.charuco_detector(squares_x, squares_y, square_m, marker_m,
+                                                      dictionary, legacy), False,
+                  f"{squares_x} x {squares_y} ChArUco board ({dictionary}), "
+                  f"{square_m * 1000:g} mm squares, {marker_m * 1000:g} mm markers")
+
+
+def marker_target(kind: str, dictionary: str, marker_m: float, marker_id=None, grid=None,
+                  separation_m=None) -> Target:
+    """ArUco or AprilTag markers (``targets.aruco_detector``): one (``marker_id`` or any) or a
+    ``grid`` = (columns, rows) with ``separation_m`` between markers."""
+    ids = None if marker_id is None else (marker_id,)
+    shape = "one marker" if grid is None else f"{grid[0]} x {grid[1]} grid of markers"
+    return Target(kind, targets.aruco_detector(dictionary, marker_m, ids, grid, separation_m),
+                  False, f"{shape} ({dictionary}), {marker_m * 1000:g} mm"
+                         + ("" if marker_id is None else f", id {marker_id}"))
+
+
 @dataclass(frozen=True)
 class ImportedCapture:
     """``capture`` (a ``robots.capture.Capture``, base_T_flange in metres), the
     ``convention`` its pose file was read with, the ``decisions`` (one per convention) and
-    ``intrinsics_source`` (where K and the distortion came from)."""
+    ``intrinsics_source`` (where K and the distortion came from). ``half_turns``: the
+    ``robots.half_turn.PoseChoice`` of a target that can be read half a turn round (which
+    views were turned, with the evidence), else None."""
 
     capture: Capture
     convention: PoseConvention
     decisions: tuple
     intrinsics_source: str
+    half_turns: object = None
 
 
 def _mismatch(table, convention, C, mount) -> tuple[float, float, float]:
@@ -253,11 +314,14 @@ def check_pairing(table: PoseTable, convention: PoseConvention, C, mount: str) -
 
 
 def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
-                      mount_given: bool = True):
+                      mount_given: bool = True, reread=None):
     """The ``PoseConvention`` of ``table`` (the kept views' rows) against the camera's board
     poses ``cam_T_target`` (same views, metres): each field in ``given`` (field -> value) is
     taken as given, the quaternion order a header named is taken, the rest are decided from
-    the data. Returns (convention, decisions)."""
+    the data. ``reread(convention) -> (cam_T_target, decision)``, when given, is called once
+    the rotations are read (quaternion order, angle unit) and before the direction is
+    decided, which a view read half a turn round would mislead. Returns (convention,
+    decisions)."""
     convention = PoseConvention(**{k: v for k, v in given.items() if v is not None})
     labels = {"length_unit": "length unit", "angle_unit": "angle unit",
               "quat_order": "quat order", "direction": "pose direction"}
@@ -277,6 +341,10 @@ def decide_convention(table: PoseTable, cam_T_target, mount: str, given: dict,
     if table.layout == "rotvec" and given.get("angle_unit") is None:
         convention, d = _pick_angle_unit(table, convention, C, mount)
         decisions.append(d)
+    if reread is not None:
+        cam_T_target, decision = reread(convention)
+        C = geo.as_poses(cam_T_target, "cam_T_target")
+        decisions.append(decision)
     if given.get("direction") is None and not any(d.what == "pose direction"
                                                    for d in decisions):
         convention, d = _pick_direction(table, convention, C, mount, mount_given)
@@ -293,7 +361,31 @@ def _rows(table: PoseTable, keep) -> PoseTable:
                    names=tuple(table.names[i] for i in keep))
 
 
-def import_capture(poses, *, images=None, corners=None, board=None,
+def _resolve_half_turns(capture: Capture):
+    """The capture with every view's corner order the one the robot's motion agrees with, the
+    ``PoseChoice`` and its ``Decision`` (views named by the capture's view numbers)."""
+    capture, choice = resolve_capture_half_turns(capture)
+    number = [int(v) for v in capture.pose_indices]
+    turned = [number[k] for k in choice.changed]
+    if turned:
+        value = f"views {turned} turned half a turn"
+        evidence = ("with the detected order they disagree with the robot's motion by a median "
+                    + ", ".join(f"{choice.alternative_deg[k]:.1f}" for k in choice.changed)
+                    + " deg, turned by "
+                    + ", ".join(f"{choice.mismatch_deg[k]:.2f}" for k in choice.changed)
+                    + " deg (the angle the flange turns between two views against the one the "
+                      "camera sees the board turn)")
+    else:
+        value = "as detected"
+        evidence = (f"every view agrees with the robot's motion as detected (median mismatch at "
+                    f"most {np.max(choice.mismatch_deg):.2f} deg)")
+    if choice.unclear:
+        evidence += (f"; views {[number[k] for k in choice.unclear]} are not decided by the "
+                     "motion (distrust them)")
+    return capture, choice, Decision("corner order", value, "from the robot's motion", evidence)
+
+
+def import_capture(poses, *, images=None, corners=None, board=None, target: Target | None = None,
                    intrinsics: Intrinsics | None = None, mount: str = "eye_in_hand",
                    mount_given: bool = True, length_unit=None, angle_unit=None,
                    quat_order=None, direction=None, robot_name: str = "",
@@ -301,8 +393,9 @@ def import_capture(poses, *, images=None, corners=None, board=None,
     """Import a capture made elsewhere.
 
     ``poses``: a pose file or folder (``robots.pose_files.read_poses``). ``images`` (a folder,
-    one image per pose, in name order with numbers as numbers) with ``board`` = (inner columns, inner rows, square m),
-    or ``corners`` (an .npz, ``robots.capture.corners_from_file``). ``intrinsics``: the
+    one image per pose, in name order with numbers as numbers) with ``target`` (a ``Target``:
+    ``chessboard_target``, ``charuco_target``, ``marker_target``, ``circle_grid_target``) or
+    ``board`` = (inner columns, inner rows, square m) for a chessboard, or ``corners`` (an .npz, ``robots.capture.corners_from_file``). ``intrinsics``: the
     camera's own calibration, used as given; None: calibrated from the corners. ``mount``:
     eye_in_hand or eye_to_hand (``mount_given`` False when it is only the default, so a pose
     direction that rests on it is asked for rather than assumed). ``length_unit`` (m, mm),
@@ -319,18 +412,35 @@ def import_capture(poses, *, images=None, corners=None, board=None,
         if value is not None and value not in choices:
             raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
     table = read_poses(poses)
-    views = read_views(len(table), corners, images, board)
+    if images is not None and target is None and board is not None:
+        target = chessboard_target(*board)
+    views = read_views(len(table), corners, images, detect=target and target.detect,
+                       intrinsics=intrinsics) if images is not None else \
+        read_views(len(table), corners)
     # The board poses first (robot poses are not needed for them): the conventions are
     # decided against them.
     placeholder = np.tile(np.eye(4), (len(table), 1, 1))
     capture = capture_from_views(placeholder, views, intrinsics, robot_name, camera_name)
     given = {"length_unit": length_unit, "angle_unit": angle_unit, "quat_order": quat_order,
              "direction": direction}
-    convention, decisions = decide_convention(_rows(table, capture.pose_indices),
-                                              capture.cam_T_target, mount, given, mount_given)
+    kept = _rows(table, capture.pose_indices)
+    resolved = {}
+
+    def reread(convention):
+        # A motion's rotation angle is the same whichever the direction and the length unit,
+        # so the robot poses read so far tell each view's corner order (robots.half_turn).
+        capture.base_T_flange = to_base_T_flange(kept, convention)
+        resolved["capture"], resolved["choice"], decision = _resolve_half_turns(capture)
+        return resolved["capture"].cam_T_target, decision
+
+    ambiguous = target is not None and target.half_turn_ambiguous
+    convention, decisions = decide_convention(kept, capture.cam_T_target, mount, given,
+                                              mount_given, reread if ambiguous else None)
+    capture = resolved.get("capture", capture)
     F = to_base_T_flange(table, convention)
     capture.commanded_base_T_flange = F
     capture.base_T_flange = F[capture.pose_indices]
+    choice = resolved.get("choice")
     source = ("given" if intrinsics is not None else
               f"calibrated from the corners of {len(capture)} views (cv2.calibrateCamera)")
-    return ImportedCapture(capture, convention, decisions, source)
+    return ImportedCapture(capture, convention, decisions, source, choice)

@@ -8,10 +8,13 @@ A notebook and ``cobotlab calibrate`` make the same calls::
     capture = load_capture("my_capture")                  # or robots.pose_files' importer
     result = pipeline.calibrate_capture(capture, "eye_in_hand")   # a Calibration
     result.X, result.held_out.median_px, result.flagged_views
+    result.diagnosis.table(), result.diagnosis.board_scale, result.warnings
     pipeline.save_calibration_result(result, capture, "flange_T_cam.yaml")
 
-Each stage returns a typed value (``Calibration``, ``CornerFit``, ``HeldOut``); the command
-line only prints them. X is ``flange_T_cam`` (eye-in-hand) or ``base_T_cam`` (eye-to-hand),
+Each stage returns a typed value (``Calibration``, ``CornerFit``, ``HeldOut``,
+``solutions.trust.CalibrationDiagnosis``); the command line only prints them. A capture
+whose views cannot be made consistent raises ``solutions.trust.InconsistentCaptureError``
+(its ``diagnosis`` the evidence). X is ``flange_T_cam`` (eye-in-hand) or ``base_T_cam`` (eye-to-hand),
 metres; view numbers are the capture's ``pose_indices`` (the commanded pose each view came
 from), so they name the same views as the capture folder's images.
 """
@@ -25,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from robots import geometry as geo
-from solutions import diagnostics, handeye, mle
+from solutions import diagnostics, handeye, mle, trust
 
 #: ``method`` values besides ``solutions.handeye.METHODS``: the default, and the corner fit.
 AUTO_METHOD = "auto"
@@ -40,13 +43,15 @@ LARGE_VIEW_FACTOR = 5.0
 class CornerFit:
     """What the corner fit (``mle.calibrate_from_corners``) chose: ``choice`` (the model
     fitted, with its inner cross-validated score), ``choices`` (every candidate, chosen first),
-    ``board_scale`` (the fitted factor on the board's stated size; 1 when not fitted) and
-    ``reprojection_rms_px`` over all views' corners."""
+    ``board_scale`` (the fitted factor on the board's stated size; 1 when not fitted),
+    ``reprojection_rms_px`` over all views' corners and ``refinement``, the fit itself (X, Y,
+    and the start ``mle.fit_candidate`` refits that model from)."""
 
     choice: mle.CornerNoiseChoice
     choices: tuple
     board_scale: float
     reprojection_rms_px: float
+    refinement: mle.HandEyeRefinement | None = None
 
 
 @dataclass(frozen=True)
@@ -83,7 +88,10 @@ class Calibration:
     implies against their mean, ``per_pose_residuals``). ``flagged_views``: the views the
     robust solver down-weighted; ``large_views``: the others far above the typical view.
     ``corner_fit`` and ``held_out`` are None when the method or the capture has no corners
-    for them; ``mount_warning`` is "" unless the views cannot tell the mounts apart."""
+    for them; ``mount_warning`` is "" unless the views cannot tell the mounts apart.
+    ``diagnosis``: the corner fit's ``solutions.trust.CalibrationDiagnosis`` (each view's
+    residual fitted and held out, the views distrusted and why, the board's scale against
+    its stated size with X both ways), None for the pose-based methods."""
 
     X: np.ndarray
     mount: str
@@ -99,6 +107,13 @@ class Calibration:
     corner_fit: CornerFit | None
     held_out: HeldOut | None
     mount_warning: str
+    diagnosis: trust.CalibrationDiagnosis | None = None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Everything the user must be told: the mount warning and the diagnosis's."""
+        found = (self.mount_warning,) if self.mount_warning else ()
+        return found + (self.diagnosis.warnings if self.diagnosis is not None else ())
 
     @property
     def parent(self) -> str:
@@ -196,24 +211,12 @@ def board_corners(capture, kept) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _corner_fit(board, pixels, K, dist, F, C, mount: str):
-    """``method="corners"``: (the chosen model's ``HandEyeRefinement``, a ``CornerFit``, a
-    ``refit(keep)`` that fits that model again on a subset of the views)."""
+    """``method="corners"``: (the chosen model's ``HandEyeRefinement``, a ``CornerFit``, the
+    raw candidate list ``choices`` of ``mle.calibrate_from_corners``)."""
     fit, choices = mle.calibrate_from_corners(board, pixels, K, dist, F, mount, C)
-    best = choices[0]
-
-    def refit(keep):
-        if best.method == "reprojection":
-            return mle.refine_reprojection(board, pixels[keep], K, dist, F[keep], mount,
-                                           X0=fit.X, Y0=fit.Y, robot_sigma=best.robot_sigma,
-                                           fit_board_scale=best.fit_board_scale)
-        # a pose-based fit: only that candidate, its cross-validation is cheap
-        return mle.calibrate_from_corners(board, pixels[keep], K, dist, F[keep], mount,
-                                          C[keep], robot_weights=(),
-                                          pose_candidates=(best.method,), folds=2)[0]
-
-    summary = CornerFit(choice=best, choices=tuple(choices), board_scale=fit.board_scale,
-                        reprojection_rms_px=fit.reprojection_rms_px)
-    return fit, summary, refit
+    summary = CornerFit(choice=choices[0], choices=tuple(choices), board_scale=fit.board_scale,
+                        reprojection_rms_px=fit.reprojection_rms_px, refinement=fit)
+    return fit, summary, choices
 
 
 def _pose_refit(solve, method: str, F, C, mount: str):
@@ -246,15 +249,47 @@ def held_out_error(refit, board, pixels, capture, F, views, model_kept: bool) ->
     return HeldOut(per_view_px=rms, views=np.asarray(views), model_kept=model_kept)
 
 
+def _diagnose(fit, choices, board, pixels, capture, F, views, mount: str):
+    """``trust.diagnose_corner_calibration`` with the capture's view numbers (not 0..n-1) in
+    its rows and sentences; an ``InconsistentCaptureError`` keeps them too."""
+    i = capture.intrinsics
+    size = (i.width, i.height)
+    try:
+        d = trust.diagnose_corner_calibration(fit, choices, board, pixels, i.K, i.dist, F, mount,
+                                              size)
+    except trust.InconsistentCaptureError as error:
+        named = _with_view_numbers(error.diagnosis, views)
+        raise trust.InconsistentCaptureError(named.warnings[0], named) from None
+    return _with_view_numbers(d, views)
+
+
+def _with_view_numbers(d: trust.CalibrationDiagnosis, views) -> trust.CalibrationDiagnosis:
+    """``d`` with the capture's view numbers; its warnings rebuilt from the typed values in
+    the order ``trust`` gives them (the refusal, the distrusted views, the board scale)."""
+    import dataclasses
+
+    number = [int(v) for v in views]
+    rows = tuple(dataclasses.replace(v, index=number[v.index]) for v in d.views)
+    texts = ((d.warnings[0],) if not d.consistent else ()) + tuple(
+        f"view {v.index}: {v.why}" for v in rows if v.distrusted)
+    if d.board_scale is not None and d.board_scale.off:
+        texts += (d.board_scale.message(),)
+    return dataclasses.replace(d, views=rows, distrusted=tuple(number[k] for k in d.distrusted),
+                               warnings=texts)
+
+
 def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_METHOD,
                       source: str = "the capture") -> Calibration:
     """Solve a ``robots.capture.Capture``: X, the residual of each view, the views the robust
-    solver flagged, and (when every view has 4 or more corners) the held-out error.
+    solver flagged, (when every view has 4 or more corners) the held-out error, and for the
+    corner fit its diagnosis (``solutions.trust.diagnose_corner_calibration``).
 
     ``method``: one of ``METHOD_CHOICES``; ``auto`` is the corner fit when every view with a
     target pose kept 4 or more corners and there are at least 4 such views, else
     ``nonlinear``. ``source`` names the capture in messages. ``ValueError`` for too few
-    views, a mount the views contradict, or corners too few for ``corners``.
+    views, a mount the views contradict, or corners too few for ``corners``;
+    ``solutions.trust.InconsistentCaptureError`` (a ValueError, its ``diagnosis`` the evidence)
+    when the corner fit's views cannot be made consistent.
     """
     check_choices(mount, method)
     has_pose = np.all(np.isfinite(capture.cam_T_target), axis=(1, 2))
@@ -276,9 +311,15 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
                          "a board pose; use another --method or drop those views")
     board, pixels = board_corners(capture, kept) if with_corners else (None, None)
     K, dist = capture.intrinsics.K, capture.intrinsics.dist
-    corner_fit = None
+    corner_fit = diagnosis = None
     if method == CORNERS_METHOD:
-        fit, corner_fit, refit = _corner_fit(board, pixels, K, dist, F, C, mount)
+        fit, corner_fit, choices = _corner_fit(board, pixels, K, dist, F, C, mount)
+
+        def refit(keep):  # the chosen model as it is (its intrinsics too), on fewer views
+            return mle.fit_candidate(choices[0], board, pixels[keep], K, dist, F[keep],
+                                     C[keep], mount, fit)
+
+        diagnosis = _diagnose(fit, choices, board, pixels, capture, F, views, mount)
         X, outliers = fit.X, fit.outlier_indices
         A, B, _ = handeye.hand_eye_motions(F, C, mount)
         rotation_residual = handeye.rotation_residual(A, B, X)
@@ -294,7 +335,14 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
     typical = max(float(np.median(trans)) * LARGE_VIEW_FACTOR, 1e-3)
     large = tuple(int(v) for v, t in zip(views, trans) if t > typical and int(v) not in flagged)
     held_out = None
-    if len(F) >= 4 and with_corners:
+    diagnosed = (np.array([v.held_out_px for v in diagnosis.views]) if diagnosis is not None
+                 else None)
+    if len(F) >= 4 and diagnosed is not None and np.all(np.isfinite(diagnosed)):
+        # The diagnosis has already refitted the chosen model without each view and predicted
+        # it: the same numbers mle.held_out_view_rms gives (tests/test_import_targets_cli.py),
+        # so the corner fit's n refits are not done twice.
+        held_out = HeldOut(per_view_px=diagnosed, views=np.asarray(views), model_kept=True)
+    elif len(F) >= 4 and with_corners:
         held_out = held_out_error(refit, board, pixels, capture, F, views,
                                   model_kept=method == CORNERS_METHOD)
     return Calibration(X=X, mount=mount, method=method, method_note=note, views=views,
@@ -302,7 +350,7 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
                        translation_residual=float(translation_residual),
                        view_rotation_deg=rot, view_translation_m=trans, flagged_views=flagged,
                        large_views=large, corner_fit=corner_fit, held_out=held_out,
-                       mount_warning=warning)
+                       mount_warning=warning, diagnosis=diagnosis)
 
 
 def save_calibration_result(result: Calibration, capture, path) -> Path:

@@ -71,6 +71,19 @@ def _make_capture_folder(folder: Path) -> dict:
     return {"views": views, "K": K, "dist": dist.ravel()}
 
 
+def _make_tag_folder(folder: Path) -> None:
+    """tag_capture/: ViSP's eye-to-hand images and pose files as shipped."""
+    source = REPO / "autograder" / "data" / "visp_franka" / "eye_to_hand"
+    for sub, pattern in (("images", "franka_image-*.png"), ("poses", "franka_pose_rPe_*.yaml")):
+        (folder / sub).mkdir(parents=True)
+        for f in source.glob(pattern):
+            shutil.copy(f, folder / sub / f.name)
+
+
+def _same_text(sample: str, printed: str) -> bool:
+    return " ".join(sample.split()) == " ".join(printed.split())
+
+
 def _park_on_all_28_views(K, dist, board_scale: float) -> np.ndarray:
     data = _kuka_2_corners()
     F = load_rwhe_kuka("kuka_2").base_T_flange
@@ -87,6 +100,7 @@ def _park_on_all_28_views(K, dist, board_scale: float) -> np.ndarray:
 def test_every_step_of_the_page_runs_and_saves_the_right_X(tmp_path):
     folder = tmp_path / "my_capture"
     camera = _make_capture_folder(folder)
+    _make_tag_folder(tmp_path / "tag_capture")
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}:/usr/bin:/bin")
     script = "\n".join(["set -euo pipefail", f"cd {tmp_path}", *_blocks("bash")])
     done = subprocess.run(["bash", "-c", script], env=env, capture_output=True, text=True,
@@ -95,13 +109,24 @@ def test_every_step_of_the_page_runs_and_saves_the_right_X(tmp_path):
     assert done.returncode == 0, log
     assert "Traceback" not in done.stderr, log
     out = done.stdout
-    assert "imported 8 views (0 without the board)" in out, log
+    assert out.count("imported 8 views (0 without the board)") == 2, log
     assert "(given)" in out  # the intrinsics were used as given, not recalibrated
 
-    # the page's sample of what the import prints is what it prints
+    # the page's samples of what the import and the calibration print are what they print
     sample = next(b for b in _blocks("text") if b.startswith("poses read as:"))
     printed = out[out.index("poses read as:"):out.index("next: cobotlab calibrate")]
-    assert " ".join(sample.split()) == " ".join(printed.split())
+    assert _same_text(sample, printed)
+    sample = next(b for b in _blocks("text") if b.startswith("diagnosis of the corner fit"))
+    start = out.index("diagnosis of the corner fit")
+    assert _same_text(sample, out[start:out.index("saved flange_T_cam.yaml")])
+    assert "distrusted views: none" in sample  # kuka_2: no view distrusted
+
+    # the AprilTag section: imported with the tag, calibrated, its diagnosis printed
+    tag = out[out.index("target: one marker"):]
+    assert "target: one marker (DICT_APRILTAG_36h11), 48 mm" in tag
+    assert "base_T_cam by corners (eye_to_hand)" in tag
+    assert "distrusted views: [7]" in tag
+    assert (tmp_path / "tag_capture" / "base_T_cam.yaml").is_file()
 
     X = load_calibration(folder / "flange_T_cam.yaml").pose
     # The corner fit may fit the board's scale (kuka_2's squares look nearer 14.1 than 15 mm:

@@ -12,6 +12,10 @@ from pathlib import Path
 AUTO_METHOD = "auto"
 CORNERS_METHOD = "corners"
 
+#: The exit status when the capture's views cannot be made consistent (the evidence is
+#: printed); 2 is every other error's (cobotlab.cli).
+INCONSISTENT_EXIT = 3
+
 
 def add_parser(sub) -> None:
     cal = sub.add_parser(
@@ -20,8 +24,11 @@ def add_parser(sub) -> None:
         description=(
             "Load a capture folder written by robots.capture (poses.npz, images/, meta.yaml), "
             "solve X (flange_T_cam for eye_in_hand, base_T_cam for eye_to_hand), print it with "
-            "the residual of each view and the views the robust solver flagged, and save it "
-            "with robots.calibration_io."
+            "the residual of each view, the views the robust solver flagged and, for the "
+            "corner fit, its diagnosis (each view's held-out error, the views distrusted and "
+            "why, the board's fitted scale against its stated size with X both ways), and "
+            "save it with robots.calibration_io. A capture whose views cannot be made "
+            f"consistent is refused with the evidence (exit status {INCONSISTENT_EXIT})."
         ),
     )
     cal.add_argument("capture_dir", metavar="CAPTURE_DIR", help="a folder written by save_capture")
@@ -39,21 +46,46 @@ def add_parser(sub) -> None:
                      help="result YAML (default CAPTURE_DIR/flange_T_cam.yaml or base_T_cam.yaml)")
 
 
-def run(args) -> None:
+def run(args) -> int:
+    """Calibrate, print, save; 0, or ``INCONSISTENT_EXIT`` for a refused capture."""
+    import sys
+
     from cobotlab.demo import require_solutions
     from robots.capture import load_capture
 
     require_solutions("calibrate")
-    from solutions import pipeline
+    from solutions import pipeline, trust
 
     pipeline.check_choices(args.mount, args.method)
     capture = load_capture(args.capture_dir)
-    result = pipeline.calibrate_capture(capture, args.mount, args.method,
-                                        source=str(args.capture_dir))
+    try:
+        result = pipeline.calibrate_capture(capture, args.mount, args.method,
+                                            source=str(args.capture_dir))
+    except trust.InconsistentCaptureError as refused:
+        print_diagnosis(refused.diagnosis)
+        print(f"cobotlab: error: refused, nothing saved: {refused}", file=sys.stderr)
+        return INCONSISTENT_EXIT
     print_calibration(result, capture, args.capture_dir)
     out = Path(args.out) if args.out else Path(args.capture_dir) / f"{result.parent}_T_cam.yaml"
     pipeline.save_calibration_result(result, capture, out)
     print(f"saved {out}")
+    return 0
+
+
+def print_diagnosis(diagnosis) -> None:
+    """Print a ``solutions.trust.CalibrationDiagnosis``: each view's corner error under the
+    fit and held out, the distrusted views and why, the board scale, the warnings."""
+    print(f"diagnosis of the corner fit ({diagnosis.model}): RMS corner error per view, px")
+    print("  view      fit  held-out")
+    for view, fit, held, why in diagnosis.table():
+        print(f"  {view:4d} {fit:8.2f} {held:9.2f}" + ("  <- distrusted" if why else ""))
+    print(f"distrusted views: {list(diagnosis.distrusted) or 'none'}")
+    scale = diagnosis.board_scale
+    if scale is not None:
+        print(f"board scale: {scale.scale:.4f} x the stated size"
+              + (" (past 1 %, see the warning)" if scale.off else " (within 1 %)"))
+    for warning in diagnosis.warnings:
+        print(f"WARNING: {warning}")
 
 
 def print_calibration(result, capture, source) -> None:
@@ -95,5 +127,7 @@ def print_calibration(result, capture, source) -> None:
               f"through the robot pose): median {held.median_px:.2f} px, "
               f"p95 {held.p95_px:.2f} px, worst view {held.worst_view} at "
               f"{held.per_view_px.max():.2f} px")
+    if result.diagnosis is not None:
+        print_diagnosis(result.diagnosis)
     if result.mount_warning:
         print(result.mount_warning)
