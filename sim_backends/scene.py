@@ -28,12 +28,12 @@ from robots.geometry import (
     compose,
     invert,
     make_pose,
-    pose_from_rpy,
     quat_xyzw_from_rotation,
 )
 
 # Square names come from the student-facing helpers (robots never imports sim_backends).
 from robots.perception import FILES, square_index, square_name
+from sim_backends.layout import board_pose_on_table  # noqa: F401  (re-exported: its home before layout)
 from sim_backends.textures import Target, write_textured_slab
 
 __all__ = [
@@ -342,21 +342,3 @@ class ChessSet:
                 key = f"{key}:{body}"
             out[key] = PieceTruth(kind, colour, compose(base_T_world, world_T_piece), body)
         return out
-
-
-def board_pose_on_table(rng: np.random.Generator, centre_xy, jitter_xy=0.03, jitter_yaw_deg=10,
-                        height=0.0) -> np.ndarray:
-    """A seeded pose for a board lying printed-face-up on the table around ``centre_xy`` (m).
-
-    Returns the pose of a frame at the board's centre, at ``height`` (m) above the table,
-    with the target-frame convention of ``sim_backends.textures`` (z INTO the board, so
-    pointing down): x along world -y and y along world -x, turned by up to
-    ``jitter_yaw_deg`` about the vertical and shifted by up to ``jitter_xy`` metres. A camera
-    looking down from above with its image top away from the robot then sees the board's x
-    axis to the right, as in the printed image.
-    """
-    yaw = np.deg2rad(rng.uniform(-jitter_yaw_deg, jitter_yaw_deg))
-    dx, dy = rng.uniform(-jitter_xy, jitter_xy, size=2)
-    R0 = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-    Rz = pose_from_rpy(0, 0, yaw)[:3, :3]
-    return make_pose(Rz @ R0, [centre_xy[0] + dx, centre_xy[1] + dy, height])
