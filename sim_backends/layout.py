@@ -20,8 +20,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robots.geometry import compose, make_pose, pose_from_rotvec, pose_from_rpy
-from robots.interfaces import Intrinsics
+from robots.geometry import (
+    compose,
+    invert,
+    make_pose,
+    pose_from_rotvec,
+    pose_from_rpy,
+    transform_points,
+)
+from robots.interfaces import Intrinsics, UnreachableError
 from sim_backends import textures
 from sim_backends.arm_specs import ARM_NAMES
 from sim_backends.depth_noise import RealSenseDepthModel, depth_model_from
@@ -299,6 +306,112 @@ def fixed_camera_nominal_pose(reach: float) -> np.ndarray:
     look = np.array([0.5 * reach, 0.0, 0.25 * reach])
     eye = look + np.array([0.75, 0.45, 0.45]) * max(reach, 0.6)
     return _look_at(eye, look)
+
+
+def rectangle_mark_pose(reach, rng, board, world_T_board, chess) -> np.ndarray:
+    """Where the dark rectangle mark lies on the table to the robot's right of the board (or chess
+    set; ``chess`` a ChessSet or None), clear of it and of the robot's base, at a seeded
+    position and yaw. Returns world_T_rectangle (centre of the top face, z up)."""
+    w, h = RECTANGLE_MARK_SIZE
+    if chess is not None:
+        side = 8 * chess.square + 2 * chess.texture.params["border"]
+        centre = transform_points(chess.world_T_chess, [[4 * chess.square] * 2 + [0.0]])[0]
+        keep_out = (centre[:2], np.hypot(side, side) / 2)
+    elif board is not None:
+        centre = transform_points(world_T_board, [board.centre])[0]
+        keep_out = (centre[:2], np.hypot(*board.size) / 2)
+    else:
+        keep_out = (np.zeros(2), 0.0)
+    mark_radius = np.hypot(w, h) / 2
+    jitter = rng.uniform(-0.01, 0.01, 2)
+    yaw = rng.uniform(-np.deg2rad(15), np.deg2rad(15))
+    for frac in (0.5, 0.6, 0.7):
+        for angle in (-55.0, -70.0, -90.0):
+            xy = frac * reach * np.array([np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))])
+            xy = xy + jitter
+            clear = np.linalg.norm(xy - keep_out[0]) > keep_out[1] + mark_radius + 0.02
+            if clear and np.linalg.norm(xy) > 0.12 + mark_radius:  # off the robot's base
+                break
+        else:
+            continue
+        break
+    world_T_rectangle = make_pose(pose_from_rpy(0, 0, yaw)[:3, :3],
+                                  [xy[0], xy[1], RECTANGLE_MARK_THICKNESS])
+    return world_T_rectangle
+
+
+def flange_target(mount: str, reach: float) -> textures.Target:
+    """The target on the flange: a small ArUco marker with the camera on the flange (it must
+    not block the camera), a small chessboard for a fixed camera to calibrate against."""
+    if mount == "eye_in_hand":
+        return textures.aruco_marker(marker_id=7, size=0.03 if reach < 0.5 else 0.04)
+    square = 0.012 if reach < 0.5 else 0.02
+    return textures.chessboard(squares=(7, 6), square=square, margin=square / 2)
+
+
+def flange_T_marker(target: textures.Target, gap: float) -> np.ndarray:
+    """The flange target's pose on tool0: its centre on the tool0 axis, printed face looking
+    along flange +z, ``gap`` metres in front of tool0 (the engine measures how far the arm's
+    own geometry sticks out there)."""
+    if target.kind == "aruco":
+        # OpenCV marker frame: z out of the print, so it points along flange +z.
+        return make_pose(t=[0.0, 0.0, gap])
+    # Chessboard frame: z into the print, i.e. towards the flange.
+    flange_T_centre = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, gap])
+    return compose(flange_T_centre, make_pose(t=-target.centre))
+
+
+def teleport_to(arm, base_T_flange) -> bool:
+    """Put the arm at an IK solution for a pose (set-up only, no motion). False if unreachable."""
+    try:
+        q = arm.solve_ik(base_T_flange)
+    except UnreachableError:
+        return False
+    arm.set_joint_positions(q)
+    return True
+
+
+def start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, flange_T_cam,
+                flange_T_marker, flange_target, world_T_cam, reach, intrinsics):
+    """Teleport the arm (any engine's ``ArmMotion``) to a pose where the camera sees its
+    target (best effort: the arm's own home pose stays if none of the candidates is reachable)."""
+    if scene != "calibration":
+        return
+    candidates = []
+    if mount == "eye_in_hand":
+        # Camera above the board centre looking straight down with its axes along the
+        # board's (z into the board), so the board reads upright in the image; high enough
+        # for the whole printed board to fit the image width. Turned half round as a last
+        # resort (some wrists cannot reach the upright view).
+        world_T_view = compose(world_T_board, make_pose(t=board.centre))
+        if board.kind == "aruco":
+            world_T_view = compose(world_T_view, make_pose(np.diag([1.0, -1.0, -1.0])))
+        intr = intrinsics
+        fit = max(board.size[0] * intr.fx / intr.width, board.size[1] * intr.fy / intr.height)
+        # Big arms look from higher up, clear of their own bulky wrists.
+        heights = [max(1.05 * fit, 0.5 * reach), 1.2 * fit, 1.4 * fit, 0.95 * fit]
+        for yaw in (0.0, np.pi):
+            for h in heights:
+                world_T_cam_goal = compose(make_pose(t=[0, 0, h]), world_T_view,
+                                           pose_from_rpy(0, 0, yaw))
+                candidates.append(compose(base_T_pybullet, world_T_cam_goal,
+                                          invert(flange_T_cam)))
+    else:
+        # The flange target between the work area and the camera (as close to the camera as
+        # the arm allows, for a large image of a small target), facing the camera with its
+        # axes along the camera's (its z, into the print, along the optical axis).
+        look = np.array([0.5 * reach, 0.0, 0.25 * reach])
+        if flange_target is None:  # the bare flange face, its normal (+z) towards the camera
+            centre, flange_T_marker = np.zeros(3), make_pose(np.diag([1.0, -1.0, -1.0]))
+        else:
+            centre = flange_target.centre
+        for f in (0.4, 0.3, 0.2, 0.1, 0.0):
+            pos = look + f * (world_T_cam[:3, 3] - look)
+            world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)
+            candidates.append(compose(base_T_pybullet, world_T_marker, invert(flange_T_marker)))
+    for base_T_flange in candidates:
+        if teleport_to(sim_arm, base_T_flange):
+            return
 
 
 def board_pose_on_table(rng: np.random.Generator, centre_xy, jitter_xy=0.03, jitter_yaw_deg=10,

@@ -15,14 +15,14 @@ import numpy as np
 import pybullet as p
 
 from robots.geometry import (
-    as_pose,
     invert,
     make_pose,
     pose_from_quat_xyzw,
     quat_xyzw_from_rotation,
 )
-from robots.interfaces import Gripper, Pointer, Robot, SuctionCup
+from robots.interfaces import Gripper, Pointer, SuctionCup
 from sim_backends.arms import URDF_DIR, SimArm
+from sim_backends.sim_robot import SimRobot  # noqa: F401  (re-exported: its home before sim_robot)
 
 __all__ = ["TOOL_NAMES", "SimGripper", "SimPointer", "SimRobot", "SimSuctionCup", "make_tool"]
 
@@ -278,45 +278,3 @@ def make_tool(kind: str | None, client: int, arm: SimArm):
     if kind not in classes:
         raise ValueError(f"unknown tool {kind!r}; choose one of {TOOL_NAMES}")
     return classes[kind](client, arm)
-
-
-class SimRobot(Robot):
-    """A :class:`robots.interfaces.Robot` backed by a :class:`SimArm` (and a simulated tool).
-
-    The base class runs the Safety checks before ``_move_to`` / ``_move_joints``. Reported
-    poses and joints are what the simulated controller reports (with encoder offsets, if any).
-    """
-
-    def __init__(self, arm: SimArm, tool=None, safety=None, name: str | None = None):
-        super().__init__(name or arm.name, safety=safety, tool=tool)
-        self.arm = arm
-
-    def flange_pose(self) -> np.ndarray:
-        self._require_open()
-        return self.arm.flange_pose()
-
-    def joint_positions(self) -> np.ndarray:
-        self._require_open()
-        return self.arm.joint_positions()
-
-    def joint_limits(self) -> np.ndarray:
-        return self.arm.joint_limits()
-
-    def stop(self) -> None:
-        self.arm.stop()
-
-    def solve_ik(self, base_T_flange, q_seed=None) -> np.ndarray:
-        """Joint angles (n,) rad reaching ``base_T_flange`` (raises UnreachableError)."""
-        self._require_open()
-        return self.arm.solve_ik(as_pose(base_T_flange, "base_T_flange"), q_seed)
-
-    def _move_to(self, base_T_flange: np.ndarray, speed: float) -> None:
-        self.arm.move_linear(base_T_flange, speed)
-
-    def _move_joints(self, q: np.ndarray, speed: float) -> None:
-        self.arm.move_joints(q, speed)
-
-    def _close(self) -> None:
-        if self.tool is not None and self.tool.is_holding:
-            self.tool.release()
-        self.arm.close()

@@ -34,8 +34,6 @@ along its edges, z up out of the table, as OpenCV's marker frame: out of the pri
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import pybullet as p
 
@@ -47,11 +45,11 @@ from robots.geometry import (
     quat_xyzw_from_rotation,
     transform_points,
 )
-from robots.interfaces import Intrinsics, UnreachableError, Workcell
+from robots.interfaces import Intrinsics, Workcell
 from sim_backends import layout, textures
 from sim_backends import scene as scn
 from sim_backends.camera import SimCamera
-from sim_backends.flanges import FLANGES, FlangeSpec
+from sim_backends.flanges import FLANGES
 from sim_backends.layout import (  # noqa: F401  (re-exported: their home before layout)
     ARM_REACH,
     MOUNTS,
@@ -68,6 +66,7 @@ from sim_backends.layout import (  # noqa: F401  (re-exported: their home before
     describe_workcell,
     nominal_flange_T_cam,
 )
+from sim_backends.truth import SimTruth
 
 __all__ = [
     "MOUNTS",
@@ -81,60 +80,6 @@ __all__ = [
 ]
 
 TIME_STEP = 1.0 / 240.0
-
-@dataclass
-class SimTruth:
-    """Ground truth of a simulated workcell (instructors and tests only; see module docstring).
-
-    ``base_T_cam`` is set for a fixed camera (eye-to-hand) and ``flange_T_cam`` for a camera on
-    the flange (eye-in-hand); the other is None. ``nominal_*`` is the mount a naive user would
-    assume (the design values, before ``mount_error``). ``pieces`` is live: read it again after
-    the arm moves a piece. ``flange`` is the arm's ISO 9409-1 flange (its face, radius
-    ``flange.radius`` m, is centred on tool0 with normal +z); ``base_T_rectangle`` and
-    ``rectangle_size`` (width, height) m the rectangle mark, None without one.
-    """
-
-    mount: str
-    base_T_cam: np.ndarray | None
-    flange_T_cam: np.ndarray | None
-    nominal_base_T_cam: np.ndarray | None
-    nominal_flange_T_cam: np.ndarray | None
-    base_T_board: np.ndarray | None
-    base_T_world: np.ndarray
-    flange_T_marker: np.ndarray | None
-    base_T_pybullet: np.ndarray
-    cam_T_right: np.ndarray | None = None
-    base_T_overview_cam: np.ndarray | None = None
-    encoder_offsets: np.ndarray | None = None
-    board: textures.Target | None = None
-    flange_target: textures.Target | None = None
-    flange: FlangeSpec | None = None
-    base_T_rectangle: np.ndarray | None = None
-    rectangle_size: tuple[float, float] | None = None
-    _chess: scn.ChessSet | None = field(default=None, repr=False)
-    _arm: object = field(default=None, repr=False)
-
-    @property
-    def pieces(self) -> dict:
-        """Square name -> ``PieceTruth(kind, colour, base_T_piece)`` read from the live sim.
-
-        Empty outside the chess scene. A piece that is lifted or off the board is keyed
-        ``"lifted:<body id>"``.
-        """
-        if self._chess is None:
-            return {}
-        return self._chess.pieces(self.base_T_pybullet)
-
-    def base_T_flange(self) -> np.ndarray:
-        """The TRUE flange pose now (the robot's ``flange_pose()`` adds encoder errors)."""
-        return self._arm.true_flange_pose()
-
-    def base_T_cam_now(self) -> np.ndarray:
-        """Where the main camera is now, in the base frame (either mount)."""
-        if self.base_T_cam is not None:
-            return self.base_T_cam.copy()
-        return compose(self.base_T_flange(), self.flange_T_cam)
-
 
 class SimWorkcell(Workcell):
     """A ``robots.Workcell`` that also owns the PyBullet client (disconnected on close)."""
@@ -185,31 +130,11 @@ def _flange_face_height(arm, half_size) -> float:
 
 
 def _target_on_flange(mount: str, arm, reach: float) -> tuple[textures.Target, np.ndarray]:
-    """The flange target and ``flange_T_marker``: its centre on the tool0 axis, printed face
-    looking along flange +z, 1 mm in front of the flange face. (On some arm models the last
-    links stick out beyond tool0; the plate then moves out until it clears them.)"""
-    if mount == "eye_in_hand":
-        target = textures.aruco_marker(marker_id=7, size=0.03 if reach < 0.5 else 0.04)
-    else:
-        square = 0.012 if reach < 0.5 else 0.02
-        target = textures.chessboard(squares=(7, 6), square=square, margin=square / 2)
+    """The flange target and ``flange_T_marker`` (``layout.flange_target``), 1 mm in front of
+    the flange face or of whatever of the arm's own geometry sticks out beyond tool0."""
+    target = layout.flange_target(mount, reach)
     gap = 0.001 + _flange_face_height(arm, (target.size[0] / 2, target.size[1] / 2))
-    if target.kind == "aruco":
-        # OpenCV marker frame: z out of the print, so it points along flange +z.
-        return target, make_pose(t=[0.0, 0.0, gap])
-    # Chessboard frame: z into the print, i.e. towards the flange.
-    flange_T_centre = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, gap])
-    return target, compose(flange_T_centre, make_pose(t=-target.centre))
-
-
-def _teleport_to(arm, base_T_flange) -> bool:
-    """Put the arm at an IK solution for a pose (set-up only, no motion). False if unreachable."""
-    try:
-        q = arm.solve_ik(base_T_flange)
-    except UnreachableError:
-        return False
-    arm.set_joint_positions(q)
-    return True
+    return target, layout.flange_T_marker(target, gap)
 
 
 # --------------------------------------------------------------------------- factory
@@ -366,7 +291,7 @@ def create_workcell(
             cameras["overview"] = SimCamera(client, intrinsics, world_T_cam=world_T_overview,
                                             name="overview", rng=rng_overview, **cam_kw)
 
-        _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
+        layout.start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
                     flange_T_cam, flange_T_marker, flange_target, world_T_cam, reach, intrinsics)
         for _ in range(10):  # let the pieces settle on the board
             p.stepSimulation(physicsClientId=client)
@@ -412,34 +337,10 @@ def _add_table_target(client, kind, reach, rng):
 
 
 def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.ndarray:
-    """Lay the dark rectangle mark on the table to the robot's right of the board (or chess
-    set), clear of it and of the robot's base, at a seeded position and yaw. Returns
+    """Lay the dark rectangle mark (``layout.rectangle_mark_pose``) on the table. Returns
     world_T_rectangle (centre of the top face, z up)."""
     w, h = RECTANGLE_MARK_SIZE
-    if chess is not None:
-        side = 8 * chess.square + 2 * chess.texture.params["border"]
-        centre = transform_points(chess.world_T_chess, [[4 * chess.square] * 2 + [0.0]])[0]
-        keep_out = (centre[:2], np.hypot(side, side) / 2)
-    elif board is not None:
-        centre = transform_points(world_T_board, [board.centre])[0]
-        keep_out = (centre[:2], np.hypot(*board.size) / 2)
-    else:
-        keep_out = (np.zeros(2), 0.0)
-    mark_radius = np.hypot(w, h) / 2
-    jitter = rng.uniform(-0.01, 0.01, 2)
-    yaw = rng.uniform(-np.deg2rad(15), np.deg2rad(15))
-    for frac in (0.5, 0.6, 0.7):
-        for angle in (-55.0, -70.0, -90.0):
-            xy = frac * reach * np.array([np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))])
-            xy = xy + jitter
-            clear = np.linalg.norm(xy - keep_out[0]) > keep_out[1] + mark_radius + 0.02
-            if clear and np.linalg.norm(xy) > 0.12 + mark_radius:  # off the robot's base
-                break
-        else:
-            continue
-        break
-    world_T_rectangle = make_pose(pose_from_rpy(0, 0, yaw)[:3, :3],
-                                  [xy[0], xy[1], RECTANGLE_MARK_THICKNESS])
+    world_T_rectangle = layout.rectangle_mark_pose(reach, rng, board, world_T_board, chess)
     half = [w / 2, h / 2, RECTANGLE_MARK_THICKNESS / 2]
     below = [0.0, 0.0, -RECTANGLE_MARK_THICKNESS / 2]  # the body frame is the top face
     vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, visualFramePosition=below,
@@ -488,46 +389,3 @@ def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:
     world_T_chess = compose(world_T_centre, make_pose(t=[-4 * square, -4 * square, 0]))
     return scn.ChessSet(client, world_T_chess, position=position, square=square,
                         board_thickness=thickness)
-
-
-def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, flange_T_cam,
-                flange_T_marker, flange_target, world_T_cam, reach, intrinsics):
-    """Teleport the arm to a pose where the camera sees its target (best effort: the arm's
-    own home pose stays if none of the candidates is reachable)."""
-    if scene != "calibration":
-        return
-    candidates = []
-    if mount == "eye_in_hand":
-        # Camera above the board centre looking straight down with its axes along the
-        # board's (z into the board), so the board reads upright in the image; high enough
-        # for the whole printed board to fit the image width. Turned half round as a last
-        # resort (some wrists cannot reach the upright view).
-        world_T_view = compose(world_T_board, make_pose(t=board.centre))
-        if board.kind == "aruco":
-            world_T_view = compose(world_T_view, make_pose(np.diag([1.0, -1.0, -1.0])))
-        intr = intrinsics
-        fit = max(board.size[0] * intr.fx / intr.width, board.size[1] * intr.fy / intr.height)
-        # Big arms look from higher up, clear of their own bulky wrists.
-        heights = [max(1.05 * fit, 0.5 * reach), 1.2 * fit, 1.4 * fit, 0.95 * fit]
-        for yaw in (0.0, np.pi):
-            for h in heights:
-                world_T_cam_goal = compose(make_pose(t=[0, 0, h]), world_T_view,
-                                           pose_from_rpy(0, 0, yaw))
-                candidates.append(compose(base_T_pybullet, world_T_cam_goal,
-                                          invert(flange_T_cam)))
-    else:
-        # The flange target between the work area and the camera (as close to the camera as
-        # the arm allows, for a large image of a small target), facing the camera with its
-        # axes along the camera's (its z, into the print, along the optical axis).
-        look = np.array([0.5 * reach, 0.0, 0.25 * reach])
-        if flange_target is None:  # the bare flange face, its normal (+z) towards the camera
-            centre, flange_T_marker = np.zeros(3), make_pose(np.diag([1.0, -1.0, -1.0]))
-        else:
-            centre = flange_target.centre
-        for f in (0.4, 0.3, 0.2, 0.1, 0.0):
-            pos = look + f * (world_T_cam[:3, 3] - look)
-            world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)
-            candidates.append(compose(base_T_pybullet, world_T_marker, invert(flange_T_marker)))
-    for base_T_flange in candidates:
-        if _teleport_to(sim_arm, base_T_flange):
-            return
