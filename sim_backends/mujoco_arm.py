@@ -19,7 +19,7 @@ import itertools
 
 import numpy as np
 
-from robots.geometry import invert, make_pose
+from robots.geometry import make_pose
 from sim_backends.arm_motion import ArmMotion
 from sim_backends.ik_core import KinematicSolver
 from sim_backends.mujoco_gl import import_mujoco
@@ -127,8 +127,8 @@ class MujocoArm(ArmMotion):
             "the MuJoCo engine fixes flange-borne bodies in the model when it builds the world; "
             "carrying another body (a tool's grasp) needs the PyBullet engine for now")
 
-    def base_T_world(self) -> np.ndarray:
-        return invert(self.world_T_base)
+    def close(self) -> None:
+        """Nothing to release: the world owns the model (and frees its renderer)."""
 
     def __repr__(self) -> str:
         return f"MujocoArm(name={self.name!r})"

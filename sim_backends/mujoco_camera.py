@@ -18,6 +18,7 @@ clipping planes: ``z = near / (1 - d (1 - near / far))``; d = 1 (nothing drawn) 
 
 from __future__ import annotations
 
+import os
 import weakref
 
 import numpy as np
@@ -42,6 +43,19 @@ def _free(context, gl) -> None:
         pass
 
 
+def _gl_context_class():
+    # MuJoCo binds mujoco.GLContext when it is first imported; if someone imported it before
+    # sim_backends could choose (MUJOCO_GL unset, no display), ask for the chosen one by name.
+    platform = os.environ.get("MUJOCO_GL", "")
+    if platform == "egl":
+        from mujoco.egl import GLContext
+    elif platform == "osmesa":
+        from mujoco.osmesa import GLContext
+    else:
+        GLContext = mujoco.GLContext  # noqa: N806
+    return GLContext
+
+
 class OffscreenRenderer:
     """One off-screen OpenGL context and MuJoCo scene for a model, shared by its cameras.
 
@@ -51,7 +65,7 @@ class OffscreenRenderer:
 
     def __init__(self, model, max_size: tuple[int, int]):
         try:
-            self._gl = mujoco.GLContext(int(max_size[0]), int(max_size[1]))
+            self._gl = _gl_context_class()(int(max_size[0]), int(max_size[1]))
             self._gl.make_current()
         except Exception as error:  # noqa: BLE001  (EGL/OSMesa raise their own types)
             raise OpenGLUnavailableError(

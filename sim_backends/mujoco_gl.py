@@ -49,11 +49,12 @@ def import_mujoco():
     installed, and ImportError (from ``robots.connect``, naming ``pip install mujoco``) when
     MuJoCo itself is missing.
     """
-    if "mujoco" not in sys.modules and sys.platform.startswith("linux"):
-        if not os.environ.get("MUJOCO_GL"):
-            os.environ["MUJOCO_GL"] = _choose_linux_platform()
-            # PyOpenGL must agree with MuJoCo on the platform.
-            os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    # Even when mujoco was imported first, the choice is recorded: the renderer then asks for
+    # that platform's context by name (mujoco_camera._gl_context_class).
+    if sys.platform.startswith("linux") and not os.environ.get("MUJOCO_GL"):
+        os.environ["MUJOCO_GL"] = _choose_linux_platform()
+        # PyOpenGL must agree with MuJoCo on the platform.
+        os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     import mujoco
 
     return mujoco

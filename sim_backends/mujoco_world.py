@@ -1,0 +1,248 @@
+"""The simulated workcell built by MuJoCo, behind ``robots.connect("sim", engine="mujoco")``.
+
+``create_workcell`` takes the same options as the PyBullet engine's
+(``sim_backends.world.create_workcell``, where they are documented), checks them and draws
+the random streams with ``sim_backends.layout.describe_workcell``, lays the cell out with the
+same ``layout`` functions, and builds one MuJoCo model from the parts
+(``sim_backends.mujoco_model``): for a seed, the board, the camera mounts, the encoder
+offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the same
+``SimTruth``; ``base_T_pybullet`` is the identity, MuJoCo's world being placed as PyBullet's.
+
+What this engine builds today: the UR5e, UR10e, Aubo-i5 and Cobotta, both mounts, the
+calibration scene with any of the four targets, the flange target or the bare ISO flange face,
+the rectangle mark, a stereo pair, lens distortion, pixel noise, the D4xx depth model,
+encoder noise, mount error and Safety. Not yet: the Panda (its model comes from PyBullet's
+data), the chess scene, the tools (suction cup, gripper, pointer), segmentation masks and the
+3-D viewer's scene; asking for one raises ``robots.backends.BackendNotAvailableError`` naming
+the PyBullet engine, so a lab never silently runs differently.
+
+Images differ from PyBullet's in shading (MuJoCo's OpenGL Phong lighting against
+TinyRenderer's), not in geometry: the same intrinsics and poses put every corner on the same
+pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robots.backends import BackendNotAvailableError
+from robots.geometry import compose, make_pose
+from robots.interfaces import Workcell
+from sim_backends import layout
+from sim_backends import mujoco_model as mjm
+from sim_backends.arm_specs import ARM_SPECS
+from sim_backends.flanges import FLANGES
+from sim_backends.layout import RECTANGLE_MARK_SIZE, RECTANGLE_MARK_THICKNESS, WorkcellDescription
+from sim_backends.mujoco_arm import MujocoArm, _body_pose
+from sim_backends.mujoco_camera import MujocoCamera, OffscreenRenderer
+from sim_backends.mujoco_gl import import_mujoco
+from sim_backends.sim_robot import SimRobot
+from sim_backends.truth import SimTruth
+
+mujoco = import_mujoco()
+
+__all__ = ["MujocoWorkcell", "MujocoWorld", "create_workcell", "unsupported"]
+
+MUJOCO_ARMS = ("ur5e", "ur10e", "aubo_i5", "cobotta")
+_TABLE_THICKNESS = 0.04
+_TABLE_RGBA = (0.78, 0.70, 0.58, 1.0)
+_MARK_RGBA = (0.06, 0.06, 0.07, 1.0)
+_SCENE_BODIES = ("table", "board", "rectangle_mark")
+
+
+def unsupported(d: WorkcellDescription) -> str | None:
+    """What of the described cell this engine cannot build yet, or None."""
+    if d.arm not in MUJOCO_ARMS:
+        return (f"the {d.arm!r} arm (its model comes from PyBullet's pybullet_data; the MuJoCo "
+                f"engine has {', '.join(MUJOCO_ARMS)})")
+    if d.scene != "calibration":
+        return f"the {d.scene!r} scene (it has the calibration scene)"
+    if d.tool is not None:
+        return f"the {d.tool!r} tool (it has only the bare flange, tool=None)"
+    return None
+
+
+class MujocoWorld:
+    """A compiled MuJoCo model, its data and (made on the first render) its renderer."""
+
+    def __init__(self, model, max_canvas: tuple[int, int]):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self._max_canvas = max_canvas
+        self._renderer = None
+        mujoco.mj_kinematics(model, self.data)
+        mujoco.mj_camlight(model, self.data)  # the lights' world directions (they never move)
+
+    def body_pose(self, name: str) -> np.ndarray:
+        """World pose (4, 4) of a body by name, from the last forward kinematics."""
+        return _body_pose(self.data, int(self.model.body(name).id))
+
+    def renderer(self) -> OffscreenRenderer:
+        if self._renderer is None:
+            self._renderer = OffscreenRenderer(self.model, self._max_canvas)
+        return self._renderer
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+class MujocoWorkcell(Workcell):
+    """A ``robots.Workcell`` that owns a MuJoCo world (its renderer is freed on close)."""
+
+    def __init__(self, robot, cameras, truth, world, arm):
+        super().__init__(robot, camera=cameras.get("cam"), cameras=cameras, truth=truth,
+                         kind="sim")
+        self.world = world
+        self.arm = arm
+        self.engine = "mujoco"
+
+    def _close(self) -> None:
+        self.world.close()
+
+
+# --------------------------------------------------------------------------- building
+
+
+def _max_canvas(d: WorkcellDescription) -> tuple[int, int]:
+    # A distorted camera renders a padded canvas, at most half the image again on each side
+    # (rendered_camera refuses more).
+    W, H = d.intrinsics.width, d.intrinsics.height
+    if np.any(np.asarray(d.intrinsics.dist, dtype=float) != 0):
+        return 2 * W, 2 * H
+    return W, H
+
+
+def _flange_face_height(model, data, flange_body: int, arm_bodies: set[int], half_size) -> float:
+    """How far (m) the arm's collision geometry reaches beyond tool0 along flange +z over a
+    rectangle of ``half_size`` around the flange axis (``world._flange_face_height``'s
+    measure, with MuJoCo's rays)."""
+    T = _body_pose(data, flange_body)
+    reach = 0.15
+    groups = np.zeros(6, dtype=np.uint8)
+    groups[mjm.COLLISION_GROUP] = 1
+    geom = np.zeros(1, dtype=np.int32)
+    direction = -T[:3, 2] * reach  # from in front of the flange back towards it
+    height = 0.0
+    for x in np.linspace(-half_size[0], half_size[0], 15):
+        for y in np.linspace(-half_size[1], half_size[1], 15):
+            start = T[:3, :3] @ [x, y, reach] + T[:3, 3]
+            fraction = mujoco.mj_ray(model, data, start, direction, groups, 1, -1, geom)
+            if fraction >= 0 and fraction <= 1 and model.geom_bodyid[geom[0]] in arm_bodies:
+                height = max(height, reach * (1.0 - fraction))
+    return height
+
+
+def _arm_bodies(model) -> set[int]:
+    """Ids of the arm's bodies: every body but the world and the scene's own."""
+    return {b for b in range(1, model.nbody) if model.body(b).name not in _SCENE_BODIES}
+
+
+def _camera_poses(d: WorkcellDescription):
+    """(flange_T_cam, nominal flange_T_cam, world_T_cam, nominal world_T_cam): the true mount
+    is the nominal one times the seeded mounting error; the pair not used by the mount is None."""
+    error = layout._random_pose_error(d.streams.mount, d.mount_mm, d.mount_deg)
+    if d.mount == "eye_in_hand":
+        nominal = layout.nominal_flange_T_cam(d.arm)
+        return compose(nominal, error), nominal, None, None
+    nominal = layout.fixed_camera_nominal_pose(d.reach)
+    return None, None, compose(nominal, error), nominal
+
+
+def create_workcell(**options) -> MujocoWorkcell:
+    """Build the simulated workcell on MuJoCo (options: ``sim_backends.world.create_workcell``).
+
+    Raises ValueError for a bad option (naming it) and BackendNotAvailableError for a part
+    this engine does not build yet (naming the PyBullet engine).
+    """
+    d = layout.describe_workcell(**options)
+    missing = unsupported(d)
+    if missing is not None:
+        raise BackendNotAvailableError(
+            f"the MuJoCo simulator engine does not build {missing} yet; use the PyBullet engine: "
+            "connect('sim', engine='pybullet', ...) or COBOTLAB_SIM_ENGINE=pybullet "
+            "(`pip install pybullet`)")
+    spec = ARM_SPECS[d.arm]
+    s = mjm.arm_spec(spec)
+    max_canvas = _max_canvas(d)
+    mjm.configure_visual(s, max_canvas)
+    mjm.add_lights(s, d.lighting)
+    (sx, sy), (cx, cy) = layout.table_size(d.reach)
+    mjm.add_box(s.worldbody, "table", (sx / 2, sy / 2, _TABLE_THICKNESS / 2),
+                make_pose(t=[cx, cy, -_TABLE_THICKNESS / 2]), _TABLE_RGBA)
+    board, world_T_board = layout.table_target_pose(d.target, d.reach, d.streams.scene)
+    mjm.add_target(s, s.worldbody, "board", board, world_T_board)
+    world_T_rectangle = None
+    if d.rectangle_mark:
+        world_T_rectangle = layout.rectangle_mark_pose(d.reach, d.streams.mark, board,
+                                                       world_T_board, None)
+        w, h = RECTANGLE_MARK_SIZE
+        mjm.add_box(s.worldbody, "rectangle_mark", (w / 2, h / 2, RECTANGLE_MARK_THICKNESS / 2),
+                    world_T_rectangle, _MARK_RGBA, offset=(0, 0, -RECTANGLE_MARK_THICKNESS / 2))
+
+    # The arm, its kinematics and (before the flange target goes on) its own geometry.
+    offsets = layout.encoder_offsets(d, spec.n_joints)
+    nominal_model = mjm.arm_spec(spec, drawn=False).compile()
+    flange_target = flange_T_marker = None
+    if d.flange_target:
+        probe = MujocoWorld(s.compile(), max_canvas)
+        MujocoArm(probe, d.arm, nominal_model).set_joint_positions(spec.home)
+        flange_target = layout.flange_target(d.mount, d.reach)
+        half = (flange_target.size[0] / 2, flange_target.size[1] / 2)
+        gap = 0.001 + _flange_face_height(probe.model, probe.data,
+                                          int(probe.model.body(spec.flange_link).id),
+                                          _arm_bodies(probe.model), half)
+        flange_T_marker = layout.flange_T_marker(flange_target, gap)
+        mjm.add_target(s, s.body(spec.flange_link), "flange_target", flange_target,
+                       flange_T_marker, thickness=0.001)
+
+    flange_T_cam, nominal_flange_T_cam, world_T_cam, nominal_world_T_cam = _camera_poses(d)
+    cam_T_right = (None if d.stereo_baseline is None
+                   else make_pose(t=[d.stereo_baseline, 0, 0]))
+    names = ["cam"] + (["right"] if cam_T_right is not None else [])
+    for name in names:
+        mjm.add_camera(s, name)
+    world = MujocoWorld(s.compile(), max_canvas)
+    arm = MujocoArm(world, d.arm, nominal_model, encoder_offsets=offsets, rng=d.streams.enc)
+
+    cam_kw = {"pixel_noise": d.pixel_noise, "depth_noise": d.depth_noise,
+              "depth_model": d.depth_model, "lighting": d.lighting,
+              "clock": lambda: float(arm.motion_time)}
+    left = flange_T_cam if d.mount == "eye_in_hand" else world_T_cam
+
+    def make_camera(name, pose, rng):
+        if d.mount == "eye_in_hand":
+            return MujocoCamera(world, d.intrinsics, camera_name=name, parent=spec.flange_link,
+                                link_T_cam=pose, name=name, rng=rng, **cam_kw)
+        return MujocoCamera(world, d.intrinsics, camera_name=name, world_T_cam=pose, name=name,
+                            rng=rng, **cam_kw)
+
+    cameras = {"cam": make_camera("cam", left, d.streams.cam)}
+    if cam_T_right is not None:
+        cameras["right"] = make_camera("right", compose(left, cam_T_right), d.streams.right)
+
+    base_T_world = np.eye(4)  # the robot base is the world origin, as on PyBullet
+    layout.start_pose(arm, d.mount, d.scene, base_T_world, world_T_board, board, flange_T_cam,
+                      flange_T_marker, flange_target, world_T_cam, d.reach, d.intrinsics)
+    robot = SimRobot(arm, tool=None, safety=d.safety)
+    truth = SimTruth(
+        mount=d.mount,
+        base_T_cam=world_T_cam,
+        flange_T_cam=flange_T_cam,
+        nominal_base_T_cam=nominal_world_T_cam,
+        nominal_flange_T_cam=nominal_flange_T_cam,
+        base_T_board=world_T_board,
+        base_T_world=world_T_board,
+        flange_T_marker=flange_T_marker,
+        base_T_pybullet=base_T_world,
+        cam_T_right=cam_T_right,
+        encoder_offsets=None if offsets is None else offsets.copy(),
+        board=board,
+        flange_target=flange_target,
+        flange=FLANGES[d.arm],
+        base_T_rectangle=world_T_rectangle,
+        rectangle_size=None if world_T_rectangle is None else RECTANGLE_MARK_SIZE,
+        _arm=arm,
+    )
+    return MujocoWorkcell(robot, cameras, truth, world, arm)
