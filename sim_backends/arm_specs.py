@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ARM_NAMES", "ARM_SPECS", "ArmSpec", "render_urdf"]
+__all__ = ["ARM_NAMES", "ARM_SPECS", "ArmSpec", "portable_urdf", "render_portable_urdf", "render_urdf"]
 
 
 def _pybullet_data_dir() -> Path:
@@ -95,10 +95,7 @@ def render_urdf(spec: ArmSpec) -> Path:
     from sim_backends.textures import cache_dir
 
     if spec.name != "panda":
-        text = _with_flange_face(spec.urdf.read_text(), spec.flange_link, spec.name, "flange")
-        text = text.replace('<material name="accent">', '<material name="flange"><color rgba='
-                            '"0.62 0.63 0.66 1"/></material>\n  <material name="accent">', 1)
-        return _write_if_changed(cache_dir() / f"{spec.name}_render.urdf", text)
+        return _drawn(spec.urdf, spec, "render")
     source = spec.urdf
     meshes = (source.parent / "meshes" / "collision").as_posix()
     text = source.read_text()
@@ -112,6 +109,29 @@ def render_urdf(spec: ArmSpec) -> Path:
     text = text.replace("package://meshes/visual/", meshes + "/")
     text = text.replace("package://meshes/collision/", meshes + "/")
     return _write_if_changed(cache_dir() / "panda_light.urdf", text)
+
+
+def _drawn(urdf: Path, spec: ArmSpec, suffix: str) -> Path:
+    """A generated URDF (``generate_urdfs.py``) with the flange face, in the texture cache."""
+    from sim_backends.textures import cache_dir
+
+    text = _with_flange_face(urdf.read_text(), spec.flange_link, spec.name, "flange")
+    text = text.replace('<material name="accent">', '<material name="flange"><color rgba='
+                        '"0.62 0.63 0.66 1"/></material>\n  <material name="accent">', 1)
+    return _write_if_changed(cache_dir() / f"{spec.name}_{suffix}.urdf", text)
+
+
+def portable_urdf(spec: ArmSpec) -> Path:
+    """The arm's URDF generated in ``sim_backends/urdf`` (kinematics only, cylinders for
+    links): the same file as ``spec.urdf`` for every arm but the Panda, whose ``spec.urdf`` is
+    pybullet_data's (meshes, the Franka Hand) and whose generated copy has the same joints
+    and flange without the hand. What an engine without pybullet_data builds from."""
+    return URDF_DIR / f"{spec.name}.urdf"
+
+
+def render_portable_urdf(spec: ArmSpec) -> Path:
+    """``portable_urdf`` with the arm's flange face drawn (as ``render_urdf`` adds it)."""
+    return _drawn(portable_urdf(spec), spec, "portable_render")
 
 
 def _limits(lo_hi) -> np.ndarray:

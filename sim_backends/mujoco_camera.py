@@ -33,6 +33,8 @@ mujoco = import_mujoco()
 
 __all__ = ["MujocoCamera", "OffscreenRenderer"]
 
+BACKGROUND_RGB = (255, 255, 255)
+
 
 def _free(context, gl) -> None:
     try:
@@ -148,4 +150,6 @@ class MujocoCamera(RenderedCamera):
         data.cam_xmat[self.camera_id] = mj_pose[:3, :3].ravel()
         rgb, buffer = self.world.renderer().render(self.world.model, data, self.camera_id,
                                                    *canvas_size)
-        return rgb, depth_from_mujoco_buffer(buffer, self.near, self.far), None
+        depth = depth_from_mujoco_buffer(buffer, self.near, self.far)
+        rgb[np.isnan(depth)] = BACKGROUND_RGB  # as PyBullet's: nothing drawn reads white
+        return rgb, depth, None

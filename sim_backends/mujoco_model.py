@@ -1,7 +1,7 @@
 """The workcell's parts as MuJoCo model elements, merged into one ``MjSpec``.
 
 Each function adds one part of the engine-neutral description (``sim_backends.layout``) to a
-spec: the arm (compiled from the same URDF PyBullet draws, ``arm_specs.render_urdf``), the
+spec: the arm (compiled from the generated URDF, ``arm_specs.portable_urdf``), the
 table, a textured calibration target (the same OBJ slab and image as PyBullet's), a plain
 box, the lights and the cameras. ``mujoco_world`` calls them in order and compiles once.
 
@@ -22,7 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from robots.geometry import quat_xyzw_from_rotation
-from sim_backends.arm_specs import ArmSpec, _write_if_changed, render_urdf
+from sim_backends.arm_specs import (
+    ArmSpec,
+    _write_if_changed,
+    portable_urdf,
+    render_portable_urdf,
+)
 from sim_backends.mujoco_gl import import_mujoco
 from sim_backends.rendered_camera import Lighting
 from sim_backends.textures import Target, cache_dir, write_textured_slab
@@ -64,16 +69,13 @@ def _mujoco_urdf(path: Path, name: str) -> Path:
 
 
 def arm_spec(spec: ArmSpec, drawn: bool = True):
-    """An ``MjSpec`` of the arm alone, base at the world origin.
+    """An ``MjSpec`` of the arm alone, base at the world origin, from the generated URDF
+    (``arm_specs.portable_urdf``: the Panda's without pybullet_data, and without its hand).
 
-    ``drawn``: the URDF the cameras see (with its flange face, ``render_urdf``); False gives
-    the controller's nominal model (the arm's own URDF), as the PyBullet engine uses for IK.
+    ``drawn``: the URDF the cameras see (with its flange face); False gives the controller's
+    nominal model, as the PyBullet engine uses for IK.
     """
-    if not spec.urdf.is_file():
-        raise FileNotFoundError(
-            f"the {spec.name} model {spec.urdf} is missing; the MuJoCo engine builds only the "
-            "arms whose URDF ships with cobotlab")
-    source = render_urdf(spec) if drawn else spec.urdf
+    source = render_portable_urdf(spec) if drawn else portable_urdf(spec)
     suffix = "render" if drawn else "nominal"
     return mujoco.MjSpec.from_file(str(_mujoco_urdf(source, f"{spec.name}_{suffix}")))
 

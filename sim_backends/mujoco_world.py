@@ -8,17 +8,20 @@ same ``layout`` functions, and builds one MuJoCo model from the parts
 offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the same
 ``SimTruth``; ``base_T_pybullet`` is the identity, MuJoCo's world being placed as PyBullet's.
 
-What this engine builds today: the UR5e, UR10e, Aubo-i5 and Cobotta, both mounts, the
-calibration scene with any of the four targets, the flange target or the bare ISO flange face,
-the rectangle mark, a stereo pair, lens distortion, pixel noise, the D4xx depth model,
-encoder noise, mount error and Safety. Not yet: the Panda (its model comes from PyBullet's
-data), the chess scene, the tools (suction cup, gripper, pointer), segmentation masks and the
-3-D viewer's scene; asking for one raises ``robots.backends.BackendNotAvailableError`` naming
-the PyBullet engine, so a lab never silently runs differently.
+What this engine builds today: the five arms (the Panda from its generated URDF, with Franka's
+kinematics and cylinders for links, without the Franka Hand), both mounts, the calibration
+scene with any of the four targets, the flange target or the bare ISO flange face, the
+rectangle mark, a stereo pair, lens distortion, pixel noise, the D4xx depth model, encoder
+noise, mount error and Safety. Not yet: the chess scene, the tools (suction cup, gripper,
+pointer), segmentation masks and the 3-D viewer's scene; asking for one raises
+``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab never
+silently runs differently.
 
-Images differ from PyBullet's in shading (MuJoCo's OpenGL Phong lighting against
-TinyRenderer's), not in geometry: the same intrinsics and poses put every corner on the same
-pixel.
+Images differ from PyBullet's in shading (MuJoCo's OpenGL lighting against TinyRenderer's)
+and in the Panda's links (cylinders, not Franka's meshes), not in geometry: the same
+intrinsics and poses put every corner on the same pixel. One measured difference in the
+layout: the flange target stands 1 mm in front of tool0 on MuJoCo and 2 mm on PyBullet, whose
+rays stop at Bullet's 1 mm collision margin; ``truth.flange_T_marker`` holds each.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ mujoco = import_mujoco()
 
 __all__ = ["MujocoWorkcell", "MujocoWorld", "create_workcell", "unsupported"]
 
-MUJOCO_ARMS = ("ur5e", "ur10e", "aubo_i5", "cobotta")
+MUJOCO_ARMS = ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta")
 _TABLE_THICKNESS = 0.04
 _TABLE_RGBA = (0.78, 0.70, 0.58, 1.0)
 _MARK_RGBA = (0.06, 0.06, 0.07, 1.0)
@@ -53,8 +56,7 @@ _SCENE_BODIES = ("table", "board", "rectangle_mark")
 def unsupported(d: WorkcellDescription) -> str | None:
     """What of the described cell this engine cannot build yet, or None."""
     if d.arm not in MUJOCO_ARMS:
-        return (f"the {d.arm!r} arm (its model comes from PyBullet's pybullet_data; the MuJoCo "
-                f"engine has {', '.join(MUJOCO_ARMS)})")
+        return f"the {d.arm!r} arm (it has {', '.join(MUJOCO_ARMS)})"
     if d.scene != "calibration":
         return f"the {d.scene!r} scene (it has the calibration scene)"
     if d.tool is not None:

@@ -77,7 +77,7 @@ def test_an_unknown_or_missing_engine_says_what_to_do(monkeypatch):
 
 
 def test_what_mujoco_does_not_build_yet_names_the_pybullet_engine():
-    for options in ({"arm": "panda"}, {"arm": "ur5e", "scene": "chess"},
+    for options in ({"arm": "ur5e", "scene": "chess"},
                     {"arm": "ur5e", "tool": "suction"}):
         with pytest.raises(BackendNotAvailableError, match="engine='pybullet'"):
             connect("sim", engine="mujoco", **options)
@@ -100,14 +100,14 @@ def test_a_mujoco_only_install_runs_the_simulator_without_pybullet():
         from robots.backends import BackendNotAvailableError
         import robots.backends as b
         b._installed = lambda package: package != "pybullet"
-        with connect("sim", arm="cobotta", seed=0, width=160, height=120) as cell:
+        with connect("sim", arm="panda", seed=0, width=160, height=120) as cell:
             frame = cell.camera.capture()
             print(type(cell).__name__, frame.rgb.shape, "pybullet" in sys.modules and
                   sys.modules["pybullet"] is not None)
         try:
-            connect("sim", arm="panda")
+            connect("sim", arm="cobotta", scene="chess")
         except BackendNotAvailableError as error:
-            print("panda:", error)
+            print("chess:", error)
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=300)
@@ -215,7 +215,7 @@ def test_the_realsense_depth_model_applies_on_mujoco_frames():
         np.testing.assert_allclose(steps, np.rint(steps), atol=1e-3)  # 1 mm steps
 
 
-@pytest.mark.parametrize("arm", ["ur10e", "aubo_i5", "cobotta"])
+@pytest.mark.parametrize("arm", ["panda", "ur10e", "aubo_i5", "cobotta"])
 def test_every_mujoco_arm_sees_its_board_and_the_fixed_camera_its_flange_board(arm):
     with connect("sim", engine="mujoco", arm=arm, mount="eye_to_hand", seed=1,
                  width=640, height=480) as cell:
@@ -232,3 +232,23 @@ def test_every_mujoco_arm_sees_its_board_and_the_fixed_camera_its_flange_board(a
         uv, _ = cv2.projectPoints(target.object_points, rvec, cam_T_marker[:3, 3],
                                   cell.camera.intrinsics.K, np.zeros(5))
         assert _corner_error(corners, uv.reshape(-1, 2)) < 0.3
+
+
+@pytest.mark.parametrize("arm", ["panda", "ur5e", "ur10e", "aubo_i5", "cobotta"])
+def test_mujocos_arm_models_have_pybullets_kinematics(arm):
+    # The Panda's generated URDF against pybullet_data's: the same joints, to float32 rounding.
+    from sim_backends import mujoco_model
+    from sim_backends.arm_specs import ARM_SPECS
+    from sim_backends.ik import KinematicModel
+    from sim_backends.mujoco_arm import MujocoKinematics
+
+    s = ARM_SPECS[arm]
+    pb = KinematicModel(s.urdf, s.joint_names, s.flange_link, s.joint_limits, s.home, s.reach,
+                        other_joints=s.other_joints)
+    mj = MujocoKinematics(mujoco_model.arm_spec(s, drawn=False).compile(), s.joint_names,
+                          s.flange_link, s.joint_limits, s.home, s.reach)
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(s.joint_limits[:, 0], s.joint_limits[:, 1], size=(20, s.n_joints)):
+        np.testing.assert_allclose(mj.fk(q), pb.fk(q), atol=1e-6)
+        np.testing.assert_allclose(mj.jacobian(q), pb.jacobian(q), atol=1e-6)
+    pb.close()
