@@ -252,3 +252,23 @@ def test_mujocos_arm_models_have_pybullets_kinematics(arm):
         np.testing.assert_allclose(mj.fk(q), pb.fk(q), atol=1e-6)
         np.testing.assert_allclose(mj.jacobian(q), pb.jacobian(q), atol=1e-6)
     pb.close()
+
+
+def test_the_maintainers_page_names_what_exists():
+    import importlib
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    doc = (root / "docs" / "simulation.md").read_text()
+    paths = set(re.findall(r"`(?:python )?((?:sim_backends|robots|benchmarks)/[\w/]+\.py)", doc))
+    assert len(paths) >= 6, paths
+    for path in paths:
+        assert (root / path).is_file(), path
+    for name in re.findall(r"`(mujoco_\w+\.py)`", doc):  # the engine's modules, by file name
+        assert (root / "sim_backends" / name).is_file(), name
+    for module, name in re.findall(r"`(?:sim_backends\.)?(layout|arm_motion|rendered_camera|"
+                                   r"sim_robot|truth|ik_core|mujoco_gl)\.(\w+)", doc):
+        assert hasattr(importlib.import_module(f"sim_backends.{module}"), name), (module, name)
+    for name in ("SIM_ENGINES", "DEFAULT_ENGINE_ORDER", "default_sim_engine"):
+        assert name in doc and hasattr(backends, name), name
