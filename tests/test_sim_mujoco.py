@@ -268,7 +268,7 @@ def test_the_maintainers_page_names_what_exists():
     for name in re.findall(r"`(mujoco_\w+\.py)`", doc):  # the engine's modules, by file name
         assert (root / "sim_backends" / name).is_file(), name
     for module, name in re.findall(r"`(?:sim_backends\.)?(layout|arm_motion|rendered_camera|"
-                                   r"sim_robot|truth|ik_core|mujoco_gl)\.(\w+)", doc):
+                                   r"sim_robot|truth|ik_core|mujoco_gl)\.(?!py`)(\w+)", doc):
         assert hasattr(importlib.import_module(f"sim_backends.{module}"), name), (module, name)
     for name in ("SIM_ENGINES", "DEFAULT_ENGINE_ORDER", "default_sim_engine"):
         assert name in doc and hasattr(backends, name), name
