@@ -267,8 +267,13 @@ def test_the_maintainers_page_names_what_exists():
         assert (root / path).is_file(), path
     for name in re.findall(r"`(mujoco_\w+\.py)`", doc):  # the engine's modules, by file name
         assert (root / "sim_backends" / name).is_file(), name
-    for module, name in re.findall(r"`(?:sim_backends\.)?(layout|arm_motion|rendered_camera|"
-                                   r"sim_robot|truth|ik_core|mujoco_gl)\.(?!py`)(\w+)", doc):
+    named = re.findall(r"`sim_backends\.(\w+)\.(\w+)", doc)
+    assert len(named) >= 4, named
+    for module, name in named:
         assert hasattr(importlib.import_module(f"sim_backends.{module}"), name), (module, name)
+    layout = importlib.import_module("sim_backends.layout")
+    for name in ("describe_workcell", "table_target_pose", "rectangle_mark_pose", "start_pose",
+                 "flange_target", "flange_T_marker", "encoder_offsets", "Streams"):
+        assert f"`{name}" in doc and hasattr(layout, name), name
     for name in ("SIM_ENGINES", "DEFAULT_ENGINE_ORDER", "default_sim_engine"):
         assert name in doc and hasattr(backends, name), name
