@@ -41,9 +41,7 @@ from robots.geometry import (
     compose,
     invert,
     make_pose,
-    pose_from_rpy,
     quat_xyzw_from_rotation,
-    transform_points,
 )
 from robots.interfaces import Intrinsics, Workcell
 from sim_backends import layout, textures
@@ -287,7 +285,7 @@ def create_workcell(
             cameras["right"] = make_camera("right", compose(left, cam_T_right), rng_right)
         world_T_overview = None
         if overview_camera:
-            world_T_overview = _overview_camera_pose(chess)
+            world_T_overview = layout.overview_camera_pose(chess.world_T_chess, chess.square)
             cameras["overview"] = SimCamera(client, intrinsics, world_T_cam=world_T_overview,
                                             name="overview", rng=rng_overview, **cam_kw)
 
@@ -353,39 +351,8 @@ def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.n
     return world_T_rectangle
 
 
-def _overview_camera_pose(chess: scn.ChessSet) -> np.ndarray:
-    """A fixed camera beyond the board's far edge (rank 8), high enough that the whole board
-    fills about half the image's height, looking down at the board's centre at about 60 deg
-    from the horizontal, image top away from the robot: it sees the board past the arm."""
-    side = 8 * chess.square
-    centre = transform_points(chess.world_T_chess, [[4 * chess.square, 4 * chess.square, 0]])[0]
-    away = centre[:2] / np.linalg.norm(centre[:2])  # from the robot base, on the table
-    eye = centre + np.r_[0.9 * side * away, 1.6 * side]
-    return _look_at(eye, centre, up=np.r_[away, 0.0])
-
-
 def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:
-    """The chess set in front of the robot, White on the robot's side (a1 to its left)."""
-    square = 0.03 if reach < 0.5 else 0.05
-    thickness = 0.01
-    yaw = rng.uniform(-np.deg2rad(3), np.deg2rad(3))
-    if reach < 0.5:
-        # The Cobotta's suction cup points straight down only between about 0.135 and 0.34 m
-        # from its base axis (measured with its IK at piece height near the centre files), less
-        # than the 0.24 m board. Centred at 0.24 m (+-1 cm), rank 2 keeps 2-4 cm from the inner
-        # edge and rank 7 about 2 cm from the outer one, room for a grasp that a wrong
-        # calibration shifts by up to 15 mm (at 0.221 m the pawns on rank 2 stood 0-2 cm inside
-        # the edge, and 11 % of picks with a 5 mm / 2 deg calibration error failed there).
-        # Ranks 1 and 8 lie at the edges.
-        centre = np.array([0.24, 0.0])
-    else:
-        centre = np.array([0.5 * reach + 0.05, 0.0])
-    centre += rng.uniform(-0.01, 0.01, 2)
-    # Chess frame: ranks (y) along world +x, files (x) along world -y, z up.
-    R = pose_from_rpy(0, 0, yaw)[:3, :3] @ np.array([[0.0, 1.0, 0.0],
-                                                      [-1.0, 0.0, 0.0],
-                                                      [0.0, 0.0, 1.0]])
-    world_T_centre = make_pose(R, [centre[0], centre[1], thickness])
-    world_T_chess = compose(world_T_centre, make_pose(t=[-4 * square, -4 * square, 0]))
+    """The chess set (``layout.chess_pose``) with its pieces, built."""
+    world_T_chess, square, thickness = layout.chess_pose(reach, rng)
     return scn.ChessSet(client, world_T_chess, position=position, square=square,
                         board_thickness=thickness)
