@@ -3,8 +3,10 @@
 :class:`MujocoArm` is an ``arm_motion.ArmMotion`` (encoder offsets, verified IK, joint and
 linear paths, Safety through ``SimRobot``: all shared with the PyBullet arm); here are only
 the engine's four parts. Motion is kinematic, as in the PyBullet engine: the joints are set
-(``qpos``) and forward kinematics run at every waypoint; bodies fixed to the flange in the
-model (the flange target) ride along exactly.
+(``qpos``) and forward kinematics run at every waypoint, with one physics step per waypoint
+when something in the world moves by itself (the chess pieces); bodies fixed to the flange
+in the model (the flange target, the tool) ride along exactly, and a held piece is carried
+(its free joint set from the flange pose) until it is released.
 
 :class:`MujocoKinematics` is the controller's nominal model (the arm's own URDF, base at the
 identity, in its own ``MjData`` so solving never moves the arm the cameras see), giving
@@ -19,10 +21,11 @@ import itertools
 
 import numpy as np
 
-from robots.geometry import make_pose
+from robots.geometry import invert, make_pose
 from sim_backends.arm_motion import ArmMotion
 from sim_backends.ik_core import KinematicSolver
 from sim_backends.mujoco_gl import import_mujoco
+from sim_backends.mujoco_model import mj_quat
 
 mujoco = import_mujoco()
 
@@ -38,6 +41,15 @@ def _joint_addresses(model, joint_names) -> list[int]:
 
 def _body_pose(data, body_id: int) -> np.ndarray:
     return make_pose(data.xmat[body_id].reshape(3, 3), data.xpos[body_id])
+
+
+def _set_free_pose(model, data, body: int, world_T_body: np.ndarray) -> None:
+    """Teleport a free body to a world pose, at rest."""
+    joint = model.body_jntadr[body]
+    qadr, dadr = model.jnt_qposadr[joint], model.jnt_dofadr[joint]
+    data.qpos[qadr:qadr + 3] = world_T_body[:3, 3]
+    data.qpos[qadr + 3:qadr + 7] = mj_quat(world_T_body[:3, :3])
+    data.qvel[dadr:dadr + 6] = 0.0
 
 
 class MujocoKinematics(KinematicSolver):
@@ -103,6 +115,8 @@ class MujocoArm(ArmMotion):
         spec = self.spec
         self.world = world
         self._qadr = _joint_addresses(world.model, spec.joint_names)
+        self._dofs = [int(world.model.jnt_dofadr[world.model.joint(n).id])
+                      for n in spec.joint_names]
         self.flange_body = int(world.model.body(spec.flange_link).id)
         self.model = MujocoKinematics(nominal_model, spec.joint_names, spec.flange_link,
                                       spec.joint_limits, spec.home, spec.reach, name=name)
@@ -113,19 +127,30 @@ class MujocoArm(ArmMotion):
         return _body_pose(self.world.data, self.flange_body)
 
     def _apply_true(self, q_true: np.ndarray) -> None:
+        model, data = self.world.model, self.world.data
         self._q_true = np.array(q_true, dtype=float)
-        self.world.data.qpos[self._qadr] = self._q_true
-        mujoco.mj_kinematics(self.world.model, self.world.data)
+        data.qpos[self._qadr] = self._q_true
+        data.qvel[self._dofs] = 0.0
+        mujoco.mj_kinematics(model, data)
+        if self._attached:
+            world_T_flange = self.world_T_flange()
+            for body, flange_T_body in self._attached.items():
+                _set_free_pose(model, data, body, world_T_flange @ flange_T_body)
+            mujoco.mj_kinematics(model, data)
 
     def _step_world(self) -> None:
-        # Nothing in the calibration scene moves by itself: the world is kinematic.
-        pass
+        # One physics step for what moves by itself (the chess pieces); the arm and what it
+        # carries are then put back exactly where the path says.
+        if self.world.dynamic:
+            mujoco.mj_step(self.world.model, self.world.data)
+            self._apply_true(self._q_true)
 
     def attach(self, body_id: int, flange_T_body=None) -> None:
-        """Bodies ride on the flange by being its children in the model (see mujoco_world)."""
-        raise NotImplementedError(
-            "the MuJoCo engine fixes flange-borne bodies in the model when it builds the world; "
-            "carrying another body (a tool's grasp) needs the PyBullet engine for now")
+        """Carry the free body ``body_id`` with the flange at ``flange_T_body`` (default: as it
+        is now); it leaves physics until ``detach``."""
+        if flange_T_body is None:
+            flange_T_body = invert(self.world_T_flange()) @ _body_pose(self.world.data, body_id)
+        self._attached[int(body_id)] = np.asarray(flange_T_body, dtype=float)
 
     def close(self) -> None:
         """Nothing to release: the world owns the model (and frees its renderer)."""

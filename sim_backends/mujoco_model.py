@@ -142,3 +142,52 @@ def add_target(s, parent, name: str, target: Target, T: np.ndarray, thickness: f
 def add_camera(s, name: str) -> None:
     """A world camera whose pose and intrinsics the camera object sets before each render."""
     s.worldbody.add_camera(name=name)
+
+
+def add_tool(s, flange_link: str, urdf: Path, name: str):
+    """A tool's URDF (``sim_backends/urdf``: its frame is the flange) fixed to the flange body.
+    Its bodies are named ``<name>_<link>``. Returns the tool's root body."""
+    tool = mujoco.MjSpec.from_file(str(_mujoco_urdf(urdf, f"tool_{name}")))
+    root = tool.worldbody.first_body()
+    s.body(flange_link).add_frame().attach_body(root, f"{name}_", "")
+    return s.body(f"{name}_{root.name}")
+
+
+def make_kinematic(s) -> None:
+    """The arm (and what it carries) collides with nothing: it is moved by setting its joints,
+    so a contact would only push the pieces with a made-up force. (PyBullet's arm did push.)"""
+    for geom in s.geoms:
+        if geom.group in (COLLISION_GROUP, VISUAL_GROUP):
+            geom.contype = 0
+            geom.conaffinity = 0
+
+
+_PIECE_GEOMS = {"cylinder": "mjGEOM_CYLINDER", "box": "mjGEOM_BOX", "sphere": "mjGEOM_SPHERE",
+                "capsule": "mjGEOM_CAPSULE"}
+
+
+def add_piece(s, name: str, parts, rgba, T: np.ndarray, mass: float):
+    """A free chess piece: ``parts`` as ``chess._PIECE_PARTS`` ((geometry, size, z), PyBullet's
+    sizes: cylinder and capsule lengths are full lengths, MuJoCo's half), scaled already.
+    Its body frame is the piece frame (base centre, z up). Returns the body."""
+    body = s.worldbody.add_body(name=name, **pos_quat(T))
+    body.add_freejoint(name=f"{name}_free")
+    for k, (geometry, size, z) in enumerate(parts):
+        if geometry in ("cylinder", "capsule"):
+            size = (size[0], size[1] / 2)
+        body.add_geom(name=f"{name}_{k}", type=getattr(mujoco.mjtGeom, _PIECE_GEOMS[geometry]),
+                      size=[float(v) for v in size] + [0.0] * (3 - len(size)), pos=[0, 0, float(z)],
+                      rgba=[float(v) for v in rgba], mass=mass / len(parts), group=SCENE_GROUP,
+                      friction=[0.9, 0.01, 0.001])
+    return body
+
+
+def add_slab_collider(body, target: Target, thickness: float) -> None:
+    """A collision box for a target slab (``add_target`` draws it without one): the slab as
+    ``textures.write_textured_slab`` builds it, in the target frame."""
+    w, h = target.size
+    target_T_print = np.linalg.inv(target.print_T_target)
+    centre = target_T_print @ np.array([w / 2, h / 2, thickness / 2, 1.0])
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[w / 2, h / 2, thickness / 2],
+                  pos=centre[:3].tolist(), quat=mj_quat(target_T_print[:3, :3]), group=3,
+                  friction=[1.0, 0.005, 0.0001])

@@ -26,25 +26,42 @@ rays stop at Bullet's 1 mm collision margin; ``truth.flange_T_marker`` holds eac
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from robots.backends import BackendNotAvailableError
 from robots.geometry import compose, make_pose
 from robots.interfaces import Workcell
+from robots.perception import square_index
 from sim_backends import layout
 from sim_backends import mujoco_model as mjm
-from sim_backends.arm_specs import ARM_SPECS
+from sim_backends.arm_specs import ARM_SPECS, URDF_DIR
+from sim_backends.chess import (
+    _PIECE_PARTS,
+    COLOURS,
+    PIECE_KINDS,
+    PIECE_SQUARE_M,
+    START_POSITION,
+    chess_texture,
+    random_position,
+)
 from sim_backends.flanges import FLANGES
 from sim_backends.layout import RECTANGLE_MARK_SIZE, RECTANGLE_MARK_THICKNESS, WorkcellDescription
 from sim_backends.mujoco_arm import MujocoArm, _body_pose
 from sim_backends.mujoco_camera import MujocoCamera, OffscreenRenderer
 from sim_backends.mujoco_gl import import_mujoco
+from sim_backends.mujoco_tools import TOOL_URDFS, MujocoChessSet, MujocoPointer, MujocoSuctionCup
 from sim_backends.sim_robot import SimRobot
 from sim_backends.truth import SimTruth
 
 mujoco = import_mujoco()
 
 __all__ = ["MujocoWorkcell", "MujocoWorld", "create_workcell", "unsupported"]
+
+TIME_STEP = 1.0 / 240.0  # as the PyBullet engine's
+_PIECE_MASS = 0.03  # kg, a piece of the 50 mm set (scaled with the cube of the set's size)
+_TOOL_CLASSES = {"suction": MujocoSuctionCup, "pointer": MujocoPointer}
 
 MUJOCO_ARMS = ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta")
 _TABLE_THICKNESS = 0.04
@@ -57,19 +74,19 @@ def unsupported(d: WorkcellDescription) -> str | None:
     """What of the described cell this engine cannot build yet, or None."""
     if d.arm not in MUJOCO_ARMS:
         return f"the {d.arm!r} arm (it has {', '.join(MUJOCO_ARMS)})"
-    if d.scene != "calibration":
-        return f"the {d.scene!r} scene (it has the calibration scene)"
-    if d.tool is not None:
-        return f"the {d.tool!r} tool (it has only the bare flange, tool=None)"
+    if d.tool not in (None,) + tuple(TOOL_URDFS):
+        return (f"the {d.tool!r} tool (it has {', '.join(TOOL_URDFS)} and the bare flange, "
+                "tool=None)")
     return None
 
 
 class MujocoWorld:
     """A compiled MuJoCo model, its data and (made on the first render) its renderer."""
 
-    def __init__(self, model, max_canvas: tuple[int, int]):
+    def __init__(self, model, max_canvas: tuple[int, int], dynamic: bool = False):
         self.model = model
         self.data = mujoco.MjData(model)
+        self.dynamic = dynamic  # something moves by physics: step the world at each waypoint
         self._max_canvas = max_canvas
         self._renderer = None
         mujoco.mj_kinematics(model, self.data)
@@ -152,6 +169,41 @@ def _camera_poses(d: WorkcellDescription):
     return None, None, compose(nominal, error), nominal
 
 
+def _chess_position(d: WorkcellDescription) -> dict:
+    if d.chess_position == "start":
+        return START_POSITION
+    if d.chess_position == "random":
+        return random_position(d.streams.chess)
+    return d.chess_position
+
+
+def _add_chess(s, d: WorkcellDescription):
+    """The chess board and its pieces (``layout.chess_pose``). Returns (world_T_chess, square,
+    texture, piece body name -> (kind, colour))."""
+    position = _chess_position(d)  # drawn first, as on PyBullet (the streams are independent)
+    world_T_chess, square, thickness = layout.chess_pose(d.reach, d.streams.scene)
+    texture = chess_texture(square)
+    board = mjm.add_target(s, s.worldbody, "chess_board", texture, world_T_chess, thickness)
+    mjm.add_slab_collider(board, texture, thickness)
+    scale = square / PIECE_SQUARE_M
+    names = {}
+    for k, (sq, (kind, colour)) in enumerate(position.items()):
+        if kind not in PIECE_KINDS or colour not in COLOURS:
+            raise ValueError(f"bad piece {kind!r}/{colour!r} on {sq}; kinds are "
+                             f"{PIECE_KINDS}, colours {tuple(COLOURS)}")
+        parts = [(g, tuple(scale * v for v in size), scale * z) for g, size, z in _PIECE_PARTS[kind]]
+        T = compose(world_T_chess, make_pose(t=_square_centre(sq, square)))
+        name = f"piece_{k}_{sq}"
+        mjm.add_piece(s, name, parts, COLOURS[colour], T, _PIECE_MASS * scale**3)
+        names[name] = (kind, colour)
+    return world_T_chess, square, texture, names
+
+
+def _square_centre(name: str, square: float) -> list[float]:
+    f, r = square_index(name)
+    return [(f + 0.5) * square, (r + 0.5) * square, 0.0]
+
+
 def create_workcell(**options) -> MujocoWorkcell:
     """Build the simulated workcell on MuJoCo (options: ``sim_backends.world.create_workcell``).
 
@@ -173,12 +225,19 @@ def create_workcell(**options) -> MujocoWorkcell:
     (sx, sy), (cx, cy) = layout.table_size(d.reach)
     mjm.add_box(s.worldbody, "table", (sx / 2, sy / 2, _TABLE_THICKNESS / 2),
                 make_pose(t=[cx, cy, -_TABLE_THICKNESS / 2]), _TABLE_RGBA)
-    board, world_T_board = layout.table_target_pose(d.target, d.reach, d.streams.scene)
-    mjm.add_target(s, s.worldbody, "board", board, world_T_board)
+    board = world_T_board = chess = None
+    if d.scene == "calibration":
+        board, world_T_board = layout.table_target_pose(d.target, d.reach, d.streams.scene)
+        mjm.add_target(s, s.worldbody, "board", board, world_T_board)
+        world_T_world = world_T_board
+    else:
+        world_T_chess, square, texture, piece_names = _add_chess(s, d)
+        chess = SimpleNamespace(world_T_chess=world_T_chess, square=square, texture=texture)
+        world_T_world = world_T_chess
     world_T_rectangle = None
     if d.rectangle_mark:
         world_T_rectangle = layout.rectangle_mark_pose(d.reach, d.streams.mark, board,
-                                                       world_T_board, None)
+                                                       world_T_board, chess)
         w, h = RECTANGLE_MARK_SIZE
         mjm.add_box(s.worldbody, "rectangle_mark", (w / 2, h / 2, RECTANGLE_MARK_THICKNESS / 2),
                     world_T_rectangle, _MARK_RGBA, offset=(0, 0, -RECTANGLE_MARK_THICKNESS / 2))
@@ -187,7 +246,7 @@ def create_workcell(**options) -> MujocoWorkcell:
     offsets = layout.encoder_offsets(d, spec.n_joints)
     nominal_model = mjm.arm_spec(spec, drawn=False).compile()
     flange_target = flange_T_marker = None
-    if d.flange_target:
+    if d.scene == "calibration" and d.flange_target:
         probe = MujocoWorld(s.compile(), max_canvas)
         MujocoArm(probe, d.arm, nominal_model).set_joint_positions(spec.home)
         flange_target = layout.flange_target(d.mount, d.reach)
@@ -199,14 +258,21 @@ def create_workcell(**options) -> MujocoWorkcell:
         mjm.add_target(s, s.body(spec.flange_link), "flange_target", flange_target,
                        flange_T_marker, thickness=0.001)
 
+    # The tool after the probe above: its geometry is not the arm's.
+    if d.tool is not None:
+        mjm.add_tool(s, spec.flange_link, URDF_DIR / TOOL_URDFS[d.tool], d.tool)
     flange_T_cam, nominal_flange_T_cam, world_T_cam, nominal_world_T_cam = _camera_poses(d)
     cam_T_right = (None if d.stereo_baseline is None
                    else make_pose(t=[d.stereo_baseline, 0, 0]))
-    names = ["cam"] + (["right"] if cam_T_right is not None else [])
+    names = (["cam"] + (["right"] if cam_T_right is not None else [])
+             + (["overview"] if d.overview_camera else []))
     for name in names:
         mjm.add_camera(s, name)
-    world = MujocoWorld(s.compile(), max_canvas)
+    mjm.make_kinematic(s)
+    s.option.timestep = TIME_STEP
+    world = MujocoWorld(s.compile(), max_canvas, dynamic=chess is not None)
     arm = MujocoArm(world, d.arm, nominal_model, encoder_offsets=offsets, rng=d.streams.enc)
+    tool = None if d.tool is None else _TOOL_CLASSES[d.tool](arm)
 
     cam_kw = {"pixel_noise": d.pixel_noise, "depth_noise": d.depth_noise,
               "depth_model": d.depth_model, "lighting": d.lighting,
@@ -223,11 +289,19 @@ def create_workcell(**options) -> MujocoWorkcell:
     cameras = {"cam": make_camera("cam", left, d.streams.cam)}
     if cam_T_right is not None:
         cameras["right"] = make_camera("right", compose(left, cam_T_right), d.streams.right)
+    world_T_overview = None
+    if d.overview_camera:
+        world_T_overview = layout.overview_camera_pose(chess.world_T_chess, chess.square)
+        cameras["overview"] = MujocoCamera(world, d.intrinsics, camera_name="overview",
+                                           world_T_cam=world_T_overview, name="overview",
+                                           rng=d.streams.overview, **cam_kw)
 
     base_T_world = np.eye(4)  # the robot base is the world origin, as on PyBullet
     layout.start_pose(arm, d.mount, d.scene, base_T_world, world_T_board, board, flange_T_cam,
                       flange_T_marker, flange_target, world_T_cam, d.reach, d.intrinsics)
-    robot = SimRobot(arm, tool=None, safety=d.safety)
+    for _ in range(10):  # let the pieces settle on the board
+        arm._step_world()
+    robot = SimRobot(arm, tool=tool, safety=d.safety)
     truth = SimTruth(
         mount=d.mount,
         base_T_cam=world_T_cam,
@@ -235,16 +309,19 @@ def create_workcell(**options) -> MujocoWorkcell:
         nominal_base_T_cam=nominal_world_T_cam,
         nominal_flange_T_cam=nominal_flange_T_cam,
         base_T_board=world_T_board,
-        base_T_world=world_T_board,
+        base_T_world=world_T_world,
         flange_T_marker=flange_T_marker,
         base_T_pybullet=base_T_world,
         cam_T_right=cam_T_right,
+        base_T_overview_cam=world_T_overview,
         encoder_offsets=None if offsets is None else offsets.copy(),
         board=board,
         flange_target=flange_target,
         flange=FLANGES[d.arm],
         base_T_rectangle=world_T_rectangle,
         rectangle_size=None if world_T_rectangle is None else RECTANGLE_MARK_SIZE,
+        _chess=(None if chess is None
+                else MujocoChessSet(world, chess.world_T_chess, chess.square, piece_names)),
         _arm=arm,
     )
     return MujocoWorkcell(robot, cameras, truth, world, arm)

@@ -23,10 +23,15 @@ from robots.geometry import (
 from robots.interfaces import Gripper, Pointer, SuctionCup
 from sim_backends.arms import URDF_DIR, SimArm
 from sim_backends.sim_robot import SimRobot  # noqa: F401  (re-exported: its home before sim_robot)
+from sim_backends.tool_specs import (
+    POINTER_TIP_M,
+    SUCTION_CUP_RADIUS_M,
+    SUCTION_REACH_M,
+    SUCTION_TIP_M,
+)
 
 __all__ = ["TOOL_NAMES", "SimGripper", "SimPointer", "SimRobot", "SimSuctionCup", "make_tool"]
 
-SUCTION_REACH_M = 0.005  # a surface this close to the cup tip, along the tool axis, is gripped
 PANDA_F_T_EE = make_pose(
     np.array([[np.cos(-np.pi / 4), -np.sin(-np.pi / 4), 0.0],
               [np.sin(-np.pi / 4), np.cos(-np.pi / 4), 0.0],
@@ -210,8 +215,8 @@ class SimSuctionCup(SuctionCup):
     pressed on the board or the table holds nothing).
     """
 
-    TIP_M = 0.080
-    CUP_RADIUS_M = 0.010
+    TIP_M = SUCTION_TIP_M
+    CUP_RADIUS_M = SUCTION_CUP_RADIUS_M
 
     def __init__(self, client: int, arm: SimArm):
         if client != arm.client:
@@ -255,7 +260,7 @@ class SimSuctionCup(SuctionCup):
 class SimPointer(Pointer):
     """A thin rod on the flange; its tip (TCP) is ``TIP_M`` = 0.150 m along the flange z axis."""
 
-    TIP_M = 0.150
+    TIP_M = POINTER_TIP_M
 
     def __init__(self, client: int, arm: SimArm):
         if client != arm.client:
