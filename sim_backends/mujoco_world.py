@@ -83,8 +83,10 @@ def unsupported(d: WorkcellDescription) -> str | None:
 class MujocoWorld:
     """A compiled MuJoCo model, its data and (made on the first render) its renderer."""
 
-    def __init__(self, model, max_canvas: tuple[int, int], dynamic: bool = False):
+    def __init__(self, model, max_canvas: tuple[int, int], dynamic: bool = False,
+                 mesh_files: dict | None = None):
         self.model = model
+        self.mesh_files = mesh_files or {}  # mesh name -> the .obj it was read from (viewer)
         self.data = mujoco.MjData(model)
         self.dynamic = dynamic  # something moves by physics: step the world at each waypoint
         self._max_canvas = max_canvas
@@ -110,15 +112,25 @@ class MujocoWorld:
 class MujocoWorkcell(Workcell):
     """A ``robots.Workcell`` that owns a MuJoCo world (its renderer is freed on close)."""
 
-    def __init__(self, robot, cameras, truth, world, arm):
+    def __init__(self, robot, cameras, truth, world, arm, tool_name=None):
         super().__init__(robot, camera=cameras.get("cam"), cameras=cameras, truth=truth,
                          kind="sim")
         self.world = world
         self.arm = arm
         self.engine = "mujoco"
+        self.tool_name = tool_name  # the tool's bodies are named "<tool>_<link>"
+        self._scene_reader = None
 
     def _close(self) -> None:
         self.world.close()
+
+    def visual_scene(self):
+        """Every drawn body's shapes and the true frames (see Workcell.visual_scene)."""
+        from sim_backends.mujoco_viewer_scene import MujocoSceneReader
+
+        if self._scene_reader is None:
+            self._scene_reader = MujocoSceneReader(self)  # geometry read once, poses every call
+        return self._scene_reader.read()
 
 
 # --------------------------------------------------------------------------- building
@@ -270,7 +282,8 @@ def create_workcell(**options) -> MujocoWorkcell:
         mjm.add_camera(s, name)
     mjm.make_kinematic(s)
     s.option.timestep = TIME_STEP
-    world = MujocoWorld(s.compile(), max_canvas, dynamic=chess is not None)
+    world = MujocoWorld(s.compile(), max_canvas, dynamic=chess is not None,
+                        mesh_files={m.name: m.file for m in s.meshes})
     arm = MujocoArm(world, d.arm, nominal_model, encoder_offsets=offsets, rng=d.streams.enc)
     tool = None if d.tool is None else _TOOL_CLASSES[d.tool](arm)
 
@@ -324,4 +337,4 @@ def create_workcell(**options) -> MujocoWorkcell:
                 else MujocoChessSet(world, chess.world_T_chess, chess.square, piece_names)),
         _arm=arm,
     )
-    return MujocoWorkcell(robot, cameras, truth, world, arm)
+    return MujocoWorkcell(robot, cameras, truth, world, arm, tool_name=d.tool)

@@ -277,3 +277,32 @@ def test_the_maintainers_page_names_what_exists():
         assert f"`{name}" in doc and hasattr(layout, name), name
     for name in ("SIM_ENGINES", "DEFAULT_ENGINE_ORDER", "default_sim_engine"):
         assert name in doc and hasattr(backends, name), name
+
+
+def test_the_viewer_scene_matches_pybullets():
+    from robots.viewer import tessellate
+
+    def summary(cell):
+        scene = cell.visual_scene()
+        groups = sorted(s.group for s in scene.shapes)
+        corners = {}
+        for shape in scene.shapes:
+            if shape.group in ("board", "target"):
+                part = shape.parts[0]
+                v, _ = tessellate(part)
+                world = (shape.base_T_body @ part.body_T_part @ np.c_[v, np.ones(len(v))].T).T
+                corners[shape.group] = (world[:, :3].min(0), world[:, :3].max(0),
+                                        part.texture_png is not None)
+        return groups, corners, scene.frames
+
+    options = dict(arm="ur5e", mount="eye_to_hand", seed=3, width=64, height=48)
+    with connect("sim", engine="pybullet", **options) as a, \
+            connect("sim", engine="mujoco", **options) as b:
+        (ga, ca, fa), (gb, cb, fb) = summary(a), summary(b)
+        assert ga == gb and set(fa) == set(fb)
+        lo_a, hi_a, tex_a = ca["board"]
+        lo_b, hi_b, tex_b = cb["board"]
+        np.testing.assert_allclose(lo_b, lo_a, atol=1e-9)
+        np.testing.assert_allclose(hi_b, hi_a, atol=1e-9)
+        assert tex_a and tex_b
+        np.testing.assert_allclose(fb["cam"], fa["cam"], atol=1e-12)
