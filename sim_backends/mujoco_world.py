@@ -9,13 +9,13 @@ offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the sa
 ``SimTruth``; ``base_T_pybullet`` is the identity, MuJoCo's world being placed as PyBullet's.
 
 What this engine builds today: the five arms (the Panda from its generated URDF, with Franka's
-kinematics and cylinders for links, without the Franka Hand), both mounts, the calibration
-scene with any of the four targets, the flange target or the bare ISO flange face, the
-rectangle mark, a stereo pair, lens distortion, pixel noise, the D4xx depth model, encoder
-noise, mount error and Safety. Not yet: the chess scene, the tools (suction cup, gripper,
-pointer), segmentation masks and the 3-D viewer's scene; asking for one raises
-``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab never
-silently runs differently.
+kinematics and cylinders for links, without the Franka Hand), both mounts, the calibration and
+chess scenes (pieces under MuJoCo's physics), the overview camera, the suction cup and the
+pointer, the flange target or the bare ISO flange face, the rectangle mark, a stereo pair,
+lens distortion, pixel noise, the D4xx depth model, encoder noise, mount error, Safety and the
+3-D viewer's scene. Not yet: the parallel gripper and segmentation masks; asking for one
+raises ``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab
+never silently runs differently.
 
 Images differ from PyBullet's in shading (MuJoCo's OpenGL lighting against TinyRenderer's)
 and in the Panda's links (cylinders, not Franka's meshes), not in geometry: the same
