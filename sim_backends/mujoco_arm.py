@@ -118,6 +118,7 @@ class MujocoArm(ArmMotion):
         self._dofs = [int(world.model.jnt_dofadr[world.model.joint(n).id])
                       for n in spec.joint_names]
         self.flange_body = int(world.model.body(spec.flange_link).id)
+        self._held_joints: dict[int, float] = {}  # qpos address -> value (a tool's fingers)
         self.model = MujocoKinematics(nominal_model, spec.joint_names, spec.flange_link,
                                       spec.joint_limits, spec.home, spec.reach, name=name)
         self.set_joint_positions(spec.home)
@@ -131,6 +132,8 @@ class MujocoArm(ArmMotion):
         self._q_true = np.array(q_true, dtype=float)
         data.qpos[self._qadr] = self._q_true
         data.qvel[self._dofs] = 0.0
+        for adr, value in self._held_joints.items():
+            data.qpos[adr] = value
         mujoco.mj_kinematics(model, data)
         if self._attached:
             world_T_flange = self.world_T_flange()
@@ -144,6 +147,11 @@ class MujocoArm(ArmMotion):
         if self.world.dynamic:
             mujoco.mj_step(self.world.model, self.world.data)
             self._apply_true(self._q_true)
+
+    def hold_joint(self, qpos_address: int, value: float) -> None:
+        """Keep a tool's joint (a finger) at ``value`` (m or rad) from now on, kinematically."""
+        self._held_joints[int(qpos_address)] = float(value)
+        self._apply_true(self._q_true)
 
     def attach(self, body_id: int, flange_T_body=None) -> None:
         """Carry the free body ``body_id`` with the flange at ``flange_T_body`` (default: as it

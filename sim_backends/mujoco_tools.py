@@ -7,7 +7,9 @@ by five rays over the cup face; the table and the board are never lifted). Holdi
 arm carries the piece (``MujocoArm.attach``); releasing hands it back to MuJoCo's physics,
 where it settles on what is below it.
 
-Not here yet: the parallel gripper (the Panda's Franka Hand and the generic gripper).
+The parallel gripper is the generic one (``gripper.urdf``, TCP 80 mm along z, fingers closing
+along the flange's y) on every arm but the Panda, whose Franka Hand comes from pybullet_data:
+on MuJoCo the Panda has no gripper yet.
 """
 
 from __future__ import annotations
@@ -15,11 +17,12 @@ from __future__ import annotations
 import numpy as np
 
 from robots.geometry import make_pose
-from robots.interfaces import Pointer, SuctionCup
+from robots.interfaces import Gripper, Pointer, SuctionCup
 from sim_backends.chess import ChessLayout, chess_texture
 from sim_backends.mujoco_gl import import_mujoco
 from sim_backends.mujoco_model import SCENE_GROUP
 from sim_backends.tool_specs import (
+    GRIPPER_TCP_M,
     POINTER_TIP_M,
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
@@ -28,16 +31,94 @@ from sim_backends.tool_specs import (
 
 mujoco = import_mujoco()
 
-__all__ = ["MujocoChessSet", "MujocoPointer", "MujocoSuctionCup", "TOOL_URDFS"]
+__all__ = ["MujocoChessSet", "MujocoGripper", "MujocoPointer", "MujocoSuctionCup", "TOOL_URDFS"]
 
-# tool -> (URDF in sim_backends/urdf, its root link)
-TOOL_URDFS = {"suction": "suction_cup.urdf", "pointer": "pointer.urdf"}
+# tool -> its URDF in sim_backends/urdf (frame: the flange)
+TOOL_URDFS = {"suction": "suction_cup.urdf", "pointer": "pointer.urdf", "gripper": "gripper.urdf"}
 
 
 def _free_body(model, body: int) -> bool:
     """A body MuJoCo moves by physics (a chess piece), not one fixed to the world or the arm."""
     adr = model.body_jntadr[body]
     return adr >= 0 and model.jnt_type[adr] == mujoco.mjtJoint.mjJNT_FREE
+
+
+def _ray_hit(arm, start, vector):
+    """(free body, hit point) of the nearest scene geom along ``start + s vector``, s in
+    [0, 1], or None (the table and the board, fixed to the world, are skipped)."""
+    model, data = arm.world.model, arm.world.data
+    groups = np.zeros(6, dtype=np.uint8)
+    groups[SCENE_GROUP] = 1  # the scene's geoms only: never the arm or the tool
+    geom = np.zeros(1, dtype=np.int32)
+    distance = mujoco.mj_ray(model, data, np.asarray(start, float), np.asarray(vector, float),
+                             groups, 0, -1, geom)
+    if not 0 <= distance <= 1:
+        return None
+    body = int(model.geom_bodyid[geom[0]])
+    if not _free_body(model, body):
+        return None
+    return body, np.asarray(start, float) + distance * np.asarray(vector, float), distance
+
+
+class MujocoGripper(Gripper):
+    """The generic two-finger gripper (``tools.SimGripper``'s rule: ``grasp`` closes on what
+    lies between the fingers, found by rays across the gap at three heights, and holds it;
+    with nothing there it closes fully and returns False). ``opening()`` is the gap, m."""
+
+    MAX_OPENING_EACH = 0.04  # m, each finger from the centre
+
+    def __init__(self, arm):
+        if arm.spec.hand_links:
+            raise ValueError("the Panda's gripper is the Franka Hand, whose model comes from "
+                             "pybullet_data; use connect('sim', engine='pybullet', ...)")
+        super().__init__("gripper", make_pose(t=[0.0, 0.0, GRIPPER_TCP_M]))
+        self._arm = arm
+        model = arm.world.model
+        self._fingers = [int(model.jnt_qposadr[model.joint(f"gripper_{n}_finger_joint").id])
+                         for n in ("left", "right")]
+        self.held_body: int | None = None
+        self._set_fingers(self.MAX_OPENING_EACH)
+
+    def _set_fingers(self, each: float) -> None:
+        self._each = float(np.clip(each, 0.0, self.MAX_OPENING_EACH))
+        for adr in self._fingers:
+            self._arm.hold_joint(adr, self._each)
+
+    def opening(self) -> float:
+        """Current gap between the fingers, metres."""
+        return 2 * self._each
+
+    def grasp(self) -> bool:
+        if self.held_body is not None:
+            return True
+        world_T_tcp = self._arm.world_T_flange() @ self.flange_T_tcp
+        closing = world_T_tcp[:3, 1]
+        inner = self._each - 0.001
+        hits = []
+        for dz in (-0.008, 0.0, 0.008):  # three heights along the fingers
+            centre = world_T_tcp[:3, 3] + dz * world_T_tcp[:3, 2]
+            a = _ray_hit(self._arm, centre + inner * closing, -2 * inner * closing)
+            b = _ray_hit(self._arm, centre - inner * closing, 2 * inner * closing)
+            if a and b and a[0] == b[0]:
+                hits.append((a[0], abs(float((a[1] - b[1]) @ closing))))
+        if not hits:
+            self._set_fingers(0.0)
+            return False
+        body, width = min(hits, key=lambda h: h[1])
+        self._set_fingers(width / 2)
+        self._arm.attach(body)
+        self.held_body = body
+        return True
+
+    def release(self) -> None:
+        if self.held_body is not None:
+            self._arm.detach(self.held_body)
+            self.held_body = None
+        self._set_fingers(self.MAX_OPENING_EACH)
+
+    @property
+    def is_holding(self) -> bool:
+        return self.held_body is not None
 
 
 class MujocoSuctionCup(SuctionCup):
@@ -52,20 +133,9 @@ class MujocoSuctionCup(SuctionCup):
         self.held_body: int | None = None
 
     def _first_object_hit(self, starts, axis) -> int | None:
-        model, data = self._arm.world.model, self._arm.world.data
-        groups = np.zeros(6, dtype=np.uint8)
-        groups[SCENE_GROUP] = 1  # the scene's geoms only: never the arm or the tool
-        geom = np.zeros(1, dtype=np.int32)
-        length = 0.003 + SUCTION_REACH_M
-        best = None
-        for start in starts:
-            # flg_static=0: the table and the board (fixed to the world) are never lifted.
-            distance = mujoco.mj_ray(model, data, start, axis * length, groups, 0, -1, geom)
-            if 0 <= distance <= 1:
-                body = int(model.geom_bodyid[geom[0]])
-                if _free_body(model, body) and (best is None or distance < best[1]):
-                    best = (body, distance)
-        return None if best is None else best[0]
+        hits = [h for start in starts
+                if (h := _ray_hit(self._arm, start, axis * (0.003 + SUCTION_REACH_M)))]
+        return min(hits, key=lambda h: h[2])[0] if hits else None
 
     def grasp(self) -> bool:
         if self.held_body is not None:

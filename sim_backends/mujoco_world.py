@@ -11,9 +11,10 @@ offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the sa
 What this engine builds today: the five arms (the Panda from its generated URDF, with Franka's
 kinematics and cylinders for links, without the Franka Hand), both mounts, the calibration and
 chess scenes (pieces under MuJoCo's physics), the overview camera, the suction cup and the
-pointer, the flange target or the bare ISO flange face, the rectangle mark, a stereo pair,
+pointer and (on every arm but the Panda) the generic gripper, the flange target or the bare
+ISO flange face, the rectangle mark, a stereo pair,
 lens distortion, pixel noise, the D4xx depth model, encoder noise, mount error, Safety and the
-3-D viewer's scene. Not yet: the parallel gripper and segmentation masks; asking for one
+3-D viewer's scene. Not yet: the Panda's Franka Hand and segmentation masks; asking for one
 raises ``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab
 never silently runs differently.
 
@@ -51,7 +52,13 @@ from sim_backends.layout import RECTANGLE_MARK_SIZE, RECTANGLE_MARK_THICKNESS, W
 from sim_backends.mujoco_arm import MujocoArm, _body_pose
 from sim_backends.mujoco_camera import MujocoCamera, OffscreenRenderer
 from sim_backends.mujoco_gl import import_mujoco
-from sim_backends.mujoco_tools import TOOL_URDFS, MujocoChessSet, MujocoPointer, MujocoSuctionCup
+from sim_backends.mujoco_tools import (
+    TOOL_URDFS,
+    MujocoChessSet,
+    MujocoGripper,
+    MujocoPointer,
+    MujocoSuctionCup,
+)
 from sim_backends.sim_robot import SimRobot
 from sim_backends.truth import SimTruth
 
@@ -61,7 +68,7 @@ __all__ = ["MujocoWorkcell", "MujocoWorld", "create_workcell", "unsupported"]
 
 TIME_STEP = 1.0 / 240.0  # as the PyBullet engine's
 _PIECE_MASS = 0.03  # kg, a piece of the 50 mm set (scaled with the cube of the set's size)
-_TOOL_CLASSES = {"suction": MujocoSuctionCup, "pointer": MujocoPointer}
+_TOOL_CLASSES = {"suction": MujocoSuctionCup, "pointer": MujocoPointer, "gripper": MujocoGripper}
 
 MUJOCO_ARMS = ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta")
 _TABLE_THICKNESS = 0.04
@@ -77,6 +84,8 @@ def unsupported(d: WorkcellDescription) -> str | None:
     if d.tool not in (None,) + tuple(TOOL_URDFS):
         return (f"the {d.tool!r} tool (it has {', '.join(TOOL_URDFS)} and the bare flange, "
                 "tool=None)")
+    if d.tool == "gripper" and d.arm == "panda":
+        return "the Panda's gripper (the Franka Hand's model comes from pybullet_data)"
     return None
 
 

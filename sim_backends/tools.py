@@ -24,6 +24,7 @@ from robots.interfaces import Gripper, Pointer, SuctionCup
 from sim_backends.arms import URDF_DIR, SimArm
 from sim_backends.sim_robot import SimRobot  # noqa: F401  (re-exported: its home before sim_robot)
 from sim_backends.tool_specs import (
+    GRIPPER_TCP_M,
     POINTER_TIP_M,
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
@@ -147,7 +148,7 @@ class SimGripper(Gripper):
             self._holder = _Holder(arm, arm.body_id, arm.flange_link, {arm.body_id})
         else:
             self.body_id = _mount_tool_body(arm, "gripper.urdf")
-            super().__init__("gripper", make_pose(t=[0.0, 0.0, 0.080]))
+            super().__init__("gripper", make_pose(t=[0.0, 0.0, GRIPPER_TCP_M]))
             self._holder = _Holder(arm, self.body_id, -1, {arm.body_id, self.body_id})
         self._each = self.MAX_OPENING_EACH
         self._set_fingers(self._each)
