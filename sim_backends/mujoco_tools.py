@@ -27,6 +27,7 @@ from sim_backends.tool_specs import (
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
     SUCTION_TIP_M,
+    gripper_grasp,
 )
 
 mujoco = import_mujoco()
@@ -60,7 +61,29 @@ def _ray_hit(arm, start, vector):
     return body, np.asarray(start, float) + distance * np.asarray(vector, float), distance
 
 
-class MujocoGripper(Gripper):
+class _Carrying:
+    """What a MuJoCo tool holds: the arm carries the body (``MujocoArm.attach``) until the tool
+    lets go, and it returns to physics."""
+
+    _arm = None
+    held_body: int | None = None
+
+    def _hold(self, body: int) -> bool:
+        self._arm.attach(body)
+        self.held_body = body
+        return True
+
+    def _drop(self) -> None:
+        if self.held_body is not None:
+            self._arm.detach(self.held_body)
+            self.held_body = None
+
+    @property
+    def is_holding(self) -> bool:
+        return self.held_body is not None
+
+
+class MujocoGripper(_Carrying, Gripper):
     """The generic two-finger gripper (``tools.SimGripper``'s rule: ``grasp`` closes on what
     lies between the fingers, found by rays across the gap at three heights, and holds it;
     with nothing there it closes fully and returns False). ``opening()`` is the gap, m."""
@@ -92,36 +115,21 @@ class MujocoGripper(Gripper):
         if self.held_body is not None:
             return True
         world_T_tcp = self._arm.world_T_flange() @ self.flange_T_tcp
-        closing = world_T_tcp[:3, 1]
-        inner = self._each - 0.001
-        hits = []
-        for dz in (-0.008, 0.0, 0.008):  # three heights along the fingers
-            centre = world_T_tcp[:3, 3] + dz * world_T_tcp[:3, 2]
-            a = _ray_hit(self._arm, centre + inner * closing, -2 * inner * closing)
-            b = _ray_hit(self._arm, centre - inner * closing, 2 * inner * closing)
-            if a and b and a[0] == b[0]:
-                hits.append((a[0], abs(float((a[1] - b[1]) @ closing))))
-        if not hits:
+        found = gripper_grasp(world_T_tcp, self._each,
+                              lambda a, b: _ray_hit(self._arm, a, np.subtract(b, a)))
+        if found is None:
             self._set_fingers(0.0)
             return False
-        body, width = min(hits, key=lambda h: h[1])
+        body, width = found
         self._set_fingers(width / 2)
-        self._arm.attach(body)
-        self.held_body = body
-        return True
+        return self._hold(body)
 
     def release(self) -> None:
-        if self.held_body is not None:
-            self._arm.detach(self.held_body)
-            self.held_body = None
+        self._drop()
         self._set_fingers(self.MAX_OPENING_EACH)
 
-    @property
-    def is_holding(self) -> bool:
-        return self.held_body is not None
 
-
-class MujocoSuctionCup(SuctionCup):
+class MujocoSuctionCup(_Carrying, SuctionCup):
     """The suction cup (``tools.SimSuctionCup``'s geometry and grasp rule) on a ``MujocoArm``."""
 
     TIP_M = SUCTION_TIP_M
@@ -146,20 +154,10 @@ class MujocoSuctionCup(SuctionCup):
         # Start a little behind the tip: a cup pressed onto a part sinks into it slightly.
         starts = [tip + o - 0.003 * axis for o in (np.zeros(3), r * x, -r * x, r * y, -r * y)]
         body = self._first_object_hit(starts, axis)
-        if body is None:
-            return False
-        self._arm.attach(body)
-        self.held_body = body
-        return True
+        return False if body is None else self._hold(body)
 
     def release(self) -> None:
-        if self.held_body is not None:
-            self._arm.detach(self.held_body)
-            self.held_body = None
-
-    @property
-    def is_holding(self) -> bool:
-        return self.held_body is not None
+        self._drop()
 
 
 class MujocoPointer(Pointer):

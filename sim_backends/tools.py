@@ -29,6 +29,7 @@ from sim_backends.tool_specs import (
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
     SUCTION_TIP_M,
+    gripper_grasp,
 )
 
 __all__ = ["TOOL_NAMES", "SimGripper", "SimPointer", "SimRobot", "SimSuctionCup", "make_tool"]
@@ -172,23 +173,12 @@ class SimGripper(Gripper):
             return True
         world_T_tcp = self._arm.world_T_flange() @ self.flange_T_tcp
         # The Panda's fingers close along the hand's y axis; the generic one along tool0's y.
-        closing = world_T_tcp[:3, 1]
-        inner = self._each - 0.001
-        starts, ends = [], []
-        for dz in (-0.008, 0.0, 0.008):  # three heights along the fingers
-            centre = world_T_tcp[:3, 3] + dz * world_T_tcp[:3, 2]
-            starts += [centre + inner * closing, centre - inner * closing]
-            ends += [centre - inner * closing, centre + inner * closing]
-        hits = []
-        for k in range(0, len(starts), 2):
-            a = self._holder.first_object_hit([starts[k]], [ends[k]])
-            b = self._holder.first_object_hit([starts[k + 1]], [ends[k + 1]])
-            if a and b and a[0] == b[0]:
-                hits.append((a[0], abs(float((a[1] - b[1]) @ closing))))
-        if not hits:
+        found = gripper_grasp(world_T_tcp, self._each,
+                              lambda a, b: self._holder.first_object_hit([a], [b]))
+        if found is None:
             self._set_fingers(0.0)
             return False
-        body, width = min(hits, key=lambda h: h[1])
+        body, width = found
         self._set_fingers(width / 2)
         self._holder.hold(body)
         return True
