@@ -101,6 +101,31 @@ class OffscreenRenderer:
         # OpenGL's rows run bottom-up.
         return np.ascontiguousarray(rgb[::-1]), np.ascontiguousarray(depth[::-1])
 
+    def segment(self, model, width: int, height: int) -> np.ndarray:
+        """Body ids (H, W) int32 of the scene last rendered (-1 where nothing was drawn):
+        the same scene drawn again with each object in a colour that encodes its index."""
+        self._gl.make_current()
+        flags = self._scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        try:
+            viewport = mujoco.MjrRect(0, 0, width, height)
+            mujoco.mjr_render(viewport, self._scene, self._context)
+            colours = np.empty((height, width, 3), dtype=np.uint8)
+            mujoco.mjr_readPixels(colours, None, viewport, self._context)
+        finally:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
+        index = (colours[::-1].astype(np.int32) @ np.array([1, 1 << 8, 1 << 16])) - 1
+        # Scene geom index -> model body id (geoms only; decorations count as background).
+        ngeom = self._scene.ngeom
+        bodies = np.full(ngeom + 1, -1, dtype=np.int32)
+        for k in range(ngeom):
+            geom = self._scene.geoms[k]
+            if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                bodies[k] = model.geom_bodyid[geom.objid]
+        return bodies[np.where((index >= 0) & (index < ngeom), index, ngeom)]
+
     def close(self) -> None:
         """Free the OpenGL context. Idempotent."""
         self._finalizer()
@@ -120,7 +145,8 @@ class MujocoCamera(RenderedCamera):
     ``world``: the ``mujoco_world.MujocoWorld`` (model, data, renderer); ``camera_name``: the
     model camera this camera drives (``mujoco_model.add_camera``); ``parent``: the name of the
     body it rides on (with ``link_T_cam``), or None with ``world_T_cam`` for a fixed camera.
-    Segmentation is not rendered by this engine (``render(segmentation=True)`` raises).
+    ``render(segmentation=True)`` gives MuJoCo body ids (-1: background), as PyBullet's gives
+    its body ids.
     """
 
     def __init__(self, world, intrinsics: Intrinsics, *, camera_name: str, **options):
@@ -140,10 +166,6 @@ class MujocoCamera(RenderedCamera):
         return self.world.body_pose(self.parent)
 
     def _render_canvas(self, world_T_cam, canvas_K, canvas_size, segmentation):
-        if segmentation:
-            raise NotImplementedError(
-                "the MuJoCo engine does not render segmentation masks; use "
-                "connect('sim', engine='pybullet', ...) for them")
         mj_pose = compose(as_pose(world_T_cam, "world_T_cam"), GL_T_CV)
         data = self.world.data
         data.cam_xpos[self.camera_id] = mj_pose[:3, 3]
@@ -152,4 +174,7 @@ class MujocoCamera(RenderedCamera):
                                                    *canvas_size)
         depth = depth_from_mujoco_buffer(buffer, self.near, self.far)
         rgb[np.isnan(depth)] = BACKGROUND_RGB  # as PyBullet's: nothing drawn reads white
-        return rgb, depth, None
+        seg = None
+        if segmentation:
+            seg = self.world.renderer().segment(self.world.model, *canvas_size)
+        return rgb, depth, seg

@@ -13,8 +13,8 @@ kinematics and cylinders for links, without the Franka Hand), both mounts, the c
 chess scenes (pieces under MuJoCo's physics), the overview camera, the suction cup and the
 pointer and (on every arm but the Panda) the generic gripper, the flange target or the bare
 ISO flange face, the rectangle mark, a stereo pair,
-lens distortion, pixel noise, the D4xx depth model, encoder noise, mount error, Safety and the
-3-D viewer's scene. Not yet: the Panda's Franka Hand and segmentation masks; asking for one
+lens distortion, pixel noise, the D4xx depth model, encoder noise, mount error, Safety,
+segmentation masks and the 3-D viewer's scene. Not yet: the Panda's Franka Hand; asking for it
 raises ``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab
 never silently runs differently.
 

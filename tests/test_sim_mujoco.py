@@ -79,9 +79,6 @@ def test_an_unknown_or_missing_engine_says_what_to_do(monkeypatch):
 def test_what_mujoco_does_not_build_yet_names_the_pybullet_engine():
     with pytest.raises(BackendNotAvailableError, match="Franka Hand.*engine='pybullet'"):
         connect("sim", engine="mujoco", arm="panda", tool="gripper")
-    with connect("sim", engine="mujoco", arm="ur5e", width=64, height=48) as cell:
-        with pytest.raises(NotImplementedError, match="segmentation.*engine='pybullet'"):
-            cell.camera.render(segmentation=True)
 
 
 def test_without_egl_or_osmesa_the_error_names_the_debian_packages():
@@ -166,7 +163,7 @@ def test_board_corners_land_where_the_intrinsics_put_them(eye_in_hand):
     assert _corner_error(detected, _true_corners(cell)) < 0.15
 
 
-def test_depth_is_the_z_distance_of_the_board(eye_in_hand):
+def test_depth_is_the_z_distance_of_the_board_and_segmentation_names_it(eye_in_hand):
     cell = eye_in_hand
     depth = cell.camera.capture().depth
     truth, K = cell.truth, cell.camera.intrinsics.K
@@ -180,6 +177,10 @@ def test_depth_is_the_z_distance_of_the_board(eye_in_hand):
     z = depth[v, u]
     assert np.all(np.isfinite(z))
     assert np.abs(z - z_true).max() < 5e-4
+    # The segmentation mask names the board's body there, and nothing where no depth is.
+    _, depth_r, seg = cell.camera.render(segmentation=True)
+    assert np.all(seg[v, u] == cell.world.model.body("board").id)
+    assert np.array_equal(seg == -1, np.isnan(depth_r))
 
 
 def test_moves_reach_the_pose_and_safety_refuses_first(eye_in_hand):
