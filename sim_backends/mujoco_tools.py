@@ -8,8 +8,8 @@ arm carries the piece (``MujocoArm.attach``); releasing hands it back to MuJoCo'
 where it settles on what is below it.
 
 The parallel gripper is the generic one (``gripper.urdf``, TCP 80 mm along z, fingers closing
-along the flange's y) on every arm but the Panda, whose Franka Hand comes from pybullet_data:
-on MuJoCo the Panda has no gripper yet.
+along the flange's y) on every arm but the Panda, whose gripper is the Franka Hand
+(``franka_hand.urdf``, generated with boxes for PyBullet's meshes; TCP: Desk's default).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from sim_backends.mujoco_gl import import_mujoco
 from sim_backends.mujoco_model import SCENE_GROUP
 from sim_backends.tool_specs import (
     GRIPPER_TCP_M,
+    PANDA_F_T_EE,
     POINTER_TIP_M,
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
@@ -34,8 +35,9 @@ mujoco = import_mujoco()
 
 __all__ = ["MujocoChessSet", "MujocoGripper", "MujocoPointer", "MujocoSuctionCup", "TOOL_URDFS"]
 
-# tool -> its URDF in sim_backends/urdf (frame: the flange)
+# tool -> its URDF in sim_backends/urdf (frame: the flange); the Panda's gripper is its hand
 TOOL_URDFS = {"suction": "suction_cup.urdf", "pointer": "pointer.urdf", "gripper": "gripper.urdf"}
+PANDA_HAND_URDF = "franka_hand.urdf"
 
 
 def _free_body(model, body: int) -> bool:
@@ -91,10 +93,10 @@ class MujocoGripper(_Carrying, Gripper):
     MAX_OPENING_EACH = 0.04  # m, each finger from the centre
 
     def __init__(self, arm):
-        if arm.spec.hand_links:
-            raise ValueError("the Panda's gripper is the Franka Hand, whose model comes from "
-                             "pybullet_data; use connect('sim', engine='pybullet', ...)")
-        super().__init__("gripper", make_pose(t=[0.0, 0.0, GRIPPER_TCP_M]))
+        # On the Panda, the Franka Hand (franka_hand.urdf) with Desk's default TCP.
+        flange_T_tcp = (PANDA_F_T_EE if arm.spec.hand_links
+                        else make_pose(t=[0.0, 0.0, GRIPPER_TCP_M]))
+        super().__init__("gripper", flange_T_tcp)
         self._arm = arm
         model = arm.world.model
         self._fingers = [int(model.jnt_qposadr[model.joint(f"gripper_{n}_finger_joint").id])

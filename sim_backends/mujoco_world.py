@@ -11,12 +11,12 @@ offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the sa
 What this engine builds today: the five arms (the Panda from its generated URDF, with Franka's
 kinematics and cylinders for links, without the Franka Hand), both mounts, the calibration and
 chess scenes (pieces under MuJoCo's physics), the overview camera, the suction cup and the
-pointer and (on every arm but the Panda) the generic gripper, the flange target or the bare
-ISO flange face, the rectangle mark, a stereo pair,
+pointer and the gripper (the Franka Hand on the Panda, drawn with boxes), the flange target or
+the bare ISO flange face, the rectangle mark, a stereo pair,
 lens distortion, pixel noise, the D4xx depth model, encoder noise, mount error, Safety,
-segmentation masks and the 3-D viewer's scene. Not yet: the Panda's Franka Hand; asking for it
-raises ``robots.backends.BackendNotAvailableError`` naming the PyBullet engine, so a lab
-never silently runs differently.
+segmentation masks and the 3-D viewer's scene: everything the PyBullet engine builds. A
+future option it lacked would raise ``robots.backends.BackendNotAvailableError`` naming the
+PyBullet engine (``unsupported``), so a lab never silently runs differently.
 
 Images differ from PyBullet's in shading (MuJoCo's OpenGL lighting against TinyRenderer's)
 and in the Panda's links (cylinders, not Franka's meshes), not in geometry: the same
@@ -53,6 +53,7 @@ from sim_backends.mujoco_arm import MujocoArm, _body_pose
 from sim_backends.mujoco_camera import MujocoCamera, OffscreenRenderer
 from sim_backends.mujoco_gl import import_mujoco
 from sim_backends.mujoco_tools import (
+    PANDA_HAND_URDF,
     TOOL_URDFS,
     MujocoChessSet,
     MujocoGripper,
@@ -84,8 +85,6 @@ def unsupported(d: WorkcellDescription) -> str | None:
     if d.tool not in (None,) + tuple(TOOL_URDFS):
         return (f"the {d.tool!r} tool (it has {', '.join(TOOL_URDFS)} and the bare flange, "
                 "tool=None)")
-    if d.tool == "gripper" and d.arm == "panda":
-        return "the Panda's gripper (the Franka Hand's model comes from pybullet_data)"
     return None
 
 
@@ -281,7 +280,8 @@ def create_workcell(**options) -> MujocoWorkcell:
 
     # The tool after the probe above: its geometry is not the arm's.
     if d.tool is not None:
-        mjm.add_tool(s, spec.flange_link, URDF_DIR / TOOL_URDFS[d.tool], d.tool)
+        urdf = PANDA_HAND_URDF if (d.tool == "gripper" and spec.hand_links) else TOOL_URDFS[d.tool]
+        mjm.add_tool(s, spec.flange_link, URDF_DIR / urdf, d.tool)
     flange_T_cam, nominal_flange_T_cam, world_T_cam, nominal_world_T_cam = _camera_poses(d)
     cam_T_right = (None if d.stereo_baseline is None
                    else make_pose(t=[d.stereo_baseline, 0, 0]))

@@ -12,6 +12,12 @@ SUCTION_TIP_M = 0.080  # the cup tip (TCP) along the flange z axis
 SUCTION_CUP_RADIUS_M = 0.010  # the rays of a grasp sample the cup face out to this radius
 POINTER_TIP_M = 0.150  # the pointer's tip (TCP) along the flange z axis
 GRIPPER_TCP_M = 0.080  # the generic gripper's grasp point along the flange z axis
+# The Franka Hand's TCP on the Panda's flange: Franka Desk's default F_T_EE (0.1034 m along z,
+# turned -45 deg about z).
+PANDA_F_T_EE = np.array([[np.cos(-np.pi / 4), -np.sin(-np.pi / 4), 0.0, 0.0],
+                         [np.sin(-np.pi / 4), np.cos(-np.pi / 4), 0.0, 0.0],
+                         [0.0, 0.0, 1.0, 0.1034],
+                         [0.0, 0.0, 0.0, 1.0]])
 
 
 def gripper_grasp(world_T_tcp: np.ndarray, each: float, first_hit):

@@ -25,6 +25,7 @@ from sim_backends.arms import URDF_DIR, SimArm
 from sim_backends.sim_robot import SimRobot  # noqa: F401  (re-exported: its home before sim_robot)
 from sim_backends.tool_specs import (
     GRIPPER_TCP_M,
+    PANDA_F_T_EE,
     POINTER_TIP_M,
     SUCTION_CUP_RADIUS_M,
     SUCTION_REACH_M,
@@ -33,12 +34,6 @@ from sim_backends.tool_specs import (
 )
 
 __all__ = ["TOOL_NAMES", "SimGripper", "SimPointer", "SimRobot", "SimSuctionCup", "make_tool"]
-
-PANDA_F_T_EE = make_pose(
-    np.array([[np.cos(-np.pi / 4), -np.sin(-np.pi / 4), 0.0],
-              [np.sin(-np.pi / 4), np.cos(-np.pi / 4), 0.0],
-              [0.0, 0.0, 1.0]]), [0.0, 0.0, 0.1034])  # Franka Desk's default for the Hand
-
 
 def _com_pose(client: int, body: int, link: int = -1) -> np.ndarray:
     # Constraint frames in PyBullet are given relative to the centre-of-mass frames.

@@ -189,8 +189,8 @@ def test_bad_options_raise_value_error(kwargs, match):
 
 
 @pytest.mark.parametrize("tool, engine, arm", [
-    ("suction", "mujoco", "panda"), ("gripper", "pybullet", "panda"),  # the Franka Hand
-    ("gripper", "mujoco", "ur5e")])  # the generic gripper
+    ("suction", "mujoco", "panda"), ("gripper", "mujoco", "panda"),  # the Franka Hand
+    ("gripper", "pybullet", "panda"), ("gripper", "mujoco", "ur5e")])  # the generic gripper
 def test_chess_scene_truth_follows_a_pick_and_place(tool, engine, arm):
     with connect("sim", engine=engine, arm=arm, scene="chess", tool=tool, seed=0, width=160,
                  height=120) as cell:
