@@ -13,8 +13,8 @@ Rendering is on the CPU here (PyBullet's TinyRenderer; MuJoCo's OpenGL through M
 llvmpipe via EGL), so the numbers depend on the machine's cores and on other load.
 The goal (issue 49): MuJoCo at least twice PyBullet's RGB-D frame rate.
 
-Not measured yet: a pick and place (the MuJoCo engine has no tools yet) and a lab's simulator
-cells top to bottom (the labs' scenes are not all on MuJoCo yet).
+Not measured here: a lab's simulator cells top to bottom (``tests/test_lab*.py -k
+source_notebook_runs`` with ``COBOTLAB_SIM_ENGINE`` set times them; docs/simulation.md).
 """
 
 from __future__ import annotations
@@ -69,6 +69,25 @@ def ik_and_move(cell, seed: int, n: int = 20) -> dict:
             "move_sim_s": arm.motion_time - t_sim}
 
 
+def pick_and_place(engine: str, arm: str, seed: int) -> dict:
+    """One staged pick and place e2 -> e4 (IBVS, the true wrist-camera calibration, 320x240):
+    wall time, simulated time, and whether the pawn ended on e4."""
+    from robots import connect
+    from solutions import servoing
+
+    t0 = time.perf_counter()
+    with connect("sim", engine=engine, arm=arm, scene="chess", seed=seed, width=320,
+                 height=240) as cell:
+        before = cell.truth.pieces
+        t_sim = cell.arm.motion_time
+        servoing.pick_and_place(cell, "e2", "e4", method="ibvs",
+                                flange_T_cam=cell.truth.flange_T_cam)
+        after = cell.truth.pieces
+        placed = "e4" in after and after["e4"].body_id == before["e2"].body_id
+        return {"pick_s": time.perf_counter() - t0, "pick_sim_s": cell.arm.motion_time - t_sim,
+                "pick_placed": bool(placed)}
+
+
 def measure(engine: str, arm: str, frames: int, seed: int, resolutions) -> dict:
     """Everything for one engine (run in its own process: see ``main``)."""
     from robots import connect
@@ -83,6 +102,7 @@ def measure(engine: str, arm: str, frames: int, seed: int, resolutions) -> dict:
                 out["frames"][f"{width}x{height} {mount}"] = frame_times(cell.camera, frames)
     with connect("sim", engine=engine, arm=arm, seed=seed, width=320, height=240) as cell:
         out.update(ik_and_move(cell, seed))
+    out.update(pick_and_place(engine, arm, seed))
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return out
 
@@ -143,6 +163,9 @@ def report(results: dict, args) -> None:
             ("IK solve (median of 20, ms)", lambda r: f"{r['ik_ms']:.1f}"),
             ("move_to 10 cm and back, wall (s)", lambda r: f"{r['move_s']:.3f}"),
             ("the same, simulated (s)", lambda r: f"{r['move_sim_s']:.3f}"),
+            ("pick and place e2 -> e4, wall incl. building the cell (s)",
+             lambda r: f"{r['pick_s']:.1f} ({'placed' if r['pick_placed'] else 'NOT placed'})"),
+            ("the same, simulated (s)", lambda r: f"{r['pick_sim_s']:.1f}"),
             ("peak memory of the process (MB)", lambda r: f"{r['peak_mb']:.0f}")]
     for label, cell in rows:
         print(f"| {label} | " + " | ".join(cell(r) for r in ok.values()) + " |")
