@@ -74,7 +74,7 @@ BUILTIN_BACKENDS: dict[str, str] = {
 # default engine's entry; the engine modules are imported only when first used.
 SIM_ENGINES: dict[str, tuple[str, str, str]] = {
     "mujoco": ("sim_backends.mujoco_world:create_workcell", "mujoco",
-               "pip install 'mujoco>=3.2,<4'"),
+               "pip install 'mujoco>=3.5,<4'"),
     "pybullet": ("sim_backends.world:create_workcell", "pybullet", "pip install pybullet"),
 }
 # Tried in this order when no engine is named (see the module docstring for why).
