@@ -80,15 +80,16 @@ def arm_spec(spec: ArmSpec, drawn: bool = True):
     return mujoco.MjSpec.from_file(str(_mujoco_urdf(source, f"{spec.name}_{suffix}")))
 
 
-def configure_visual(s, max_canvas: tuple[int, int]) -> None:
-    """Off-screen buffer big enough for the largest camera canvas, fixed clipping planes."""
+def configure_visual(s, max_canvas: tuple[int, int], shadows: bool = False) -> None:
+    """Off-screen buffer big enough for the largest camera canvas, fixed clipping planes; a
+    shadow map only as big as the lighting needs (making it costs time in every new cell)."""
     s.visual.global_.offwidth = int(max_canvas[0])
     s.visual.global_.offheight = int(max_canvas[1])
     s.stat.extent = 1.0  # so znear and zfar below are metres
     s.visual.map.znear = NEAR_M
     s.visual.map.zfar = FAR_M
     s.visual.headlight.active = 0  # only the described lights
-    s.visual.quality.shadowsize = 2048
+    s.visual.quality.shadowsize = 2048 if shadows else 256
 
 
 def add_lights(s, lighting: Lighting) -> None:

@@ -240,7 +240,7 @@ def create_workcell(**options) -> MujocoWorkcell:
     spec = ARM_SPECS[d.arm]
     s = mjm.arm_spec(spec)
     max_canvas = _max_canvas(d)
-    mjm.configure_visual(s, max_canvas)
+    mjm.configure_visual(s, max_canvas, shadows=d.lighting.shadow)
     mjm.add_lights(s, d.lighting)
     (sx, sy), (cx, cy) = layout.table_size(d.reach)
     mjm.add_box(s.worldbody, "table", (sx / 2, sy / 2, _TABLE_THICKNESS / 2),
