@@ -20,12 +20,14 @@ $(STAMP): pyproject.toml
 # libusb for pyrealsense2; chromium for the real-browser run of a lab; bubblewrap for the
 # grader's sandbox around student code; for the course hub's test (docs/hub.md): nodejs for
 # configurable-http-proxy, and patchelf to give every account a copy of the venv's Python
-# when it sits under a home folder they cannot enter (pyenv's).
-SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap nodejs patchelf
+# when it sits under a home folder they cannot enter (pyenv's); libegl1 and libgl1-mesa-dri
+# for the MuJoCo simulator's off-screen rendering without a display (EGL on Mesa's CPU
+# renderer; sim_backends/mujoco_gl.py names them when they are missing).
+SYSTEM_PACKAGES := libusb-1.0-0 chromium bubblewrap nodejs patchelf libegl1 libgl1-mesa-dri
 system-packages:
 	@if ! dpkg -s $(SYSTEM_PACKAGES) >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_PACKAGES); \
-	  else echo "note: sudo apt-get install $(SYSTEM_PACKAGES) to run the RealSense and browser tests"; fi; \
+	  else echo "note: sudo apt-get install $(SYSTEM_PACKAGES) to run the RealSense, browser and MuJoCo tests"; fi; \
 	fi
 
 # JupyterHub's proxy, from npm, into a folder of this checkout (tests/test_hub_term.py runs

@@ -115,6 +115,14 @@ class DemoSettings:
 # --------------------------------------------------------------------------- shared helpers
 
 
+def _sim_cell(**options):
+    """The demo's simulated cell, through ``connect("sim")``: the engine (MuJoCo or PyBullet)
+    comes from ``COBOTLAB_SIM_ENGINE`` or lab.toml, as for a lab (docs/simulation.md)."""
+    from robots import connect
+
+    return connect("sim", **options)
+
+
 def _board_detector(target):
     """The project's chessboard detector for a simulated printed board (its printed size,
     which a user reads off the print; not a pose)."""
@@ -183,11 +191,10 @@ def _flange_poses(start, rng, n, safety):
 def flange_calibration(settings: DemoSettings) -> FlangeOutcome:
     """Part 1: eye-on-base calibration of a fixed camera from a board on the flange."""
     from robots.capture import capture_pose_pairs
-    from sim_backends.world import create_workcell
     from solutions import handeye, registration
 
     w, h = settings.calib_size
-    with create_workcell(mount="eye_to_hand", scene="calibration", width=w, height=h,
+    with _sim_cell(mount="eye_to_hand", scene="calibration", width=w, height=h,
                          **settings.cell_options()) as cell:
         robot, truth = cell.robot, cell.truth
         target = truth.flange_target
@@ -303,13 +310,12 @@ def eye_in_hand_calibration(settings: DemoSettings) -> EyeInHandOutcome:
 
     from robots.calibration_io import save_calibration
     from robots.capture import capture_pose_pairs
-    from sim_backends.world import create_workcell
     from solutions import handeye
     from solutions.catalog import DEFAULT_METHOD, hand_eye_methods
     from solutions.pipeline import per_pose_residuals
 
     w, h = settings.calib_size
-    with create_workcell(mount="eye_in_hand", scene="calibration", width=w, height=h,
+    with _sim_cell(mount="eye_in_hand", scene="calibration", width=w, height=h,
                          **settings.cell_options()) as cell:
         robot, truth = cell.robot, cell.truth
         detect = _board_detector(truth.board)
@@ -445,7 +451,6 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
     ``cell.truth.pieces``."""
     from robots.calibration_io import load_calibration
     from robots.perception import ServoError, square_centre
-    from sim_backends.world import create_workcell
     from solutions.servoing import ARM_OPTIONS, StagedPickAndPlace, overview_base_T_cam
 
     flange_T_cam = load_calibration(calibration_path).pose
@@ -454,7 +459,7 @@ def pick_pieces(settings: DemoSettings, calibration_path, expected_flange_T_cam)
     options = dict(ARM_OPTIONS[settings.robot])
     square_m = chess_square_m(settings.robot)
     w, h = settings.pick_size
-    with create_workcell(mount="eye_in_hand", scene="chess", width=w, height=h,
+    with _sim_cell(mount="eye_in_hand", scene="chess", width=w, height=h,
                          **settings.cell_options()) as cell:
         truth = cell.truth
         # Same seed, same mount: the camera calibrated in part 2 is this one.

@@ -8,8 +8,9 @@ the first time someone connects to it.
 Where the settings come from (highest wins)
 -------------------------------------------
 1. keyword arguments to ``connect`` (``kind`` and every option);
-2. environment variables: ``COBOTLAB_KIND`` (the backend) and ``COBOTLAB_HOST`` (the robot's
-   address; passed as ``host=`` to real drivers only, never to "sim");
+2. environment variables: ``COBOTLAB_KIND`` (the backend), ``COBOTLAB_HOST`` (the robot's
+   address; passed as ``host=`` to real drivers only, never to "sim") and
+   ``COBOTLAB_SIM_ENGINE`` (the simulator's engine, "mujoco" or "pybullet"; "sim" only);
 3. ``lab.toml`` in the current working directory::
 
        [connect]
@@ -18,15 +19,28 @@ Where the settings come from (highest wins)
        host = "192.168.1.10"       # options used whenever kind is "ur"
        [connect.sim]
        arm = "ur5e"                # options used whenever kind is "sim"
+       engine = "mujoco"           # the simulator's engine (see below)
 
    (read with ``tomllib`` on Python 3.11+, or ``tomli`` on 3.10 if installed; otherwise the
    file is skipped with a warning);
 4. the default: ``kind = "sim"``.
+
+The simulator's engine
+----------------------
+"sim" is one workcell built by one of two engines (``SIM_ENGINES``): MuJoCo
+(``sim_backends.mujoco_world``, wheels for every system) or PyBullet (``sim_backends.world``,
+wheels for Linux x86_64 and CPython <= 3.11 only). ``engine=`` picks one; without it
+(``default_sim_engine``) PyBullet is used where it is installed, since the MuJoCo engine does
+not yet build every scene the labs use, and MuJoCo where only it is installed. An engine that
+is asked for but not installed, or a scene the MuJoCo engine cannot build, raises
+``BackendNotAvailableError`` naming what to ``pip install``: a lab never silently runs on a
+different engine than the one asked for.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import os
 import warnings
 from collections.abc import Callable, Mapping
@@ -41,6 +55,8 @@ __all__ = [
     "available_backends",
     "resolve_connect_options",
     "connect",
+    "SIM_ENGINES",
+    "default_sim_engine",
 ]
 
 DEFAULT_KIND = "sim"
@@ -53,6 +69,16 @@ BUILTIN_BACKENDS: dict[str, str] = {
     "aubo": "robots.drivers.aubo:create_workcell",
     "cobotta": "robots.drivers.cobotta:create_workcell",
 }
+
+# engine -> ("module:factory", the package it needs, how to install it). "sim" above is the
+# default engine's entry; the engine modules are imported only when first used.
+SIM_ENGINES: dict[str, tuple[str, str, str]] = {
+    "mujoco": ("sim_backends.mujoco_world:create_workcell", "mujoco",
+               "pip install 'mujoco>=3.5,<4'"),
+    "pybullet": ("sim_backends.world:create_workcell", "pybullet", "pip install pybullet"),
+}
+# Tried in this order when no engine is named (see the module docstring for why).
+DEFAULT_ENGINE_ORDER = ("pybullet", "mujoco")
 
 _registry: dict[str, Callable[..., Workcell]] = {}
 
@@ -112,6 +138,46 @@ def _load_factory(kind: str) -> Callable[..., Workcell]:
     return factory
 
 
+def _installed(package: str) -> bool:
+    return importlib.util.find_spec(package) is not None
+
+
+def default_sim_engine(installed: Callable[[str], bool] = _installed) -> str:
+    """The engine ``connect("sim")`` uses when none is named: the first of
+    ``DEFAULT_ENGINE_ORDER`` whose package is installed (``installed(package) -> bool``).
+
+    Raises BackendNotAvailableError naming both installs when neither engine is there.
+    """
+    for engine in DEFAULT_ENGINE_ORDER:
+        if installed(SIM_ENGINES[engine][1]):
+            return engine
+    fixes = " or ".join(f"`{SIM_ENGINES[e][2]}`" for e in DEFAULT_ENGINE_ORDER)
+    raise BackendNotAvailableError(
+        f"the simulator needs an engine and none is installed; install one: {fixes}")
+
+
+def _sim_engine_factory(engine) -> Callable[..., Workcell]:
+    """The workcell factory of a simulator engine, imported on first use."""
+    if engine not in SIM_ENGINES:
+        raise ValueError(
+            f"engine must be one of {', '.join(map(repr, SIM_ENGINES))}, got {engine!r} "
+            "(from connect(engine=...), COBOTLAB_SIM_ENGINE or lab.toml's [connect.sim])")
+    target, package, install = SIM_ENGINES[engine]
+    if not _installed(package):
+        raise BackendNotAvailableError(
+            f"the {engine!r} simulator engine is not installed: `{install}`, or choose the "
+            f"other engine with connect('sim', engine=...) or COBOTLAB_SIM_ENGINE")
+    module_name, func_name = target.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:
+        missing = getattr(error, "name", None) or str(error)
+        raise BackendNotAvailableError(
+            f"the {engine!r} simulator engine cannot import {missing!r} (needed by "
+            f"{module_name}); reinstall cobotlab, or `pip install {missing}`") from error
+    return getattr(module, func_name)
+
+
 def _read_lab_toml(path: Path) -> dict:
     try:
         import tomllib
@@ -159,6 +225,8 @@ def resolve_connect_options(
     merged.update(per_kind)
     if resolved_kind != "sim" and environ.get("COBOTLAB_HOST"):
         merged["host"] = environ["COBOTLAB_HOST"]
+    if resolved_kind == "sim" and environ.get("COBOTLAB_SIM_ENGINE"):
+        merged["engine"] = environ["COBOTLAB_SIM_ENGINE"]
     merged.update(options or {})
     return resolved_kind, merged
 
@@ -166,8 +234,9 @@ def resolve_connect_options(
 def connect(kind: str | None = None, **options) -> Workcell:
     """Connect to a robot cell and return its :class:`~robots.interfaces.Workcell`.
 
-    ``kind`` is "sim" (the default: the PyBullet world) or a driver name ("ur", "franka",
-    "aubo", "cobotta"); ``options`` go to the backend, e.g.
+    ``kind`` is "sim" (the default: the simulated workcell, built by the engine named by
+    ``engine="mujoco"`` or ``"pybullet"``, see this module's docstring) or a driver name
+    ("ur", "franka", "aubo", "cobotta"); ``options`` go to the backend, e.g.
     ``connect("sim", arm="panda", mount="eye_in_hand", seed=0)`` or
     ``connect("ur", host="192.168.1.10")``. Settings may also come from the environment and
     ``lab.toml``; explicit arguments win (see this module's docstring).
@@ -182,7 +251,11 @@ def connect(kind: str | None = None, **options) -> Workcell:
     BackendNotAvailableError (an ImportError) when the backend is not installed.
     """
     kind, options = resolve_connect_options(kind, options)
-    factory = _load_factory(kind)
+    if kind == "sim" and "sim" not in _registry:  # a registered "sim" replaces the engines
+        engine = options.pop("engine", None) or default_sim_engine()
+        factory = _sim_engine_factory(engine)
+    else:
+        factory = _load_factory(kind)
     cell = factory(**options)
     if not isinstance(cell, Workcell):
         raise TypeError(f"backend {kind!r} returned {type(cell).__name__}, not a robots.Workcell")

@@ -15,23 +15,25 @@ import numpy as np
 import pybullet as p
 
 from robots.geometry import (
-    as_pose,
     invert,
     make_pose,
     pose_from_quat_xyzw,
     quat_xyzw_from_rotation,
 )
-from robots.interfaces import Gripper, Pointer, Robot, SuctionCup
+from robots.interfaces import Gripper, Pointer, SuctionCup
 from sim_backends.arms import URDF_DIR, SimArm
+from sim_backends.sim_robot import SimRobot  # noqa: F401  (re-exported: its home before sim_robot)
+from sim_backends.tool_specs import (
+    GRIPPER_TCP_M,
+    PANDA_F_T_EE,
+    POINTER_TIP_M,
+    SUCTION_CUP_RADIUS_M,
+    SUCTION_REACH_M,
+    SUCTION_TIP_M,
+    gripper_grasp,
+)
 
 __all__ = ["TOOL_NAMES", "SimGripper", "SimPointer", "SimRobot", "SimSuctionCup", "make_tool"]
-
-SUCTION_REACH_M = 0.005  # a surface this close to the cup tip, along the tool axis, is gripped
-PANDA_F_T_EE = make_pose(
-    np.array([[np.cos(-np.pi / 4), -np.sin(-np.pi / 4), 0.0],
-              [np.sin(-np.pi / 4), np.cos(-np.pi / 4), 0.0],
-              [0.0, 0.0, 1.0]]), [0.0, 0.0, 0.1034])  # Franka Desk's default for the Hand
-
 
 def _com_pose(client: int, body: int, link: int = -1) -> np.ndarray:
     # Constraint frames in PyBullet are given relative to the centre-of-mass frames.
@@ -142,7 +144,7 @@ class SimGripper(Gripper):
             self._holder = _Holder(arm, arm.body_id, arm.flange_link, {arm.body_id})
         else:
             self.body_id = _mount_tool_body(arm, "gripper.urdf")
-            super().__init__("gripper", make_pose(t=[0.0, 0.0, 0.080]))
+            super().__init__("gripper", make_pose(t=[0.0, 0.0, GRIPPER_TCP_M]))
             self._holder = _Holder(arm, self.body_id, -1, {arm.body_id, self.body_id})
         self._each = self.MAX_OPENING_EACH
         self._set_fingers(self._each)
@@ -166,23 +168,12 @@ class SimGripper(Gripper):
             return True
         world_T_tcp = self._arm.world_T_flange() @ self.flange_T_tcp
         # The Panda's fingers close along the hand's y axis; the generic one along tool0's y.
-        closing = world_T_tcp[:3, 1]
-        inner = self._each - 0.001
-        starts, ends = [], []
-        for dz in (-0.008, 0.0, 0.008):  # three heights along the fingers
-            centre = world_T_tcp[:3, 3] + dz * world_T_tcp[:3, 2]
-            starts += [centre + inner * closing, centre - inner * closing]
-            ends += [centre - inner * closing, centre + inner * closing]
-        hits = []
-        for k in range(0, len(starts), 2):
-            a = self._holder.first_object_hit([starts[k]], [ends[k]])
-            b = self._holder.first_object_hit([starts[k + 1]], [ends[k + 1]])
-            if a and b and a[0] == b[0]:
-                hits.append((a[0], abs(float((a[1] - b[1]) @ closing))))
-        if not hits:
+        found = gripper_grasp(world_T_tcp, self._each,
+                              lambda a, b: self._holder.first_object_hit([a], [b]))
+        if found is None:
             self._set_fingers(0.0)
             return False
-        body, width = min(hits, key=lambda h: h[1])
+        body, width = found
         self._set_fingers(width / 2)
         self._holder.hold(body)
         return True
@@ -210,8 +201,8 @@ class SimSuctionCup(SuctionCup):
     pressed on the board or the table holds nothing).
     """
 
-    TIP_M = 0.080
-    CUP_RADIUS_M = 0.010
+    TIP_M = SUCTION_TIP_M
+    CUP_RADIUS_M = SUCTION_CUP_RADIUS_M
 
     def __init__(self, client: int, arm: SimArm):
         if client != arm.client:
@@ -255,7 +246,7 @@ class SimSuctionCup(SuctionCup):
 class SimPointer(Pointer):
     """A thin rod on the flange; its tip (TCP) is ``TIP_M`` = 0.150 m along the flange z axis."""
 
-    TIP_M = 0.150
+    TIP_M = POINTER_TIP_M
 
     def __init__(self, client: int, arm: SimArm):
         if client != arm.client:
@@ -278,45 +269,3 @@ def make_tool(kind: str | None, client: int, arm: SimArm):
     if kind not in classes:
         raise ValueError(f"unknown tool {kind!r}; choose one of {TOOL_NAMES}")
     return classes[kind](client, arm)
-
-
-class SimRobot(Robot):
-    """A :class:`robots.interfaces.Robot` backed by a :class:`SimArm` (and a simulated tool).
-
-    The base class runs the Safety checks before ``_move_to`` / ``_move_joints``. Reported
-    poses and joints are what the simulated controller reports (with encoder offsets, if any).
-    """
-
-    def __init__(self, arm: SimArm, tool=None, safety=None, name: str | None = None):
-        super().__init__(name or arm.name, safety=safety, tool=tool)
-        self.arm = arm
-
-    def flange_pose(self) -> np.ndarray:
-        self._require_open()
-        return self.arm.flange_pose()
-
-    def joint_positions(self) -> np.ndarray:
-        self._require_open()
-        return self.arm.joint_positions()
-
-    def joint_limits(self) -> np.ndarray:
-        return self.arm.joint_limits()
-
-    def stop(self) -> None:
-        self.arm.stop()
-
-    def solve_ik(self, base_T_flange, q_seed=None) -> np.ndarray:
-        """Joint angles (n,) rad reaching ``base_T_flange`` (raises UnreachableError)."""
-        self._require_open()
-        return self.arm.solve_ik(as_pose(base_T_flange, "base_T_flange"), q_seed)
-
-    def _move_to(self, base_T_flange: np.ndarray, speed: float) -> None:
-        self.arm.move_linear(base_T_flange, speed)
-
-    def _move_joints(self, q: np.ndarray, speed: float) -> None:
-        self.arm.move_joints(q, speed)
-
-    def _close(self) -> None:
-        if self.tool is not None and self.tool.is_holding:
-            self.tool.release()
-        self.arm.close()

@@ -1,6 +1,7 @@
 """The simulated workcell: arm + tool + camera(s) + scene, behind ``robots.connect("sim", ...)``.
 
-``create_workcell`` builds a headless PyBullet world (DIRECT mode, TinyRenderer) that is
+``create_workcell`` builds, from the engine-neutral description in ``sim_backends.layout``,
+a headless PyBullet world (DIRECT mode, TinyRenderer) that is
 deterministic for a seed, and returns a :class:`SimWorkcell` (a ``robots.Workcell``) whose
 ``truth`` holds the ground truth that instructors and tests compare against.
 
@@ -33,9 +34,6 @@ along its edges, z up out of the table, as OpenCV's marker frame: out of the pri
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-
 import numpy as np
 import pybullet as p
 
@@ -43,17 +41,30 @@ from robots.geometry import (
     compose,
     invert,
     make_pose,
-    pose_from_rotvec,
-    pose_from_rpy,
     quat_xyzw_from_rotation,
-    transform_points,
 )
-from robots.interfaces import Intrinsics, UnreachableError, Workcell
+from robots.interfaces import Intrinsics, Workcell
+from sim_backends import layout, textures
 from sim_backends import scene as scn
-from sim_backends import textures
-from sim_backends.camera import SimCamera, lighting_from
-from sim_backends.depth_noise import depth_model_from
-from sim_backends.flanges import FLANGES, FlangeSpec
+from sim_backends.camera import SimCamera
+from sim_backends.flanges import FLANGES
+from sim_backends.layout import (  # noqa: F401  (re-exported: their home before layout)
+    ARM_REACH,
+    MOUNTS,
+    RECTANGLE_MARK_SIZE,
+    RECTANGLE_MARK_THICKNESS,
+    SCENES,
+    TARGETS,
+    TOOLS,
+    _calibration_target,
+    _look_at,
+    _parse_mount_error,
+    _random_pose_error,
+    default_intrinsics,
+    describe_workcell,
+    nominal_flange_T_cam,
+)
+from sim_backends.truth import SimTruth
 
 __all__ = [
     "MOUNTS",
@@ -66,103 +77,7 @@ __all__ = [
     "nominal_flange_T_cam",
 ]
 
-MOUNTS = ("eye_in_hand", "eye_to_hand")
-SCENES = ("calibration", "chess")
-TOOLS = ("suction", "gripper", "pointer", None)
-TARGETS = ("chessboard", "charuco", "circles", "aruco")
 TIME_STEP = 1.0 / 240.0
-
-# Published reach (m) of each arm, used to lay the scene out where the arm can work.
-ARM_REACH = {"panda": 0.855, "ur5e": 0.85, "ur10e": 1.3, "aubo_i5": 0.886, "cobotta": 0.342}
-# The approach-to-grasp chapter's rectangular mark, (width, height) m, and its thickness (a
-# card on a backing plate, like the calibration board: a step the depth image shows).
-RECTANGLE_MARK_SIZE = (0.1, 0.1)
-RECTANGLE_MARK_THICKNESS = 0.003
-
-
-def nominal_flange_T_cam(arm: str) -> np.ndarray:
-    """The design pose of the eye-in-hand camera on an arm's flange (tool0).
-
-    The camera sits 7.5 cm off the flange axis and 2-3 cm in front of the flange face, well
-    clear of every joint axis (TinyRenderer can hang when the eye sits on one), looking along
-    the flange z axis; camera x runs along the mount's y so the image is upright when the
-    flange x axis points away from the robot. On the Panda the mount is turned -45 degrees
-    about z, to the side of the Franka Hand (whose fingers open along the hand's y axis), and
-    looks straight ahead so the fingers stay out of the picture; on the other arms it is
-    tilted 10 degrees back towards the flange axis so a tool tip stays in view.
-    """
-    if arm == "panda":
-        yaw, forward, tilt = -np.pi / 4, 0.03, 0.0
-    else:
-        yaw, forward, tilt = 0.0, 0.02, np.deg2rad(10.0)
-    return compose(
-        pose_from_rpy(0.0, 0.0, yaw),
-        make_pose(t=[0.075, 0.0, forward]),
-        pose_from_rpy(0.0, -tilt, 0.0),
-        pose_from_rpy(0.0, 0.0, np.pi / 2),
-    )
-
-
-def default_intrinsics(width: int = 640, height: int = 480) -> Intrinsics:
-    """A RealSense-D435-like colour camera (about 69 x 54 degrees at 640x480) at any size."""
-    f = 0.96 * width
-    return Intrinsics(fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width,
-                      height=height)
-
-
-@dataclass
-class SimTruth:
-    """Ground truth of a simulated workcell (instructors and tests only; see module docstring).
-
-    ``base_T_cam`` is set for a fixed camera (eye-to-hand) and ``flange_T_cam`` for a camera on
-    the flange (eye-in-hand); the other is None. ``nominal_*`` is the mount a naive user would
-    assume (the design values, before ``mount_error``). ``pieces`` is live: read it again after
-    the arm moves a piece. ``flange`` is the arm's ISO 9409-1 flange (its face, radius
-    ``flange.radius`` m, is centred on tool0 with normal +z); ``base_T_rectangle`` and
-    ``rectangle_size`` (width, height) m the rectangle mark, None without one.
-    """
-
-    mount: str
-    base_T_cam: np.ndarray | None
-    flange_T_cam: np.ndarray | None
-    nominal_base_T_cam: np.ndarray | None
-    nominal_flange_T_cam: np.ndarray | None
-    base_T_board: np.ndarray | None
-    base_T_world: np.ndarray
-    flange_T_marker: np.ndarray | None
-    base_T_pybullet: np.ndarray
-    cam_T_right: np.ndarray | None = None
-    base_T_overview_cam: np.ndarray | None = None
-    encoder_offsets: np.ndarray | None = None
-    board: textures.Target | None = None
-    flange_target: textures.Target | None = None
-    flange: FlangeSpec | None = None
-    base_T_rectangle: np.ndarray | None = None
-    rectangle_size: tuple[float, float] | None = None
-    _chess: scn.ChessSet | None = field(default=None, repr=False)
-    _arm: object = field(default=None, repr=False)
-
-    @property
-    def pieces(self) -> dict:
-        """Square name -> ``PieceTruth(kind, colour, base_T_piece)`` read from the live sim.
-
-        Empty outside the chess scene. A piece that is lifted or off the board is keyed
-        ``"lifted:<body id>"``.
-        """
-        if self._chess is None:
-            return {}
-        return self._chess.pieces(self.base_T_pybullet)
-
-    def base_T_flange(self) -> np.ndarray:
-        """The TRUE flange pose now (the robot's ``flange_pose()`` adds encoder errors)."""
-        return self._arm.true_flange_pose()
-
-    def base_T_cam_now(self) -> np.ndarray:
-        """Where the main camera is now, in the base frame (either mount)."""
-        if self.base_T_cam is not None:
-            return self.base_T_cam.copy()
-        return compose(self.base_T_flange(), self.flange_T_cam)
-
 
 class SimWorkcell(Workcell):
     """A ``robots.Workcell`` that also owns the PyBullet client (disconnected on close)."""
@@ -189,41 +104,6 @@ class SimWorkcell(Workcell):
 # --------------------------------------------------------------------------- helpers
 
 
-def _random_pose_error(rng: np.random.Generator, mm: float, deg: float) -> np.ndarray:
-    """A pose whose translation is ``mm`` millimetres and rotation ``deg`` degrees, in seeded
-    random directions (the camera mounting error)."""
-    t = rng.normal(size=3)
-    axis = rng.normal(size=3)
-    return pose_from_rotvec(axis / np.linalg.norm(axis) * np.deg2rad(deg),
-                            t / np.linalg.norm(t) * mm * 1e-3)
-
-
-def _parse_mount_error(mount_error) -> tuple[float, float]:
-    try:
-        mm, deg = (float(x) for x in mount_error)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"mount_error must be (millimetres, degrees), e.g. (2.0, 0.5), got {mount_error!r}"
-        ) from None
-    if not (math.isfinite(mm) and math.isfinite(deg) and mm >= 0 and deg >= 0):
-        raise ValueError(f"mount_error values must be finite and >= 0, got {mount_error!r}")
-    return mm, deg
-
-
-def _calibration_target(kind: str, reach: float) -> textures.Target:
-    small = reach < 0.5  # the Cobotta: a board that fits its little workspace
-    if kind == "chessboard":
-        return textures.chessboard(square=0.02 if small else 0.039)
-    if kind == "charuco":
-        return textures.charuco(square=0.025 if small else 0.04,
-                                marker=0.018 if small else 0.03)
-    if kind == "circles":
-        return textures.circle_grid(spacing=0.012 if small else 0.02)
-    if kind == "aruco":
-        return textures.aruco_marker(marker_id=0, size=0.04 if small else 0.1)
-    raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
-
-
 def _flange_face_height(arm, half_size) -> float:
     """How far (m) the arm's own geometry reaches beyond tool0 along flange +z over a
     rectangle of ``half_size = (hx, hy)`` metres around the flange axis (0 when tool0 is on
@@ -248,42 +128,11 @@ def _flange_face_height(arm, half_size) -> float:
 
 
 def _target_on_flange(mount: str, arm, reach: float) -> tuple[textures.Target, np.ndarray]:
-    """The flange target and ``flange_T_marker``: its centre on the tool0 axis, printed face
-    looking along flange +z, 1 mm in front of the flange face. (On some arm models the last
-    links stick out beyond tool0; the plate then moves out until it clears them.)"""
-    if mount == "eye_in_hand":
-        target = textures.aruco_marker(marker_id=7, size=0.03 if reach < 0.5 else 0.04)
-    else:
-        square = 0.012 if reach < 0.5 else 0.02
-        target = textures.chessboard(squares=(7, 6), square=square, margin=square / 2)
+    """The flange target and ``flange_T_marker`` (``layout.flange_target``), 1 mm in front of
+    the flange face or of whatever of the arm's own geometry sticks out beyond tool0."""
+    target = layout.flange_target(mount, reach)
     gap = 0.001 + _flange_face_height(arm, (target.size[0] / 2, target.size[1] / 2))
-    if target.kind == "aruco":
-        # OpenCV marker frame: z out of the print, so it points along flange +z.
-        return target, make_pose(t=[0.0, 0.0, gap])
-    # Chessboard frame: z into the print, i.e. towards the flange.
-    flange_T_centre = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, gap])
-    return target, compose(flange_T_centre, make_pose(t=-target.centre))
-
-
-def _look_at(eye, point, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Optical frame at ``eye`` looking at ``point`` with the image top towards ``up``."""
-    eye, point = np.asarray(eye, float), np.asarray(point, float)
-    z = point - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return make_pose(np.stack([x, y, z], axis=1), eye)
-
-
-def _teleport_to(arm, base_T_flange) -> bool:
-    """Put the arm at an IK solution for a pose (set-up only, no motion). False if unreachable."""
-    try:
-        q = arm.solve_ik(base_T_flange)
-    except UnreachableError:
-        return False
-    arm.set_joint_positions(q)
-    return True
+    return target, layout.flange_T_marker(target, gap)
 
 
 # --------------------------------------------------------------------------- factory
@@ -351,65 +200,28 @@ def create_workcell(
     from sim_backends import arms as arms_mod
     from sim_backends import tools as tools_mod
 
-    if arm not in arms_mod.ARM_NAMES:
-        raise ValueError(f"unknown arm {arm!r}; choose one of {arms_mod.ARM_NAMES}")
-    if mount not in MOUNTS:
-        raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
-    if scene not in SCENES:
-        raise ValueError(f"scene must be one of {SCENES}, got {scene!r}")
-    if tool == "default":
-        tool = "suction" if scene == "chess" else None
-    if tool not in TOOLS:
-        raise ValueError(f"tool must be one of {TOOLS} or 'default', got {tool!r}")
-    if target not in TARGETS:
-        raise ValueError(f"target must be one of {TARGETS}, got {target!r}")
-    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    mount_mm, mount_deg = _parse_mount_error(mount_error)
-    if not (math.isfinite(encoder_noise_deg) and encoder_noise_deg >= 0):
-        raise ValueError(f"encoder_noise_deg must be >= 0, got {encoder_noise_deg!r}")
-    if stereo_baseline is not None and not (math.isfinite(stereo_baseline) and stereo_baseline > 0):
-        raise ValueError("stereo_baseline must be a positive number of metres, got "
-                         f"{stereo_baseline!r}")
-    if intrinsics is None:
-        intrinsics = default_intrinsics(width, height)
-    elif not isinstance(intrinsics, Intrinsics):
-        raise ValueError("intrinsics must be a robots.interfaces.Intrinsics")
-    if distortion is not None:
-        i = intrinsics
-        intrinsics = Intrinsics(i.fx, i.fy, i.cx, i.cy, i.width, i.height, distortion)
-    light = lighting_from(lighting)
-    if overview_camera and not (scene == "chess" and mount == "eye_in_hand"):
-        raise ValueError("overview_camera=True needs scene='chess' and mount='eye_in_hand' (a "
-                         "fixed camera over the board next to the wrist camera)")
-    for label, flag in (("flange_target", flange_target), ("rectangle_mark", rectangle_mark)):
-        if not isinstance(flag, (bool, np.bool_)):
-            raise ValueError(f"{label} must be True or False, got {flag!r}")
-    depth_model = depth_model_from(depth_model)
-    if depth_model is not None and depth_noise > 0:
-        raise ValueError("give depth_noise or depth_model, not both: the RealSense model has its "
-                         "own noise")
-    if not (chess_position in ("start", "random") or isinstance(chess_position, dict)):
-        raise ValueError("chess_position must be 'start', 'random' or a dict "
-                         f"square -> (kind, colour), got {chess_position!r}")
-
-    # Independent streams, so turning one knob never reshuffles another's draws.
-    # (spawn(8)[:7] equals spawn(7): adding a stream left the others' draws as they were.)
-    (rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess, rng_overview,
-     rng_mark) = np.random.default_rng(seed).spawn(8)
+    d = describe_workcell(
+        arm=arm, mount=mount, scene=scene, seed=seed, width=width, height=height,
+        intrinsics=intrinsics, distortion=distortion, pixel_noise=pixel_noise,
+        depth_noise=depth_noise, encoder_noise_deg=encoder_noise_deg, mount_error=mount_error,
+        lighting=lighting, stereo_baseline=stereo_baseline, tool=tool, target=target,
+        chess_position=chess_position, safety=safety, overview_camera=overview_camera,
+        flange_target=flange_target, depth_model=depth_model, rectangle_mark=rectangle_mark)
+    tool, intrinsics, light, depth_model = d.tool, d.intrinsics, d.lighting, d.depth_model
+    mount_mm, mount_deg = d.mount_mm, d.mount_deg
+    s = d.streams
+    rng_scene, rng_mount, rng_enc, rng_cam = s.scene, s.mount, s.enc, s.cam
+    rng_right, rng_chess, rng_overview, rng_mark = s.right, s.chess, s.overview, s.mark
     reach = ARM_REACH[arm]
     client = p.connect(p.DIRECT)
     try:
         p.setGravity(0, 0, -9.81, physicsClientId=client)
         p.setTimeStep(TIME_STEP, physicsClientId=client)
-        scn.add_table(client, size=(2.0 * reach + 0.6, 2.0 * reach + 0.6),
-                      centre_xy=(0.3 * reach, 0.0))
+        size, centre = layout.table_size(reach)
+        scn.add_table(client, size=size, centre_xy=centre)
         world_T_base = np.eye(4)  # the robot base is the world origin (kept general below)
         base_T_pybullet = invert(world_T_base)
-        offsets = None
-        if encoder_noise_deg > 0:
-            n = arms_mod.ARM_SPECS[arm].n_joints
-            offsets = np.deg2rad(rng_enc.normal(0.0, encoder_noise_deg, size=n))
+        offsets = layout.encoder_offsets(d, arms_mod.ARM_SPECS[arm].n_joints)
         sim_arm = arms_mod.SimArm(client, arm, world_T_base=world_T_base,
                                   encoder_offsets=offsets, rng=rng_enc)
 
@@ -455,10 +267,7 @@ def create_workcell(
             left = flange_T_cam  # the camera's pose in its parent (the flange)
             nominal_base_T_cam = base_T_cam = world_T_cam = None
         else:
-            # Fixed camera in front of the robot, off to its left, looking at the work area.
-            look = np.array([0.5 * reach, 0.0, 0.25 * reach])
-            eye = look + np.array([0.75, 0.45, 0.45]) * max(reach, 0.6)
-            nominal_world_T_cam = _look_at(eye, look)
+            nominal_world_T_cam = layout.fixed_camera_nominal_pose(reach)
             world_T_cam = compose(nominal_world_T_cam, error)
             nominal_base_T_cam = compose(base_T_pybullet, nominal_world_T_cam)
             base_T_cam = compose(base_T_pybullet, world_T_cam)
@@ -476,11 +285,11 @@ def create_workcell(
             cameras["right"] = make_camera("right", compose(left, cam_T_right), rng_right)
         world_T_overview = None
         if overview_camera:
-            world_T_overview = _overview_camera_pose(chess)
+            world_T_overview = layout.overview_camera_pose(chess.world_T_chess, chess.square)
             cameras["overview"] = SimCamera(client, intrinsics, world_T_cam=world_T_overview,
                                             name="overview", rng=rng_overview, **cam_kw)
 
-        _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
+        layout.start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board,
                     flange_T_cam, flange_T_marker, flange_target, world_T_cam, reach, intrinsics)
         for _ in range(10):  # let the pieces settle on the board
             p.stepSimulation(physicsClientId=client)
@@ -518,47 +327,18 @@ def create_workcell(
 
 
 def _add_table_target(client, kind, reach, rng):
-    """The calibration target lying on the table at 55 % of the arm's reach in front of it,
-    seeded position and yaw. Returns (Target, world_T_board)."""
-    board = _calibration_target(kind, reach)
-    world_T_centre = scn.board_pose_on_table(rng, (0.55 * reach, 0.0), height=0.003)
-    if board.kind == "aruco":  # OpenCV's marker frame: centred, z out of the print
-        world_T_board = compose(world_T_centre, make_pose(np.diag([1.0, -1.0, -1.0])))
-    else:
-        world_T_board = compose(world_T_centre, make_pose(t=-board.centre))
+    """The calibration target on the table (``layout.table_target_pose``), built. Returns
+    (Target, world_T_board)."""
+    board, world_T_board = layout.table_target_pose(kind, reach, rng)
     scn.add_target(client, board, world_T_board)
     return board, world_T_board
 
 
 def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.ndarray:
-    """Lay the dark rectangle mark on the table to the robot's right of the board (or chess
-    set), clear of it and of the robot's base, at a seeded position and yaw. Returns
+    """Lay the dark rectangle mark (``layout.rectangle_mark_pose``) on the table. Returns
     world_T_rectangle (centre of the top face, z up)."""
     w, h = RECTANGLE_MARK_SIZE
-    if chess is not None:
-        side = 8 * chess.square + 2 * chess.texture.params["border"]
-        centre = transform_points(chess.world_T_chess, [[4 * chess.square] * 2 + [0.0]])[0]
-        keep_out = (centre[:2], np.hypot(side, side) / 2)
-    elif board is not None:
-        centre = transform_points(world_T_board, [board.centre])[0]
-        keep_out = (centre[:2], np.hypot(*board.size) / 2)
-    else:
-        keep_out = (np.zeros(2), 0.0)
-    mark_radius = np.hypot(w, h) / 2
-    jitter = rng.uniform(-0.01, 0.01, 2)
-    yaw = rng.uniform(-np.deg2rad(15), np.deg2rad(15))
-    for frac in (0.5, 0.6, 0.7):
-        for angle in (-55.0, -70.0, -90.0):
-            xy = frac * reach * np.array([np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))])
-            xy = xy + jitter
-            clear = np.linalg.norm(xy - keep_out[0]) > keep_out[1] + mark_radius + 0.02
-            if clear and np.linalg.norm(xy) > 0.12 + mark_radius:  # off the robot's base
-                break
-        else:
-            continue
-        break
-    world_T_rectangle = make_pose(pose_from_rpy(0, 0, yaw)[:3, :3],
-                                  [xy[0], xy[1], RECTANGLE_MARK_THICKNESS])
+    world_T_rectangle = layout.rectangle_mark_pose(reach, rng, board, world_T_board, chess)
     half = [w / 2, h / 2, RECTANGLE_MARK_THICKNESS / 2]
     below = [0.0, 0.0, -RECTANGLE_MARK_THICKNESS / 2]  # the body frame is the top face
     vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, visualFramePosition=below,
@@ -571,82 +351,8 @@ def _add_rectangle_mark(client, reach, rng, board, world_T_board, chess) -> np.n
     return world_T_rectangle
 
 
-def _overview_camera_pose(chess: scn.ChessSet) -> np.ndarray:
-    """A fixed camera beyond the board's far edge (rank 8), high enough that the whole board
-    fills about half the image's height, looking down at the board's centre at about 60 deg
-    from the horizontal, image top away from the robot: it sees the board past the arm."""
-    side = 8 * chess.square
-    centre = transform_points(chess.world_T_chess, [[4 * chess.square, 4 * chess.square, 0]])[0]
-    away = centre[:2] / np.linalg.norm(centre[:2])  # from the robot base, on the table
-    eye = centre + np.r_[0.9 * side * away, 1.6 * side]
-    return _look_at(eye, centre, up=np.r_[away, 0.0])
-
-
 def _add_chess_set(client, reach, rng, position) -> scn.ChessSet:
-    """The chess set in front of the robot, White on the robot's side (a1 to its left)."""
-    square = 0.03 if reach < 0.5 else 0.05
-    thickness = 0.01
-    yaw = rng.uniform(-np.deg2rad(3), np.deg2rad(3))
-    if reach < 0.5:
-        # The Cobotta's suction cup points straight down only between about 0.135 and 0.34 m
-        # from its base axis (measured with its IK at piece height near the centre files), less
-        # than the 0.24 m board. Centred at 0.24 m (+-1 cm), rank 2 keeps 2-4 cm from the inner
-        # edge and rank 7 about 2 cm from the outer one, room for a grasp that a wrong
-        # calibration shifts by up to 15 mm (at 0.221 m the pawns on rank 2 stood 0-2 cm inside
-        # the edge, and 11 % of picks with a 5 mm / 2 deg calibration error failed there).
-        # Ranks 1 and 8 lie at the edges.
-        centre = np.array([0.24, 0.0])
-    else:
-        centre = np.array([0.5 * reach + 0.05, 0.0])
-    centre += rng.uniform(-0.01, 0.01, 2)
-    # Chess frame: ranks (y) along world +x, files (x) along world -y, z up.
-    R = pose_from_rpy(0, 0, yaw)[:3, :3] @ np.array([[0.0, 1.0, 0.0],
-                                                      [-1.0, 0.0, 0.0],
-                                                      [0.0, 0.0, 1.0]])
-    world_T_centre = make_pose(R, [centre[0], centre[1], thickness])
-    world_T_chess = compose(world_T_centre, make_pose(t=[-4 * square, -4 * square, 0]))
+    """The chess set (``layout.chess_pose``) with its pieces, built."""
+    world_T_chess, square, thickness = layout.chess_pose(reach, rng)
     return scn.ChessSet(client, world_T_chess, position=position, square=square,
                         board_thickness=thickness)
-
-
-def _start_pose(sim_arm, mount, scene, base_T_pybullet, world_T_board, board, flange_T_cam,
-                flange_T_marker, flange_target, world_T_cam, reach, intrinsics):
-    """Teleport the arm to a pose where the camera sees its target (best effort: the arm's
-    own home pose stays if none of the candidates is reachable)."""
-    if scene != "calibration":
-        return
-    candidates = []
-    if mount == "eye_in_hand":
-        # Camera above the board centre looking straight down with its axes along the
-        # board's (z into the board), so the board reads upright in the image; high enough
-        # for the whole printed board to fit the image width. Turned half round as a last
-        # resort (some wrists cannot reach the upright view).
-        world_T_view = compose(world_T_board, make_pose(t=board.centre))
-        if board.kind == "aruco":
-            world_T_view = compose(world_T_view, make_pose(np.diag([1.0, -1.0, -1.0])))
-        intr = intrinsics
-        fit = max(board.size[0] * intr.fx / intr.width, board.size[1] * intr.fy / intr.height)
-        # Big arms look from higher up, clear of their own bulky wrists.
-        heights = [max(1.05 * fit, 0.5 * reach), 1.2 * fit, 1.4 * fit, 0.95 * fit]
-        for yaw in (0.0, np.pi):
-            for h in heights:
-                world_T_cam_goal = compose(make_pose(t=[0, 0, h]), world_T_view,
-                                           pose_from_rpy(0, 0, yaw))
-                candidates.append(compose(base_T_pybullet, world_T_cam_goal,
-                                          invert(flange_T_cam)))
-    else:
-        # The flange target between the work area and the camera (as close to the camera as
-        # the arm allows, for a large image of a small target), facing the camera with its
-        # axes along the camera's (its z, into the print, along the optical axis).
-        look = np.array([0.5 * reach, 0.0, 0.25 * reach])
-        if flange_target is None:  # the bare flange face, its normal (+z) towards the camera
-            centre, flange_T_marker = np.zeros(3), make_pose(np.diag([1.0, -1.0, -1.0]))
-        else:
-            centre = flange_target.centre
-        for f in (0.4, 0.3, 0.2, 0.1, 0.0):
-            pos = look + f * (world_T_cam[:3, 3] - look)
-            world_T_marker = make_pose(world_T_cam[:3, :3], pos - world_T_cam[:3, :3] @ centre)
-            candidates.append(compose(base_T_pybullet, world_T_marker, invert(flange_T_marker)))
-    for base_T_flange in candidates:
-        if _teleport_to(sim_arm, base_T_flange):
-            return

@@ -188,9 +188,12 @@ def test_bad_options_raise_value_error(kwargs, match):
 # --------------------------------------------------------------------------- chess
 
 
-@pytest.mark.parametrize("tool", ["suction", "gripper"])
-def test_chess_scene_truth_follows_a_pick_and_place(tool):
-    with create_workcell(scene="chess", tool=tool, seed=0, width=160, height=120) as cell:
+@pytest.mark.parametrize("tool, engine, arm", [
+    ("suction", "mujoco", "panda"), ("gripper", "mujoco", "panda"),  # the Franka Hand
+    ("gripper", "pybullet", "panda"), ("gripper", "mujoco", "ur5e")])  # the generic gripper
+def test_chess_scene_truth_follows_a_pick_and_place(tool, engine, arm):
+    with connect("sim", engine=engine, arm=arm, scene="chess", tool=tool, seed=0, width=160,
+                 height=120) as cell:
         pieces = cell.truth.pieces
         assert len(pieces) == 32 and pieces["e1"].kind == "king"
         assert pieces["a1"].colour == "white" and pieces["h8"].colour == "black"
@@ -204,7 +207,12 @@ def test_chess_scene_truth_follows_a_pick_and_place(tool):
         def tcp_at(base_T_point, dz):
             return compose(make_pose(t=base_T_point[:3, 3] + [0, 0, dz]), down)
 
-        robot.move_tcp_to(tcp_at(base_T_e2, height + 0.05), speed=0.2)
+        above_e2 = tcp_at(base_T_e2, height + 0.05)
+        # In joint space: from the UR5e's home a straight line would pass its wrist singularity.
+        q0 = robot.joint_positions()
+        q1 = robot.solve_ik(above_e2 @ invert(robot.tool.flange_T_tcp))
+        for step in (0.25, 0.5, 0.75, 1.0):  # Safety's largest joint step is 90 deg
+            robot.move_joints(q0 + step * (q1 - q0), speed=0.5)
         robot.move_tcp_to(tcp_at(base_T_e2, height), speed=0.05)
         assert robot.tool.grasp()
         robot.move_tcp_to(tcp_at(base_T_e2, height + 0.08), speed=0.1)

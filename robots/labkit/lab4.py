@@ -8,7 +8,7 @@ import numpy as np
 from robots import geometry as geo
 from robots.interfaces import SafetyError, UnreachableError
 
-__all__ = ["view_goals", "find_corners", "capture_stereo_views", "park", "rectify",
+__all__ = ["view_goals", "find_corners", "whole_in_view", "capture_stereo_views", "park", "rectify",
            "sgbm_disparity", "show_rectified", "show_residuals_mm", "bars_along_camera_axes"]
 
 
@@ -40,6 +40,24 @@ def find_corners(rgb, pattern):
     return cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
 
 
+def whole_in_view(corners, target, image_size) -> bool:
+    """Whether the printed board lies wholly inside the image, judged from its detected inner
+    ``corners`` (N, 2) px: the homography they give maps the print's outer edge into the image.
+    With the board cut by the image edge the detector can return a grid one square off, which
+    passes every other check; this one it fails."""
+    H, _ = cv2.findHomography(target.object_points[:, :2].astype(np.float64),
+                              np.asarray(corners, dtype=np.float64))
+    if H is None:
+        return False
+    w, h = target.size
+    target_T_print = geo.invert(target.print_T_target)
+    edge = np.array([[0, 0, 0, 1], [w, 0, 0, 1], [w, h, 0, 1], [0, h, 0, 1]], dtype=float)
+    xy = (edge @ target_T_print.T)[:, :2]
+    px = cv2.perspectiveTransform(xy.reshape(-1, 1, 2), H).reshape(-1, 2)
+    width, height = image_size
+    return bool(np.all((px >= 0) & (px <= [width - 1, height - 1])))
+
+
 def capture_stereo_views(cell, rng: np.random.Generator, n_views: int = 20, tries: int = 40,
                          speed: float = 0.25):
     """Move the flange board through up to ``tries`` poses and keep the first ``n_views`` that
@@ -47,8 +65,10 @@ def capture_stereo_views(cell, rng: np.random.Generator, n_views: int = 20, trie
     float32 arrays as ``cv2.stereoCalibrate`` wants them (board points in m, pixels) and the
     image size (width, height). Poses the arm cannot reach are skipped."""
     left, right = cell.cameras["cam"], cell.cameras["right"]
-    pattern = cell.truth.flange_target.pattern_size
-    board_points = cell.truth.flange_target.object_points.astype(np.float32)
+    target = cell.truth.flange_target
+    pattern = target.pattern_size
+    board_points = target.object_points.astype(np.float32)
+    size = (left.intrinsics.width, left.intrinsics.height)
     object_points, left_px, right_px = [], [], []
     for goal in view_goals(cell, rng, tries):
         try:
@@ -56,14 +76,15 @@ def capture_stereo_views(cell, rng: np.random.Generator, n_views: int = 20, trie
         except (UnreachableError, SafetyError):
             continue
         a, b = find_corners(left.capture().rgb, pattern), find_corners(right.capture().rgb, pattern)
-        if a is None or b is None:
+        if a is None or b is None or not (whole_in_view(a, target, size)
+                                          and whole_in_view(b, target, size)):
             continue
         object_points.append(board_points)
         left_px.append(a.astype(np.float32))
         right_px.append(b.astype(np.float32))
         if len(object_points) == n_views:
             break
-    return object_points, left_px, right_px, (left.intrinsics.width, left.intrinsics.height)
+    return object_points, left_px, right_px, size
 
 
 def park(robot, q_park, steps: int = 2, speed: float = 1.0) -> None:
