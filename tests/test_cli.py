@@ -3,6 +3,7 @@
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,6 +31,23 @@ def test_help_lists_the_commands(capsys):
     out = capsys.readouterr().out
     for command in ("demo", "calibrate", "data", "robot"):
         assert command in out
+
+
+def test_every_command_is_its_own_module_and_cli_only_dispatches(capsys):
+    source = Path(cli.__file__).read_text()
+    assert source.count("add_argument(") == 1, "cli.py declares only --debug"
+    assert "add_parser(" not in source.replace("command.add_parser(sub)", "")
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    listed = capsys.readouterr().out
+    for name, module in cli._COMMANDS.items():
+        assert module.__name__ == f"cobotlab.commands.{name}"
+        assert re.search(rf"^ +{name}\b", listed, re.M), name
+
+
+def test_shard_of_a_missing_course_is_one_line(capsys, tmp_path):
+    _one_line_error(capsys, ["shard", str(tmp_path / "nowhere"), "lab0_frames",
+                             str(tmp_path / "job")])
 
 
 def test_errors_are_one_line_without_debug(capsys):
