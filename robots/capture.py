@@ -23,7 +23,9 @@ Folder layout::
     images/view_007.png   the RGB image of commanded pose 7 (lossless PNG)
     images/failed_003.png images where detection failed, kept for inspection
     depth.npz      optional float32 depth images (M, H, W), when captured with keep_depth=True
-    meta.yaml      human-readable summary: date, robot, camera, counts, why views failed
+    meta.yaml      human-readable summary: date, robot, camera, counts, why views failed,
+                   and the target (kind, geometry, whether its corners can be read half a
+                   turn round; absent in folders written before it was recorded)
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from robots.interfaces import Camera, Frame, Intrinsics, Robot, UnreachableError
 __all__ = [
     "Capture",
     "Detection",
+    "TargetRecord",
     "ViewCorners",
     "capture_from_views",
     "capture_pose_pairs",
@@ -56,6 +59,37 @@ __all__ = [
 ]
 
 FORMAT = "cobotlab-capture/1"
+
+
+@dataclass(frozen=True)
+class TargetRecord:
+    """What a capture's corners are of, saved in its meta.yaml so a later calibration knows.
+
+    ``kind``: chessboard, circles, charuco, aruco, apriltag, or a name of the user's;
+    ``geometry``: its numbers (SI units: metres), e.g. ``{"inner_cols": 9, "inner_rows": 6,
+    "square_m": 0.025}``; ``half_turn_ambiguous``: True when the target looks the same turned
+    half a turn, so its detected corner order may be reversed in some views
+    (``robots.half_turn`` resolves it from the robot's motion)."""
+
+    kind: str
+    geometry: dict = field(default_factory=dict)
+    half_turn_ambiguous: bool = False
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "geometry": dict(self.geometry),
+                "half_turn_ambiguous": self.half_turn_ambiguous}
+
+    @classmethod
+    def from_dict(cls, data, where: str = "the target record") -> TargetRecord:
+        """The record from its meta.yaml dict; ``ValueError`` naming ``where`` if malformed."""
+        if (not isinstance(data, dict) or not isinstance(data.get("kind"), str)
+                or not isinstance(data.get("geometry", {}), dict)
+                or not isinstance(data.get("half_turn_ambiguous", False), bool)):
+            raise ValueError(f"{where} must be a mapping with kind (text), geometry (a "
+                             f"mapping) and half_turn_ambiguous (true/false), got {data!r}; "
+                             "fix or delete it (the half-turn is then not checked)")
+        return cls(data["kind"], dict(data.get("geometry", {})),
+                   data.get("half_turn_ambiguous", False))
 
 
 @dataclass
@@ -100,6 +134,8 @@ class Capture:
     (use :meth:`pose_pairs` to get only complete pairs). ``pose_indices[i]`` says which
     commanded pose view i came from. ``failed_indices`` / ``failed_reasons`` record the skipped
     ones. ``images`` are the kept views' RGB images, ``depths`` their depth images (or None).
+    ``target``: what the corners are of (:class:`TargetRecord`), None when not known (a
+    detector that does not say, or a folder saved before it was recorded).
     """
 
     base_T_flange: np.ndarray
@@ -118,6 +154,7 @@ class Capture:
     robot_name: str = ""
     camera_name: str = ""
     created: str = ""
+    target: TargetRecord | None = None
 
     def __len__(self) -> int:
         return len(self.base_T_flange)
@@ -154,7 +191,9 @@ def capture_pose_pairs(
 
     ``poses``: (P, 4, 4) or a list of (4, 4), base frame, metres. If ``folder`` is given the
     capture is saved there (see :func:`save_capture`). Shows a tqdm progress bar unless
-    ``progress=False``. Returns the :class:`Capture`.
+    ``progress=False``. The capture records the target when the detector carries a
+    ``target`` attribute (a :class:`TargetRecord`, as :func:`chessboard_detector`'s does).
+    Returns the :class:`Capture`.
     """
     from tqdm.auto import tqdm
 
@@ -240,6 +279,7 @@ def capture_pose_pairs(
         failed_reasons=failed_reasons,
         failed_images=failed_images,
         depths=kept["depth"] if keep_depth else None,
+        target=getattr(detector, "target", None),
         robot_name=robot.name,
         camera_name=camera.name,
         created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -331,6 +371,8 @@ def save_capture(capture: Capture, folder, overwrite: bool = False) -> Path:
         "failed_image_saved": [img is not None for img in capture.failed_images],
         "images_saved": images_saved,
     }
+    if capture.target is not None:
+        meta["target"] = capture.target.to_dict()
     with open(folder / "meta.yaml", "w") as f:
         yaml.safe_dump(meta, f, sort_keys=False)
     return folder
@@ -396,6 +438,8 @@ def load_capture(folder) -> Capture:
         robot_name=meta["robot"],
         camera_name=meta["camera"],
         created=meta["created"],
+        target=(TargetRecord.from_dict(meta["target"], f"{folder}/meta.yaml's target")
+                if meta.get("target") is not None else None),
     )
 
 
@@ -447,6 +491,10 @@ def chessboard_detector(inner_cols: int, inner_rows: int, square_m: float):
         cam_T_target[:3, 3] = tvec.reshape(3)
         return Detection(cam_T_target, corners.astype(float), grid.copy())
 
+    # capture_pose_pairs records it, so `cobotlab calibrate` resolves the half-turn later
+    detect.target = TargetRecord("chessboard", {"inner_cols": int(inner_cols),
+                                                "inner_rows": int(inner_rows),
+                                                "square_m": float(square_m)}, True)
     return detect
 
 

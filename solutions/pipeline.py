@@ -79,6 +79,45 @@ class HeldOut:
 
 
 @dataclass(frozen=True)
+class HalfTurnCheck:
+    """Whether each view's corner order was checked against the robot's motion before solving
+    (``robots.half_turn``): ``checked``; ``turned_views``, the capture's view numbers whose
+    corners were read half a turn round and put back; ``summary``, one line for a person
+    (what was done and on what evidence, or why it was not checked)."""
+
+    checked: bool
+    turned_views: tuple
+    summary: str
+
+
+def check_half_turns(capture):
+    """The capture with each view's corners in the order the robot's motion agrees with, and
+    a :class:`HalfTurnCheck`. Done for a target that can be read half a turn round (a plain
+    chessboard: ``capture.target.half_turn_ambiguous``); a capture that does not record its
+    target (a folder saved before targets were recorded) is returned as it is, and the check
+    says the half-turn was not checked, as it does when the corners cannot be resolved (a view
+    without the full grid, a square grid)."""
+    from solutions.capture_import import _resolve_half_turns  # the import's own wording
+
+    target = capture.target
+    if target is None:
+        return capture, HalfTurnCheck(False, (), (
+            "not checked: the capture does not record its target (saved before targets were "
+            "recorded); if it is a chessboard, a view with the camera rolled past 90 deg may "
+            "have its corners reversed: capture or import it again, or pass it through "
+            "robots.half_turn.resolve_capture_half_turns"))
+    if not target.half_turn_ambiguous:
+        return capture, HalfTurnCheck(True, (), f"not needed: a {target.kind}'s corners have "
+                                                "one order")
+    try:
+        resolved, choice, decision = _resolve_half_turns(capture)
+    except ValueError as exc:
+        return capture, HalfTurnCheck(False, (), f"not checked: {exc}")
+    turned = tuple(int(capture.pose_indices[k]) for k in choice.changed)
+    return resolved, HalfTurnCheck(True, turned, str(decision))
+
+
+@dataclass(frozen=True)
 class Calibration:
     """A solved capture. ``X`` (4, 4) m: ``flange_T_cam`` (eye_in_hand) or ``base_T_cam``
     (eye_to_hand), by ``method`` (``method_note`` says why, for ``auto``). ``views`` (n,): the
@@ -91,7 +130,8 @@ class Calibration:
     for them; ``mount_warning`` is "" unless the views cannot tell the mounts apart.
     ``diagnosis``: the corner fit's ``solutions.trust.CalibrationDiagnosis`` (each view's
     residual fitted and held out, the views distrusted and why, the board's scale against
-    its stated size with X both ways), None for the pose-based methods."""
+    its stated size with X both ways), None for the pose-based methods. ``half_turn``: the
+    corner order's check (:func:`check_half_turns`), None when it was not asked for."""
 
     X: np.ndarray
     mount: str
@@ -108,6 +148,7 @@ class Calibration:
     held_out: HeldOut | None
     mount_warning: str
     diagnosis: trust.CalibrationDiagnosis | None = None
+    half_turn: HalfTurnCheck | None = None
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -282,7 +323,9 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
                       source: str = "the capture") -> Calibration:
     """Solve a ``robots.capture.Capture``: X, the residual of each view, the views the robust
     solver flagged, (when every view has 4 or more corners) the held-out error, and for the
-    corner fit its diagnosis (``solutions.trust.diagnose_corner_calibration``).
+    corner fit its diagnosis (``solutions.trust.diagnose_corner_calibration``). First, a
+    chessboard's corner order is checked against the robot's motion (:func:`check_half_turns`;
+    ``result.half_turn`` says what was done).
 
     ``method``: one of ``METHOD_CHOICES``; ``auto`` is the corner fit when every view with a
     target pose kept 4 or more corners and there are at least 4 such views, else
@@ -292,6 +335,7 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
     when the corner fit's views cannot be made consistent.
     """
     check_choices(mount, method)
+    capture, half_turn = check_half_turns(capture)
     has_pose = np.all(np.isfinite(capture.cam_T_target), axis=(1, 2))
     F, C = capture.pose_pairs()
     views = capture.pose_indices[has_pose]
@@ -350,7 +394,7 @@ def calibrate_capture(capture, mount: str = "eye_in_hand", method: str = AUTO_ME
                        translation_residual=float(translation_residual),
                        view_rotation_deg=rot, view_translation_m=trans, flagged_views=flagged,
                        large_views=large, corner_fit=corner_fit, held_out=held_out,
-                       mount_warning=warning, diagnosis=diagnosis)
+                       mount_warning=warning, diagnosis=diagnosis, half_turn=half_turn)
 
 
 def save_calibration_result(result: Calibration, capture, path) -> Path:

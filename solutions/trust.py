@@ -130,16 +130,25 @@ class InconsistentCaptureError(ValueError):
 
 
 def _held_out(choice, P, px, K, dist, A, C, mount, start) -> np.ndarray:
-    """Each view's RMS predicted by ``choice`` refitted on the other views (NaN if it fails)."""
-    out = np.full(len(A), np.nan)
-    for i in range(len(A)):
-        keep = np.arange(len(A)) != i
+    """Each view's RMS predicted by ``choice`` refitted on the other views: the project's one
+    held-out error, ``mle.held_out_view_rms``, one view left out at a time.
+
+    Unlike there, a refit that fails (ValueError: too few views left for the model) is not an
+    error here but evidence: that view's entry is NaN, and ``_flag`` names the view as one the
+    model cannot do without."""
+    failed: list[np.ndarray] = []
+
+    def refit(keep: np.ndarray):
         try:
-            fit = mle.fit_candidate(choice, P, px[keep], K, dist, A[keep], C[keep], mount, start)
-            out[i] = mle.view_rms_px(mle.predicted_corners(fit, P, K, dist, A[[i]]), px[[i]])[0]
+            return mle.fit_candidate(choice, P, px[keep], K, dist, A[keep], C[keep], mount,
+                                     start)
         except ValueError:
-            continue
-    return out
+            failed.append(~keep)
+            return start   # predicts something; the view is set to NaN below
+    rms = mle.held_out_view_rms(refit, P, px, K, dist, A)
+    for out in failed:
+        rms[out] = np.nan
+    return rms
 
 
 def _flag(rms: np.ndarray) -> list[tuple[bool, str]]:

@@ -279,3 +279,15 @@ def test_capture_in_the_sim_round_trips_and_matches_truth(tmp_path):
         assert translation_error(cap.cam_T_target[i], true_cam_T_board[i]) < 1e-3
         assert rotation_error_deg(cap.cam_T_target[i], true_cam_T_board[i]) < 0.2
     assert_captures_identical(cap, load_capture(tmp_path))
+
+
+def test_a_malformed_target_record_is_refused_by_name(tmp_path):
+    from robots.capture import TargetRecord
+
+    record = TargetRecord("chessboard", {"inner_cols": 9, "inner_rows": 6, "square_m": 0.02},
+                          True)
+    assert TargetRecord.from_dict(record.to_dict()) == record
+    for bad in ("chessboard", {"kind": 3}, {"kind": "chessboard", "half_turn_ambiguous": "yes"},
+                {"kind": "chessboard", "geometry": [9, 6]}):
+        with pytest.raises(ValueError, match="meta.yaml's target must be a mapping with kind"):
+            TargetRecord.from_dict(bad, "cap/meta.yaml's target")

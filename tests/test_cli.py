@@ -3,6 +3,7 @@
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,6 +31,23 @@ def test_help_lists_the_commands(capsys):
     out = capsys.readouterr().out
     for command in ("demo", "calibrate", "data", "robot"):
         assert command in out
+
+
+def test_every_command_is_its_own_module_and_cli_only_dispatches(capsys):
+    source = Path(cli.__file__).read_text()
+    assert source.count("add_argument(") == 1, "cli.py declares only --debug"
+    assert "add_parser(" not in source.replace("command.add_parser(sub)", "")
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    listed = capsys.readouterr().out
+    for name, module in cli._COMMANDS.items():
+        assert module.__name__ == f"cobotlab.commands.{name}"
+        assert re.search(rf"^ +{name}\b", listed, re.M), name
+
+
+def test_shard_of_a_missing_course_is_one_line(capsys, tmp_path):
+    _one_line_error(capsys, ["shard", str(tmp_path / "nowhere"), "lab0_frames",
+                             str(tmp_path / "job")])
 
 
 def test_errors_are_one_line_without_debug(capsys):
@@ -165,6 +183,49 @@ def test_calibrate_solves_a_saved_capture_and_writes_the_yaml(capsys, sim_captur
     assert rotation_error_deg(result.pose, true_X) < 0.1
     doc = yaml.safe_load(out.read_text())
     assert len(doc["residuals"]["per_pose_translation_m"]) == len(capture)
+
+
+def _turned_copy(capture, view: int, folder):
+    """The capture as a detector that read ``view``'s chessboard half a turn round gives it:
+    corners listed from the other end, the board pose turned with them."""
+    import dataclasses
+
+    from robots.capture import save_capture
+    from robots.half_turn import half_turn
+
+    corners = [c.copy() for c in capture.corners_px]
+    corners[view] = corners[view][::-1].copy()
+    poses = capture.cam_T_target.copy()
+    poses[view] = poses[view] @ half_turn(capture.object_points[view])
+    return save_capture(dataclasses.replace(capture, corners_px=corners, cam_T_target=poses),
+                        folder)
+
+
+def test_calibrate_resolves_a_chessboard_read_half_a_turn_round(capsys, sim_capture, tmp_path):
+    from robots.capture import TargetRecord, load_capture
+
+    folder, true_X, capture = sim_capture
+    target = load_capture(folder).target   # capture_pose_pairs recorded chessboard_detector's
+    assert target == TargetRecord("chessboard", {"inner_cols": 8, "inner_rows": 6,
+                                                 "square_m": target.geometry["square_m"]}, True)
+    view = int(capture.pose_indices[3])
+    turned = _turned_copy(load_capture(folder), 3, tmp_path / "turned")
+    out = tmp_path / "X.yaml"
+    assert cli.main(["calibrate", str(turned), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert f"half-turn of the corner order: corner order: views [{view}] turned half a turn" \
+        in text, text
+    X = load_calibration(out).pose
+    assert translation_error(X, true_X) < 1e-3 and rotation_error_deg(X, true_X) < 0.1
+
+    # A folder saved before targets were recorded: solved as it is, and the user is told.
+    meta = yaml.safe_load((turned / "meta.yaml").read_text())
+    del meta["target"]
+    (turned / "meta.yaml").write_text(yaml.safe_dump(meta))
+    assert cli.main(["calibrate", str(turned), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "half-turn of the corner order: not checked: the capture does not record its " \
+           "target" in text, text
 
 
 def test_calibrate_default_output_and_other_method(capsys, sim_capture):

@@ -166,7 +166,7 @@ def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tm
         write_job(home, ASSIGNMENT, job, ["ada", "cy"])
     (job / ".cobotlab" / "secret").unlink()
     # the step docs/instructors.md gives, as a command
-    written = subprocess.run([sys.executable, "-m", "autograder.shards", "job", str(home),
+    written = subprocess.run([sys.executable, "-m", "cobotlab.cli", "shard", str(home),
                               ASSIGNMENT, str(job), "ada", "cy"], cwd=REPO, capture_output=True,
                              text=True, timeout=120, check=False)
     assert written.returncode == 0 and "of 2 student(s) written" in written.stdout, written

@@ -283,3 +283,34 @@ def test_numbered_files_sort_as_numbers(tmp_path):
     names = ["image-10.png", "image-2.png", "image-1.png"]
     assert [p.name for p in in_natural_order(names)] == ["image-1.png", "image-2.png",
                                                          "image-10.png"]
+
+
+def test_corners_given_as_a_file_get_their_half_turn_checked_by_calibrate(tmp_path, capsys):
+    """A chessboard's corners from another tool (--corners, --target default chessboard), one
+    view listed from the other end: calibrate puts it back from the robot's motion."""
+    from autograder.synthetic import NoiseModel, make_hand_eye
+    from robots.calibration_io import load_calibration
+    from robots.capture import load_capture
+
+    p = make_hand_eye(5, "eye_in_hand", n_poses=10, noise=NoiseModel(pixel_px=0.2))
+    pixels = p.pixels.copy()
+    pixels[4] = pixels[4][::-1]
+    corners = tmp_path / "corners.npz"
+    np.savez(corners, corners_px=pixels, board_points_m=p.board.object_points(),
+             image_size_wh=np.array([p.camera.width, p.camera.height]))
+    path = _write_rows(tmp_path / "poses.txt", p.base_T_flange.reshape(-1, 16))
+    K = p.camera.K
+    assert cli.main(["data", "import", str(path), str(tmp_path / "cap"), "--corners",
+                     str(corners), "--mount", "eye_in_hand", "--length-unit", "m",
+                     "--pose-direction", "base_T_flange", "--fx", str(K[0, 0]),
+                     "--fy", str(K[1, 1]), "--cx", str(K[0, 2]), "--cy", str(K[1, 2]),
+                     "--dist=" + ",".join(str(v) for v in p.camera.dist)]) == 0
+    capsys.readouterr()
+    assert load_capture(tmp_path / "cap").target.kind == "chessboard"
+    out = tmp_path / "X.yaml"
+    assert cli.main(["calibrate", str(tmp_path / "cap"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "half-turn of the corner order: corner order: views [4] turned half a turn" in text, \
+        text
+    X = load_calibration(out).pose
+    assert geo.translation_error(X, p.X_true) < 2e-3 and geo.rotation_error_deg(X, p.X_true) < 0.2

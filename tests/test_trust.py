@@ -117,3 +117,23 @@ def test_the_real_franka_board_scale_is_told_and_the_stated_size_agrees_with_vis
     assert np.linalg.norm(d.board_scale.X_stated[:3, 3] - visp_t) < 0.003
     assert d.board_scale.shift_mm > 40
     assert any("1.136 x its stated size" in w for w in d.warnings)
+
+
+def test_the_held_out_error_is_mle_s_and_a_view_the_model_cannot_lose_is_nan():
+    p, board, pixels, K, dist = _capture()
+    A = p.base_T_flange
+    result, choices = mle.calibrate_from_corners(board, pixels, K, dist, A, p.mount, **FAST)
+    C = mle.pnp_poses(board, pixels, K, dist)
+
+    def refit(keep):
+        return mle.fit_candidate(choices[0], board, pixels[keep], K, dist, A[keep], C[keep],
+                                 p.mount, result)
+
+    held = trust._held_out(choices[0], board, pixels, K, dist, A, C, p.mount, result)
+    assert np.array_equal(held, mle.held_out_view_rms(refit, board, pixels, K, dist, A))
+    # Three views: without any one, two are left, one motion, no pose-based fit.
+    few = trust._held_out(choices[0], board, pixels[:3], K, dist, A[:3], C[:3], p.mount,
+                          result)
+    assert few.shape == (3,) and np.all(np.isnan(few))
+    assert all(why == (True, "the model could not be fitted without this view")
+               for why in trust._flag(few))

@@ -99,6 +99,8 @@ def print_calibration(result, capture, source) -> None:
     print(f"capture: {source} ({capture.robot_name or 'robot ?'}, "
           f"{capture.camera_name or 'camera ?'}, {len(views)} views, "
           f"{len(capture.failed_indices)} failed at capture)")
+    if result.half_turn is not None:
+        print(f"half-turn of the corner order: {result.half_turn.summary}")
     print(f"{result.parent}_T_cam by {result.method} ({result.mount}){result.method_note}:")
     for row in X:
         print("  [" + "  ".join(f"{v:11.6f}" for v in row) + "]")

@@ -7,7 +7,9 @@ flags and prints what it decided, with the evidence.
 
 from __future__ import annotations
 
+import dataclasses
 import re
+from pathlib import Path
 
 #: ``--target`` choices (solutions.capture_import.TARGET_KINDS, kept here so that --help does
 #: not import the solvers).
@@ -199,6 +201,19 @@ def _intrinsics(args):
     return pose_files.intrinsics_from(*numbers, width, height, dist)
 
 
+def _target_record(args, target):
+    """The ``robots.capture.TargetRecord`` the folder keeps: the --images target's kind and
+    description, or for --corners the kind --target names (default chessboard) and the file."""
+    from robots.capture import TargetRecord
+
+    if target is not None:
+        return TargetRecord(target.kind, {"description": target.description},
+                            target.half_turn_ambiguous)
+    return TargetRecord(args.target, {"corners_file": Path(args.corners).name},
+                        args.target == "chessboard"
+                        or (args.target == "circles" and not args.asymmetric))
+
+
 def run(args) -> None:
     from cobotlab.demo import require_solutions
     from robots.capture import save_capture
@@ -213,7 +228,9 @@ def run(args) -> None:
         mount_given=args.mount is not None, length_unit=args.length_unit,
         angle_unit=args.angle_unit, quat_order=args.quat_order, direction=args.pose_direction,
         robot_name=args.robot, camera_name=args.camera)
-    capture = imported.capture
+    # Recorded in the folder, so `cobotlab calibrate` checks a chessboard's half-turn again
+    # (for --corners, the first time: the corners are taken as --target's).
+    capture = dataclasses.replace(imported.capture, target=_target_record(args, target))
     folder = save_capture(capture, args.dest, overwrite=args.force)
     i = capture.intrinsics
     print(f"imported {len(capture)} views ({len(capture.failed_indices)} without the board) "
