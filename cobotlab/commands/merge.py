@@ -10,7 +10,7 @@ def add_parser(sub) -> None:
         help="score here what shard jobs executed (cobotlab grade --students) and record it",
         description=(
             "Score the executions of ASSIGNMENT that each SHARD (a job's copy of the course, "
-            "its problems written by `python -m autograder.shards job`, executed there with "
+            "its problems written by `cobotlab shard`, executed there with "
             "`cobotlab grade SHARD ASSIGNMENT --students @FILE`, without the secret) "
             "returned, against the truth drawn here, and record them in COURSE as "
             "`cobotlab grade --rescore` does. The shard's files are read as data; none sets "
