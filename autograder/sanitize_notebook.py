@@ -35,6 +35,7 @@ from nbconvert.preprocessors import Preprocessor
 from nbformat import NotebookNode
 from traitlets import Bool
 
+from autograder.nbgrader_cells import nbgrader_metadata
 from autograder.sanitize_html import image_html, inert_html, inert_markdown
 
 __all__ = ["InertSubmission"]
@@ -98,9 +99,7 @@ def _inert_output(output) -> None:
 
 
 def _inert_nbgrader_metadata(cell) -> None:
-    meta = cell.get("metadata", {}).get("nbgrader")
-    if not isinstance(meta, dict):
-        return
+    meta = nbgrader_metadata(cell)   # {} when missing or malformed: nothing to render
     if "grade_id" in meta:
         meta["grade_id"] = html.escape(str(meta["grade_id"]))
     if meta.get("comment"):   # the feedback template renders it as markdown
