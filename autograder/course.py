@@ -12,6 +12,7 @@ per-student feedback HTML (:mod:`autograder.feedback`).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -50,6 +51,7 @@ from autograder.feedback_release import (
     write_section,
 )
 from autograder.freeze import printable
+from autograder.grade_options import GradeOptions
 from autograder.nbgrader_cells import cell_role
 from autograder.outcomes import Flag, about_function
 from autograder.practice import releasable, save_practice
@@ -315,14 +317,8 @@ def _cross_check(grade: grading.SubmissionGrade, nb: dict, cell_map: dict[str, s
 
 
 def grade_course(course_dir, assignment: str, workers: int = 1, *,
-                 run_nbgrader: bool = False, nbgrader_kernel: bool = False,
-                 nbgrader_cell_timeout_s: int | None = None,
-                 nbgrader_timeout_s: float = 300,
-                 limits: grading.Limits = grading.Limits(),
-                 caps: freeze.Caps = freeze.Caps(),
-                 fresh: bool = False, nonce: str | None = None, quiet: bool = False,
-                 students=None, progress=None, cluster=None,
-                 template: bool = True, rescore: bool = False) -> list[dict]:
+                 options: GradeOptions | None = None, progress=None, cluster=None,
+                 **settings) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
     One straight line of stages, each a function of the one before, so that no submission
@@ -332,8 +328,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
        refuse a concurrent run, back up the gradebook;
     2. **freeze**: every submission is copied, as data (regular files only, capped), into
        grader-private storage before any student code runs (:mod:`autograder.freeze`);
-    3. **draw**: each submission's hidden problems, from the secret, in this process
-       (:class:`autograder.grading.HiddenProblems`); the truth never leaves it;
+    3. **draw**: every submission's hidden problems, from the secret, in this process,
+       all of them before any code runs (:func:`autograder.grading.draw_all`); only their
+       inputs go to a sandbox or a cluster's worker;
     4. **execute**: per student, one sandboxed worker runs the notebook once and calls the
        graded functions on the problems' inputs (:func:`autograder.grading.execute_notebook`),
        an :class:`~autograder.grading.Execution`: what each call came to, nothing scored; it
@@ -354,6 +351,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         course_dir: an nbgrader course made by :func:`init_course`.
         assignment: e.g. ``"lab0_frames"``.
         workers: submissions graded in parallel (each in its own sandbox).
+        options: every setting below as one :class:`autograder.grade_options.GradeOptions`;
+            or pass them as keywords (``settings``), not both. The run reads them from
+            that one frozen value.
         run_nbgrader: run nbgrader's autograde (stage 4) for its cell results; otherwise use
             whatever nbgrader results ``gradebook.db`` already holds, if any.
         nbgrader_kernel: run nbgrader's autograde with its own kernel, sandboxed, a second
@@ -396,25 +396,35 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     submission's worker from it into a sandbox of its own (:mod:`autograder.template`);
     False starts a new interpreter per submission (the results are the same, slower).
     """
-    run = _begin(course_dir, assignment, workers, limits, fresh, nonce, quiet, cluster, rescore)
+    options = _options(workers, options, settings)
+    run = _begin(course_dir, assignment, options, cluster)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        frozen = _freeze(run.root, assignment, Path(store), caps, students)
+        frozen = _freeze(run.root, assignment, Path(store), options.caps, options.students)
         problems = _problems(run, frozen)
-        if rescore:
+        if options.rescore:
             executed = _kept_executions(run, frozen, problems, progress)
         else:
-            executed = _execute(run, frozen, problems, Path(store), workers, run_nbgrader,
-                                nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-                                progress, cluster, template and cluster is None)
+            executed = _execute(run, frozen, problems, Path(store), progress, cluster)
     if run.problems == "job":   # a shard job: home scores what it kept (autograder.shards)
-        return _end_job(run, frozen, problems, executed, quiet)
-    grades = [_score(run, sub, problems, executed[sub.student_id]) for sub in frozen]
-    rows = _record(run, frozen, problems, executed, grades, run_nbgrader)
+        return _end_job(run, frozen, executed)
+    grades = [_score(run, sub, executed[sub.student_id]) for sub in frozen]
+    rows, grades = _record(run, frozen, executed, grades)
     _end_run(run, rows, grades, executed)
-    if not quiet:
-        _print_summary(grades, assignment, time.monotonic() - run.started, workers, run.notes,
-                       executed, rescore)
+    if not options.quiet:
+        _print_summary(grades, assignment, time.monotonic() - run.started, run.notes,
+                       executed, options)
     return rows
+
+
+def _options(workers: int, options: GradeOptions | None, settings: dict) -> GradeOptions:
+    """The run's one :class:`GradeOptions`: ``options``, or one made of ``workers`` and the
+    keyword ``settings`` (TypeError names a keyword grade_course does not take)."""
+    if options is None:
+        return GradeOptions(workers=workers, **settings)
+    if settings or workers != 1:
+        raise TypeError("grade_course takes options= or keyword settings (workers included), "
+                        f"not both: got options and {sorted(settings) or ['workers']}")
+    return options
 
 
 # ----------------------------------------------------------------- stage 1: begin
@@ -435,6 +445,7 @@ class GradeRun:
     limits: grading.Limits
     notes: list[str]
     started: float
+    options: GradeOptions = GradeOptions()
 
 
 def _course(course_dir, assignment: str) -> Path:
@@ -464,10 +475,11 @@ def _secret_or_job(root: Path, assignment: str, fresh, nonce, rescore, cluster) 
     return ""
 
 
-def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce,
-           quiet: bool, cluster, rescore: bool) -> GradeRun:
+def _begin(course_dir, assignment: str, options: GradeOptions, cluster) -> GradeRun:
     """Check the request, recover from an interrupted run, refuse a concurrent one, back up
     the gradebook; the run's shared values."""
+    workers, limits, quiet = options.workers, options.limits, options.quiet
+    fresh, nonce, rescore = options.fresh, options.nonce, options.rescore
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     root = _course(course_dir, assignment)
@@ -489,7 +501,7 @@ def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce
     # a cluster whose workers would grade differently (lab version) is refused here
     cluster_note = cluster.check(assignment) if cluster is not None else None
     run = GradeRun(root, private, assignment, secret, nonce, problems, limits,
-                   _begin_run(root, private), started)
+                   _begin_run(root, private), started, options)
     unverified = registry.verification_note(assignment)
     if unverified:
         run.notes.append(f"warning: {unverified}")
@@ -539,20 +551,23 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
 # ----------------------------------------------------------------- stage 3: draw
 
 
-def _problems(run: GradeRun, frozen):
-    """Every submission's hidden problems: drawn from the secret here, or, in a shard job,
-    the inputs home wrote for each (refused, naming them, when some are missing)."""
+def _problems(run: GradeRun, frozen) -> grading.DrawnProblems:
+    """Every usable submission's hidden problems, all of them now, before any code runs:
+    drawn from the secret here, or, in a shard job, the inputs home wrote for each (refused,
+    naming them, when some are missing)."""
+    usable = [s.student_id for s in frozen if s.accepted and s.notebooks]
     if run.problems != "job":
-        return grading.HiddenProblems(run.assignment, run.secret, run.nonce)
+        return grading.draw_all(run.assignment, run.secret, run.nonce, usable)
     problems = shard_job.BundledProblems(run.root, run.assignment)
-    missing = problems.missing([s.student_id for s in frozen if s.accepted and s.notebooks])
+    missing = problems.missing(usable)
     if missing:
         raise ValueError(
             f"this shard job holds no problems of {run.assignment} for "
             f"{', '.join(printable(m, 80) for m in missing[:20])}: write them at home "
             "(`python -m autograder.shards job HOME ASSIGNMENT JOB --students @FILE`), or "
             "leave them out of --students")
-    return problems
+    return grading.DrawnProblems(run.assignment, {sid: problems.of(sid) for sid in usable},
+                                 problems.kernel)
 
 
 # ----------------------------------------------------------------- stage 4: execute
@@ -561,23 +576,27 @@ def _problems(run: GradeRun, frozen):
 @dataclass
 class Executed:
     """Stage 4's value for one submission: what its code did (``execution``; None when it
-    was not run: refused, no notebook, or the grader failed on every attempt), nbgrader's
-    own run of it, the grader's failed attempts, and the frozen submission's digest (a kept
-    execution belongs to that submission only)."""
+    was not run: refused, no notebook, or the grader failed on every attempt), the problems
+    it ran on (the run's draw; a rescore's, drawn with the nonce its kept execution names),
+    nbgrader's own run of it, the grader's failed attempts, and the frozen submission's
+    digest (a kept execution belongs to that submission only)."""
 
     execution: grading.Execution | None = None
     nbgrader: scratch.ScratchResult | None = None
     grader_errors: list[str] = field(default_factory=list)
     submission: str = ""
+    problems: grading.Problems | None = None
 
 
-def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Path, workers,
-             run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-             progress=None, cluster=None, use_template=False) -> dict[str, Executed]:
+def _execute(run: GradeRun, frozen, problems: grading.DrawnProblems, store: Path,
+             progress=None, cluster=None) -> dict[str, Executed]:
     """{student: :class:`Executed`} for every frozen submission. With ``cluster``, each
-    runs on a worker of that Dask cluster (:mod:`autograder.cluster`); with
-    ``use_template``, each grading thread forks its workers from a template of its own."""
-    root, assignment, limits = run.root, run.assignment, run.limits
+    runs on a worker of that Dask cluster (:mod:`autograder.cluster`); otherwise, with the
+    ``template`` option, each grading thread forks its workers from a template of its own."""
+    root, assignment, limits, options = run.root, run.assignment, run.limits, run.options
+    workers, run_nbgrader, nbgrader_kernel = (options.workers, options.run_nbgrader,
+                                              options.nbgrader_kernel)
+    use_template = options.template and cluster is None
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
     templates = _Templates(root, assignment, limits, run.notes) if use_template else None
@@ -613,6 +632,7 @@ def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Pat
     def one(sub: freeze.Frozen) -> Executed:
         done = Executed(submission=_submission_digest(sub))
         if sub.accepted and sub.notebooks:
+            done.problems = problems.of(sub.student_id)
             done.execution, done.nbgrader = execute_one(sub, done.grader_errors)
         if progress is not None:
             with lock:
@@ -639,9 +659,10 @@ def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Pat
                     nb, execution = scratch.autograde_in_worker(sub, assignment, root, template,
                                                                 known, run_tests)
                 else:   # the in-worker run takes one notebook: nbgrader's own kernel
-                    nb = scratch.autograde_one(sub, assignment, root, template, known,
-                                               timeout_s=nbgrader_timeout_s,
-                                               cell_timeout_s=nbgrader_cell_timeout_s)
+                    nb = scratch.autograde_one(
+                        sub, assignment, root, template, known,
+                        timeout_s=options.nbgrader_timeout_s,
+                        cell_timeout_s=options.nbgrader_cell_timeout_s)
             except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
                 nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
         if execution is None and len(errors) < GRADER_ATTEMPTS:
@@ -748,18 +769,18 @@ def kept_path(assignment: str, student_id: str) -> str:
     return f"{_KEPT}/{assignment}/{executions.file_key(student_id)}.json"
 
 
-def _keep(run: GradeRun, problems: grading.HiddenProblems, student_id: str,
-          done: Executed) -> None:
+def _keep(run: GradeRun, student_id: str, done: Executed) -> None:
     """Keep what a submission's code did, for ``rescore``: its execution, the problems'
     inputs digest and nonce it ran on, nbgrader's flags and notes of that run, and the
     digest of the frozen submission it belongs to."""
     record.write_file(run.private, kept_path(run.assignment, student_id),
-                      kept_bytes(run, problems.of(student_id), done))
+                      kept_bytes(run, done))
 
 
-def kept_bytes(run: GradeRun, problems: grading.Problems, done: Executed) -> bytes:
-    """The kept form of ``done`` (see :func:`_keep`) for ``problems``' student."""
-    ex = done.execution
+def kept_bytes(run: GradeRun, done: Executed) -> bytes:
+    """The kept form of ``done`` (see :func:`_keep`): an execution and the problems it ran
+    on."""
+    ex, problems = done.execution, done.problems
     kept = {"format": executions.FORMAT, "student_id": problems.student_id,
             "assignment": run.assignment, "nonce": run.nonce, "submission": done.submission,
             "inputs": executions.inputs_digest(problems, ex.kernel_runs),
@@ -769,7 +790,7 @@ def kept_bytes(run: GradeRun, problems: grading.Problems, done: Executed) -> byt
     return json.dumps(kept).encode("utf-8")
 
 
-def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
+def _kept_executions(run: GradeRun, frozen, problems: grading.DrawnProblems,
                      progress=None) -> dict[str, Executed]:
     """Stage 4 without running anything: each usable submission's execution as the last
     grade run kept it, checked to be this submission's and to have run on the problems'
@@ -798,7 +819,7 @@ def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
     return out
 
 
-def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+def _load_kept(run: GradeRun, problems: grading.DrawnProblems, sub: freeze.Frozen,
                done: Executed) -> str | None:
     """Fill ``done`` from the kept execution of ``sub``; None, or why it cannot be used."""
     data = _read_private(run.private, kept_path(run.assignment, sub.student_id))
@@ -807,7 +828,7 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
     return use_kept(run, problems, sub, done, data)
 
 
-def use_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+def use_kept(run: GradeRun, problems: grading.DrawnProblems, sub: freeze.Frozen,
              done: Executed, data: bytes, from_job: bool = False) -> str | None:
     """Fill ``done`` from ``data``, a kept execution of ``sub`` (untrusted bytes: this
     course's, or a shard job's with ``from_job``, whose nbgrader findings are its word and
@@ -842,8 +863,7 @@ def use_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen
     uneven = _uneven_counts(mine, execution)
     if uneven:
         return f"not one outcome per problem of {', '.join(uneven)}"
-    problems.keep(mine)
-    done.execution = execution
+    done.problems, done.execution = mine, execution
     errors = kept.get("grader_errors")
     done.grader_errors = [printable(e, 400) for e in errors[:8]] if isinstance(errors, list) \
         else []
@@ -887,10 +907,11 @@ def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
     root, secret = _course_and_secret(course_dir, assignment)
     run = GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "report",
                    grading.Limits(), [], time.monotonic())
-    problems = grading.HiddenProblems(assignment, secret, None)
     out: dict[str, KeptSubmission] = {}
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        for sub in _freeze(root, assignment, Path(store), freeze.Caps()):
+        frozen = _freeze(root, assignment, Path(store), freeze.Caps())
+        problems = _problems(run, frozen)
+        for sub in frozen:
             texts = {Path(p).name: Path(p).read_text(encoding="utf-8", errors="replace")
                      for p in sub.notebooks}
             if not (sub.accepted and sub.notebooks):
@@ -900,16 +921,14 @@ def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
             done = Executed(submission=_submission_digest(sub))
             why = _load_kept(run, problems, sub, done)
             out[sub.student_id] = KeptSubmission(
-                problems.of(sub.student_id) if why is None else None, done.execution, texts,
-                why)
+                done.problems if why is None else None, done.execution, texts, why)
     return out
 
 
 # ----------------------------------------------------------------- stage 5: score
 
 
-def _score(run: GradeRun, sub: freeze.Frozen, problems: grading.HiddenProblems,
-           done: Executed) -> grading.SubmissionGrade:
+def _score(run: GradeRun, sub: freeze.Frozen, done: Executed) -> grading.SubmissionGrade:
     """The grade of one submission from its execution (:func:`grading.score_execution`),
     with the freeze's flags and notes first and nbgrader's and the time-outs' after; a
     refused submission, or one without a notebook, scores zero; one the grader failed on
@@ -919,7 +938,7 @@ def _score(run: GradeRun, sub: freeze.Frozen, problems: grading.HiddenProblems,
     elif done.execution is None:
         grade = _ungraded(sub, run.assignment, done.grader_errors)
     else:
-        grade = grading.score_execution(problems.of(sub.student_id), done.execution)
+        grade = grading.score_execution(done.problems, done.execution)
         if done.grader_errors:
             grade.notes.append(f"graded after {len(done.grader_errors)} grader error(s), each "
                                f"retried in a fresh sandbox: {'; '.join(done.grader_errors)}")
@@ -977,9 +996,14 @@ def _write_autograded(root: Path, assignment: str, sub: freeze.Frozen,
         write_exchange_files(root, assignment, sub)
 
 
-def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
-            executed: dict[str, Executed], grades, run_nbgrader: bool) -> list[dict]:
+def _record(run: GradeRun, frozen, executed: dict[str, Executed],
+            scored) -> tuple[list[dict], list[grading.SubmissionGrade]]:
+    """(the grades.csv rows, the grades as recorded): ``scored`` written into the course.
+    What recording adds (nbgrader's cross-check flags, a restored gradebook's flag, notes
+    of what could not be written) goes on copies; ``scored`` is read, never changed."""
     root, assignment, private, run_notes = run.root, run.assignment, run.private, run.notes
+    run_nbgrader = run.options.run_nbgrader
+    grades = [dataclasses.replace(g, flags=list(g.flags), notes=list(g.notes)) for g in scored]
     unreleasable = unreleasable_note(assignment, frozen)
     if unreleasable and run_nbgrader:
         run_notes.append(unreleasable)
@@ -1045,16 +1069,15 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
             if done.execution is None:
                 continue
             try:
-                _keep(run, problems, sub.student_id, done)
+                _keep(run, sub.student_id, done)
             except (OSError, ValueError) as exc:
                 note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
                 if note not in run_notes:
                     run_notes.append(note)
-    return rows
+    return rows, grades
 
 
-def _end_job(run: GradeRun, frozen, problems, executed: dict[str, Executed],
-             quiet: bool) -> list[dict]:
+def _end_job(run: GradeRun, frozen, executed: dict[str, Executed]) -> list[dict]:
     """A shard job's end: each execution kept for home to score (``cobotlab merge``), the
     autograded notebooks of nbgrader's run for formgrader at home, the run's log; nothing
     scored, no grades.csv, nothing in the gradebook. Returns a row (no score) for each
@@ -1067,13 +1090,13 @@ def _end_job(run: GradeRun, frozen, problems, executed: dict[str, Executed],
                 failed.append(grade_row(run.assignment, sub.student_id, {}, None, 0.0,
                                         "grader_error", sub.timestamp))
             continue
-        _keep(run, problems, sub.student_id, done)
+        _keep(run, sub.student_id, done)
         kept += 1
         if done.nbgrader is not None:
             _write_autograded(run.root, run.assignment, sub, done.nbgrader)
     run.notes.append(f"shard job: {kept} execution(s) kept for the home course to score")
     _end_run(run, failed, [], executed)
-    if not quiet:
+    if not run.options.quiet:
         print(f"{run.assignment}: executed {kept} submission(s); nothing was scored here. "
               f"Bring back {run.root / grading.PRIVATE_DIR / _KEPT} and "
               f"{run.root / 'autograded'}, then run `cobotlab merge` at home")
@@ -1318,9 +1341,10 @@ def _announce_fallback() -> None:
         print(f"cobotlab: {warning}", file=sys.stderr, flush=True)
 
 
-def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes,
-                   executed: dict[str, Executed], rescore: bool = False) -> None:
-    if rescore:
+def _print_summary(grades, assignment: str, elapsed: float, run_notes,
+                   executed: dict[str, Executed], options: GradeOptions) -> None:
+    workers = options.workers
+    if options.rescore:
         print(f"{assignment}: rescored {len(grades)} submissions in {elapsed:.1f} s from the "
               "executions the last grade run kept (no student code ran)")
     else:
