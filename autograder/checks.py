@@ -179,6 +179,9 @@ class FunctionResult:
     failures: dict[str, Failure] = field(default_factory=dict)
     # (problem label, message) of each line of ``errors``, in the same order.
     error_labels: list[tuple[str, str]] = field(default_factory=list)
+    # The classic mistakes the answers looked like (each spec mistake's or classic
+    # transform's words, once each, in the order first met): what the class report counts.
+    mistakes: tuple[str, ...] = ()
 
     @property
     def fraction(self) -> float:
@@ -303,8 +306,8 @@ def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
     return make_trials(spec, practice.practice_rng(seed), spec.practice_trials or spec.n_trials)
 
 
-# How a named mistake begins its message in FunctionResult.error_counts (the class report
-# counts the students who made each one by it).
+# How a named mistake begins its message to the student (the mistake itself is also in
+# FunctionResult.mistakes, which is what the class report counts).
 MISTAKE_NOTE = "this answer looks like a classic mistake: "
 
 
@@ -338,6 +341,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     labelled: list[tuple[str, str]] = []
     counts: dict[str, int] = {}
     failures: dict[str, Failure] = {}
+    mistakes: dict[str, None] = {}
 
     def note(message: str, label: str, first: bool = False,
              failure: Failure | None = None) -> None:
@@ -389,6 +393,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
             and measured is not None and trial.raises is None else None
         if hint is not None:
+            mistakes.setdefault(hint)
             note(f"{MISTAKE_NOTE}{hint}", trial.label, first=True)
         for name, row in rows.items():
             per_check[name].append(row)
@@ -419,7 +424,8 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     points = round(spec.points * total / weight_sum, 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts,
-                          failures=failures, error_labels=labelled[:5])
+                          failures=failures, error_labels=labelled[:5],
+                          mistakes=tuple(mistakes))
 
 
 def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:

@@ -2,12 +2,15 @@
 
 ``init_course(DIR)`` makes a directory where the instructor's usual nbgrader commands work
 (``nbgrader generate_assignment lab0_frames``, ``nbgrader autograde lab0_frames``, ...).
-``grade_course(DIR, ASSIGNMENT)`` grades every submission in three visible stages: freeze
-(:mod:`autograder.freeze`), execute untrusted code in a throwaway sandbox (the isolated
-grader's worker, :mod:`autograder.grading`, which also runs the cells for nbgrader's own
-autograde, :mod:`autograder.scratch`), and record from the trusted process
+``grade_course(DIR, ASSIGNMENT)`` grades every submission in one line of stages, each
+taking the values of the ones before (docs/architecture.md): begin, freeze
+(:mod:`autograder.freeze`), draw every problem (:func:`autograder.grading.draw_all`),
+execute untrusted code in a throwaway sandbox (the isolated grader's worker,
+:mod:`autograder.grading`, which also runs the cells for nbgrader's own autograde,
+:mod:`autograder.scratch`), score, and record from the trusted process
 (:mod:`autograder.gradebook`, :mod:`autograder.record`), writing ``DIR/grades.csv`` and
-per-student feedback HTML (:mod:`autograder.feedback`).
+per-student feedback HTML (:mod:`autograder.feedback`). The run's options are one frozen
+:class:`autograder.grade_options.GradeOptions`.
 """
 
 from __future__ import annotations
@@ -593,86 +596,35 @@ def _execute(run: GradeRun, frozen, problems: grading.DrawnProblems, store: Path
     """{student: :class:`Executed`} for every frozen submission. With ``cluster``, each
     runs on a worker of that Dask cluster (:mod:`autograder.cluster`); otherwise, with the
     ``template`` option, each grading thread forks its workers from a template of its own."""
-    root, assignment, limits, options = run.root, run.assignment, run.limits, run.options
-    workers, run_nbgrader, nbgrader_kernel = (options.workers, options.run_nbgrader,
-                                              options.nbgrader_kernel)
-    use_template = options.template and cluster is None
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
-    templates = _Templates(root, assignment, limits, run.notes) if use_template else None
-    if cluster is not None:
-        execute_notebook = cluster.execute_notebook
-    else:
-        def execute_notebook(paths, problems_of_one, limits, run_tests=False):
-            mine = templates.mine() if templates is not None else None
-            return grading.execute_notebook(paths, problems_of_one, limits, run_tests,
-                                            template=mine)
-    template = known = None
-    if run_nbgrader:
-        try:
-            template = scratch.make_template(root, assignment, store,
-                                             gradebook.duedate(root, assignment))
-            known = gradebook.template_cells(template, assignment)
-        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
-            run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
-
-    in_worker = (not nbgrader_kernel and known is not None
-                 and len({name for name, _ in known}) == 1)
-
-    def attempts(execute_once, errors: list[str]):
-        """execute_once()'s execution, or None: up to GRADER_ATTEMPTS tries, each a fresh
-        sandbox, worker and cgroup; the failed attempts' errors go to ``errors``."""
-        for _ in range(GRADER_ATTEMPTS):
-            try:
-                return execute_once()
-            except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
-                errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
-        return None
+    use_template = run.options.template and cluster is None
+    templates = _Templates(run.root, run.assignment, run.limits, run.notes) \
+        if use_template else None
+    executor = _Executor(run, problems, templates, cluster, *_nbgrader_template(run, store))
+    lock, finished = threading.Lock(), []
 
     def one(sub: freeze.Frozen) -> Executed:
-        done = Executed(submission=_submission_digest(sub))
-        if sub.accepted and sub.notebooks:
-            done.problems = problems.of(sub.student_id)
-            done.execution, done.nbgrader = execute_one(sub, done.grader_errors)
+        done = executor.one(sub)
         if progress is not None:
             with lock:
                 finished.append(sub.student_id)
                 progress(len(finished), len(frozen), sub.student_id)
         return done
 
-    def execute_one(sub: freeze.Frozen, errors: list[str]):
-        """(execution or None, nbgrader's result or None) of one usable submission."""
-        if templates is not None:
-            templates.mine()   # this thread's, built before nbgrader's share is timed
-        mine = problems.of(sub.student_id)
-        nb = execution = None
-        if template is not None:
-            def run_tests(paths):
-                ran = attempts(lambda: execute_notebook(paths, mine, limits, run_tests=True),
-                               errors)
-                if ran is None:
-                    raise grading.GraderError("the grader failed on every attempt")
-                return ran, grading.kernel_verdicts(mine, ran)
-
-            try:
-                if in_worker:   # one run of the cells for both nbgrader and the grader
-                    nb, execution = scratch.autograde_in_worker(sub, assignment, root, template,
-                                                                known, run_tests)
-                else:   # the in-worker run takes one notebook: nbgrader's own kernel
-                    nb = scratch.autograde_one(
-                        sub, assignment, root, template, known,
-                        timeout_s=options.nbgrader_timeout_s,
-                        cell_timeout_s=options.nbgrader_cell_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
-                nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
-        if execution is None and len(errors) < GRADER_ATTEMPTS:
-            # not run in nbgrader's run (no cross-check, or nbgrader refused the notebook)
-            execution = attempts(lambda: execute_notebook(sub.notebooks, mine, limits), errors)
-        return execution, (nb if execution is not None else None)
-
-    lock, finished = threading.Lock(), []
     if progress is not None:
         progress(0, len(frozen), "")
+    try:
+        done = _in_threads(one, frozen, run.options.workers)
+    finally:
+        if templates is not None:
+            templates.close()
+    return {sub.student_id: d for sub, d in zip(frozen, done)}
+
+
+def _in_threads(one, frozen, workers: int) -> list:
+    """[one(sub) for sub in frozen], ``workers`` at a time; on any exception (Ctrl-C
+    included) every sandbox is stopped before it propagates."""
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         done = list(pool.map(one, frozen))
@@ -683,11 +635,94 @@ def _execute(run: GradeRun, frozen, problems: grading.DrawnProblems, store: Path
         pool.shutdown(wait=True, cancel_futures=True)
         sandbox.allow_starts()
         raise
-    finally:
-        if templates is not None:
-            templates.close()
     pool.shutdown()
-    return {sub.student_id: d for sub, d in zip(frozen, done)}
+    return done
+
+
+def _nbgrader_template(run: GradeRun, store: Path) -> tuple[Path | None, list | None]:
+    """(nbgrader's throwaway template course, the grade cells it knows), or (None, None)
+    without ``run_nbgrader`` or when it cannot be made (the run's notes say why)."""
+    if not run.options.run_nbgrader:
+        return None, None
+    try:
+        template = scratch.make_template(run.root, run.assignment, store,
+                                         gradebook.duedate(run.root, run.assignment))
+        return template, gradebook.template_cells(template, run.assignment)
+    except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
+        run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
+        return None, None
+
+
+def _attempts(execute_once, errors: list[str]):
+    """execute_once()'s execution, or None: up to GRADER_ATTEMPTS tries, each a fresh
+    sandbox, worker and cgroup; the failed attempts' errors go to ``errors``."""
+    for _ in range(GRADER_ATTEMPTS):
+        try:
+            return execute_once()
+        except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
+            errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
+    return None
+
+
+class _Executor:
+    """Runs one submission at a time (from any grading thread): in nbgrader's run of its
+    cells when there is one (``template``, ``known``), else on its own."""
+
+    def __init__(self, run: GradeRun, problems: grading.DrawnProblems, templates, cluster,
+                 template: Path | None, known: list | None):
+        self.run, self.problems, self.templates, self.cluster = run, problems, templates, cluster
+        self.template, self.known = template, known
+        # one run of the cells for both nbgrader and the grader takes a single notebook
+        self.in_worker = (not run.options.nbgrader_kernel and known is not None
+                          and len({name for name, _ in known}) == 1)
+
+    def one(self, sub: freeze.Frozen) -> Executed:
+        """Stage 4's value for ``sub`` (its code run only if it is usable)."""
+        done = Executed(submission=_submission_digest(sub))
+        if sub.accepted and sub.notebooks:
+            done.problems = self.problems.of(sub.student_id)
+            done.execution, done.nbgrader = self._usable(sub, done.problems,
+                                                         done.grader_errors)
+        return done
+
+    def _notebook(self, paths, mine: grading.Problems, run_tests: bool = False):
+        if self.cluster is not None:
+            return self.cluster.execute_notebook(paths, mine, self.run.limits, run_tests)
+        template = self.templates.mine() if self.templates is not None else None
+        return grading.execute_notebook(paths, mine, self.run.limits, run_tests,
+                                        template=template)
+
+    def _usable(self, sub: freeze.Frozen, mine: grading.Problems, errors: list[str]):
+        """(execution or None, nbgrader's result or None) of one usable submission."""
+        if self.templates is not None:
+            self.templates.mine()   # this thread's, built before nbgrader's share is timed
+        nb = execution = None
+        if self.template is not None:
+            nb, execution = self._with_nbgrader(sub, mine, errors)
+        if execution is None and len(errors) < GRADER_ATTEMPTS:
+            # not run in nbgrader's run (no cross-check, or nbgrader refused the notebook)
+            execution = _attempts(lambda: self._notebook(sub.notebooks, mine), errors)
+        return execution, (nb if execution is not None else None)
+
+    def _with_nbgrader(self, sub: freeze.Frozen, mine: grading.Problems, errors: list[str]):
+        """(nbgrader's result, the execution made in its run or None)."""
+        def run_tests(paths):
+            ran = _attempts(lambda: self._notebook(paths, mine, run_tests=True), errors)
+            if ran is None:
+                raise grading.GraderError("the grader failed on every attempt")
+            return ran, grading.kernel_verdicts(mine, ran)
+
+        run, options = self.run, self.run.options
+        try:
+            if self.in_worker:   # one run of the cells for both nbgrader and the grader
+                return scratch.autograde_in_worker(sub, run.assignment, run.root,
+                                                   self.template, self.known, run_tests)
+            # the in-worker run takes one notebook: nbgrader's own kernel
+            return scratch.autograde_one(sub, run.assignment, run.root, self.template,
+                                         self.known, timeout_s=options.nbgrader_timeout_s,
+                                         cell_timeout_s=options.nbgrader_cell_timeout_s), None
+        except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
+            return scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"]), None
 
 
 def _submission_digest(sub: freeze.Frozen) -> str:
@@ -1011,18 +1046,7 @@ def _record(run: GradeRun, frozen, executed: dict[str, Executed],
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
                          f"the next run grades them again): {', '.join(ungraded)}")
-    by_student = {g.student_id: g for g in grades}
-    nb_runs = {sid: d.nbgrader for sid, d in executed.items()
-               if d.nbgrader is not None and run.problems != "rescore"}
-    for sub in frozen:
-        result = nb_runs.get(sub.student_id)
-        if result is None:
-            continue
-        try:
-            _record_nbgrader(root, assignment, sub, result)
-        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
-            by_student[sub.student_id].notes.append(
-                f"could not record nbgrader's result: {printable(exc)}")
+    nb_runs = _record_nbgrader_runs(run, frozen, executed, grades)
     damaged = _check_gradebook(root, private, run_notes)
 
     # A submission the grader could not grade gets nothing in the gradebook, not a zero.
@@ -1064,17 +1088,41 @@ def _record(run: GradeRun, frozen, executed: dict[str, Executed],
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     if run.problems != "rescore":   # a rescore's executions are those it read
-        for sub in frozen:
-            done = executed[sub.student_id]
-            if done.execution is None:
-                continue
-            try:
-                _keep(run, sub.student_id, done)
-            except (OSError, ValueError) as exc:
-                note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
-                if note not in run_notes:
-                    run_notes.append(note)
+        _keep_all(run, frozen, executed)
     return rows, grades
+
+
+def _record_nbgrader_runs(run: GradeRun, frozen, executed: dict[str, Executed],
+                          grades) -> dict[str, scratch.ScratchResult]:
+    """{student: nbgrader's run} of this run's submissions (none in a rescore), each
+    written into the course; a failure to is noted on the (record's own) grade."""
+    by_student = {g.student_id: g for g in grades}
+    nb_runs = {sid: d.nbgrader for sid, d in executed.items()
+               if d.nbgrader is not None and run.problems != "rescore"}
+    for sub in frozen:
+        result = nb_runs.get(sub.student_id)
+        if result is None:
+            continue
+        try:
+            _record_nbgrader(run.root, run.assignment, sub, result)
+        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
+            by_student[sub.student_id].notes.append(
+                f"could not record nbgrader's result: {printable(exc)}")
+    return nb_runs
+
+
+def _keep_all(run: GradeRun, frozen, executed: dict[str, Executed]) -> None:
+    """Keep each execution of the run for ``rescore``; a failure to is in the run's notes."""
+    for sub in frozen:
+        done = executed[sub.student_id]
+        if done.execution is None:
+            continue
+        try:
+            _keep(run, sub.student_id, done)
+        except (OSError, ValueError) as exc:
+            note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
+            if note not in run.notes:
+                run.notes.append(note)
 
 
 def _end_job(run: GradeRun, frozen, executed: dict[str, Executed]) -> list[dict]:
