@@ -145,22 +145,7 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     documents, skipped = releasable([n for n in sources if n in checks.SPECS], force)
     sources = {name: folder for name, folder in sources.items() if name not in skipped}
     root.mkdir(parents=True, exist_ok=True)
-    config = root / "nbgrader_config.py"
-    if not config.exists():
-        exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
-        exchange_dir.mkdir(parents=True, exist_ok=True)
-        text = _CONFIG.format(root=str(root), exchange=str(exchange_dir), course_id=course_id)
-        from autograder import exchange as private
-
-        if private.layout_problem(exchange_dir, course_id) is None:
-            # root laid out a private exchange here (`cobotlab course exchange`): keep its
-            # modes, and release and collect with its classes
-            text += private.config_block(exchange_dir, course_id)
-        else:
-            os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
-        config.write_text(text)
-    else:
-        _add_inert_pages(config)
+    _write_config(root, exchange, course_id)
     if not (root / "gradebook.db").exists():
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         gradebook.create(root, course_id)
@@ -191,6 +176,27 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
             if note:
                 print(f"cobotlab: warning: {note}", file=sys.stderr)
     return root
+
+
+def _write_config(root: Path, exchange, course_id: str) -> None:
+    """The course's nbgrader_config.py, with its exchange folder (see :func:`init_course`);
+    one already there is kept, with the inert-pages block added if it lacks it."""
+    config = root / "nbgrader_config.py"
+    if config.exists():
+        _add_inert_pages(config)
+        return
+    exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
+    exchange_dir.mkdir(parents=True, exist_ok=True)
+    text = _CONFIG.format(root=str(root), exchange=str(exchange_dir), course_id=course_id)
+    from autograder import exchange as private
+
+    if private.layout_problem(exchange_dir, course_id) is None:
+        # root laid out a private exchange here (`cobotlab course exchange`): keep its
+        # modes, and release and collect with its classes
+        text += private.config_block(exchange_dir, course_id)
+    else:
+        os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
+    config.write_text(text)
 
 
 def _add_inert_pages(config: Path) -> None:
