@@ -402,30 +402,31 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
              "is right on at least one ordinary problem too, and it is right on none",
              next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
              first=True)  # first: why right answers earned nothing, past the cap of five
-    results, total = [], 0.0
-    weight_sum = sum(c.weight for c in spec.checks)
-    for c in spec.checks:
-        rows = per_check[c.name]
-        errs = np.array([r[0] for r in rows])
-        credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
-        # The worst problem is the one furthest past its own tolerance (tolerances differ per
-        # problem), so the tolerance printed is the one that problem failed.
-        ratios = np.array([r[0] / r[1] if r[1] > 0 else (0.0 if r[0] == 0 else math.inf)
-                           for r in rows])
-        worst = int(np.argmax(np.nan_to_num(ratios, nan=math.inf))) if rows else 0
-        results.append(CheckResult(
-            name=c.name, unit=c.unit, credit=credit,
-            n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
-            worst_error=float(errs[worst]) if rows else math.inf,
-            median_error=float(np.median(errs)) if rows else math.inf,
-            tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe,
-            n_voided=sum(1 for r in rows if r[3])))
-        total += c.weight * credit
-    points = round(spec.points * total / weight_sum, 2)
+    results = [_check_result(c, per_check[c.name]) for c in spec.checks]
+    total = sum(c.weight * r.credit for c, r in zip(spec.checks, results))
+    points = round(spec.points * total / sum(c.weight for c in spec.checks), 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts,
                           failures=failures, error_labels=labelled[:5],
                           mistakes=tuple(mistakes))
+
+
+def _check_result(c, rows: list[tuple]) -> CheckResult:
+    """One check's result from its problems' rows ``(error, tol, credit, voided)``."""
+    errs = np.array([r[0] for r in rows])
+    credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
+    # The worst problem is the one furthest past its own tolerance (tolerances differ per
+    # problem), so the tolerance printed is the one that problem failed.
+    ratios = np.array([r[0] / r[1] if r[1] > 0 else (0.0 if r[0] == 0 else math.inf)
+                       for r in rows])
+    worst = int(np.argmax(np.nan_to_num(ratios, nan=math.inf))) if rows else 0
+    return CheckResult(
+        name=c.name, unit=c.unit, credit=credit,
+        n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
+        worst_error=float(errs[worst]) if rows else math.inf,
+        median_error=float(np.median(errs)) if rows else math.inf,
+        tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe,
+        n_voided=sum(1 for r in rows if r[3]))
 
 
 def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:

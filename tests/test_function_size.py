@@ -24,7 +24,7 @@ MAX_PARAMETERS = 8
 # (file below autograder/, function name): (body lines, parameters) as they are now.
 # Shrink it: split the function, then remove its line here.
 ALLOWED = {
-    ("checks.py", "score_function"): (91, 4),
+    ("checks.py", "score_function"): (74, 4),
     ("grading.py", "execute_notebook"): (71, 5),
     ("grading.py", "_start_worker"): (15, 10),
     ("grading.py", "Worker.__init__"): (27, 10),
