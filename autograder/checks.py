@@ -179,6 +179,9 @@ class FunctionResult:
     failures: dict[str, Failure] = field(default_factory=dict)
     # (problem label, message) of each line of ``errors``, in the same order.
     error_labels: list[tuple[str, str]] = field(default_factory=list)
+    # The classic mistakes the answers looked like (each spec mistake's or classic
+    # transform's words, once each, in the order first met): what the class report counts.
+    mistakes: tuple[str, ...] = ()
 
     @property
     def fraction(self) -> float:
@@ -303,8 +306,8 @@ def public_trials(spec: FunctionSpec, seed: int) -> list[Trial]:
     return make_trials(spec, practice.practice_rng(seed), spec.practice_trials or spec.n_trials)
 
 
-# How a named mistake begins its message in FunctionResult.error_counts (the class report
-# counts the students who made each one by it).
+# How a named mistake begins its message to the student (the mistake itself is also in
+# FunctionResult.mistakes, which is what the class report counts).
 MISTAKE_NOTE = "this answer looks like a classic mistake: "
 
 
@@ -338,6 +341,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     labelled: list[tuple[str, str]] = []
     counts: dict[str, int] = {}
     failures: dict[str, Failure] = {}
+    mistakes: dict[str, None] = {}
 
     def note(message: str, label: str, first: bool = False,
              failure: Failure | None = None) -> None:
@@ -389,6 +393,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
             and measured is not None and trial.raises is None else None
         if hint is not None:
+            mistakes.setdefault(hint)
             note(f"{MISTAKE_NOTE}{hint}", trial.label, first=True)
         for name, row in rows.items():
             per_check[name].append(row)
@@ -397,29 +402,31 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
              "is right on at least one ordinary problem too, and it is right on none",
              next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
              first=True)  # first: why right answers earned nothing, past the cap of five
-    results, total = [], 0.0
-    weight_sum = sum(c.weight for c in spec.checks)
-    for c in spec.checks:
-        rows = per_check[c.name]
-        errs = np.array([r[0] for r in rows])
-        credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
-        # The worst problem is the one furthest past its own tolerance (tolerances differ per
-        # problem), so the tolerance printed is the one that problem failed.
-        ratios = np.array([r[0] / r[1] if r[1] > 0 else (0.0 if r[0] == 0 else math.inf)
-                           for r in rows])
-        worst = int(np.argmax(np.nan_to_num(ratios, nan=math.inf))) if rows else 0
-        results.append(CheckResult(
-            name=c.name, unit=c.unit, credit=credit,
-            n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
-            worst_error=float(errs[worst]) if rows else math.inf,
-            median_error=float(np.median(errs)) if rows else math.inf,
-            tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe,
-            n_voided=sum(1 for r in rows if r[3])))
-        total += c.weight * credit
-    points = round(spec.points * total / weight_sum, 2)
+    results = [_check_result(c, per_check[c.name]) for c in spec.checks]
+    total = sum(c.weight * r.credit for c, r in zip(spec.checks, results))
+    points = round(spec.points * total / sum(c.weight for c in spec.checks), 2)
     return FunctionResult(spec.name, points, spec.points, results, errors[:5],
                           n_problems=len(trials), n_failed=n_failed, error_counts=counts,
-                          failures=failures, error_labels=labelled[:5])
+                          failures=failures, error_labels=labelled[:5],
+                          mistakes=tuple(mistakes))
+
+
+def _check_result(c, rows: list[tuple]) -> CheckResult:
+    """One check's result from its problems' rows ``(error, tol, credit, voided)``."""
+    errs = np.array([r[0] for r in rows])
+    credit = float(np.mean([r[2] for r in rows])) if rows else 0.0
+    # The worst problem is the one furthest past its own tolerance (tolerances differ per
+    # problem), so the tolerance printed is the one that problem failed.
+    ratios = np.array([r[0] / r[1] if r[1] > 0 else (0.0 if r[0] == 0 else math.inf)
+                       for r in rows])
+    worst = int(np.argmax(np.nan_to_num(ratios, nan=math.inf))) if rows else 0
+    return CheckResult(
+        name=c.name, unit=c.unit, credit=credit,
+        n_full=sum(1 for r in rows if r[2] >= 1.0), n_trials=len(rows),
+        worst_error=float(errs[worst]) if rows else math.inf,
+        median_error=float(np.median(errs)) if rows else math.inf,
+        tolerance=float(rows[worst][1]) if rows else math.nan, describe=c.describe,
+        n_voided=sum(1 for r in rows if r[3]))
 
 
 def _problem_rows(spec: FunctionSpec, trial: Trial, measured: dict | None) -> dict:

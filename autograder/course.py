@@ -2,16 +2,20 @@
 
 ``init_course(DIR)`` makes a directory where the instructor's usual nbgrader commands work
 (``nbgrader generate_assignment lab0_frames``, ``nbgrader autograde lab0_frames``, ...).
-``grade_course(DIR, ASSIGNMENT)`` grades every submission in three visible stages: freeze
-(:mod:`autograder.freeze`), execute untrusted code in a throwaway sandbox (the isolated
-grader's worker, :mod:`autograder.grading`, which also runs the cells for nbgrader's own
-autograde, :mod:`autograder.scratch`), and record from the trusted process
+``grade_course(DIR, ASSIGNMENT)`` grades every submission in one line of stages, each
+taking the values of the ones before (docs/architecture.md): begin, freeze
+(:mod:`autograder.freeze`), draw every problem (:func:`autograder.grading.draw_all`),
+execute untrusted code in a throwaway sandbox (the isolated grader's worker,
+:mod:`autograder.grading`, which also runs the cells for nbgrader's own autograde,
+:mod:`autograder.scratch`), score, and record from the trusted process
 (:mod:`autograder.gradebook`, :mod:`autograder.record`), writing ``DIR/grades.csv`` and
-per-student feedback HTML (:mod:`autograder.feedback`).
+per-student feedback HTML (:mod:`autograder.feedback`). The run's options are one frozen
+:class:`autograder.grade_options.GradeOptions`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -50,6 +54,7 @@ from autograder.feedback_release import (
     write_section,
 )
 from autograder.freeze import printable
+from autograder.grade_options import GradeOptions
 from autograder.nbgrader_cells import cell_role
 from autograder.outcomes import Flag, about_function
 from autograder.practice import releasable, save_practice
@@ -140,22 +145,7 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
     documents, skipped = releasable([n for n in sources if n in checks.SPECS], force)
     sources = {name: folder for name, folder in sources.items() if name not in skipped}
     root.mkdir(parents=True, exist_ok=True)
-    config = root / "nbgrader_config.py"
-    if not config.exists():
-        exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
-        exchange_dir.mkdir(parents=True, exist_ok=True)
-        text = _CONFIG.format(root=str(root), exchange=str(exchange_dir), course_id=course_id)
-        from autograder import exchange as private
-
-        if private.layout_problem(exchange_dir, course_id) is None:
-            # root laid out a private exchange here (`cobotlab course exchange`): keep its
-            # modes, and release and collect with its classes
-            text += private.config_block(exchange_dir, course_id)
-        else:
-            os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
-        config.write_text(text)
-    else:
-        _add_inert_pages(config)
+    _write_config(root, exchange, course_id)
     if not (root / "gradebook.db").exists():
         scratch.speed_up_new_gradebooks()   # and no `alembic` needed on $PATH
         gradebook.create(root, course_id)
@@ -186,6 +176,27 @@ def init_course(course_dir, labs_dir=None, exchange=None, course_id: str = "cobo
             if note:
                 print(f"cobotlab: warning: {note}", file=sys.stderr)
     return root
+
+
+def _write_config(root: Path, exchange, course_id: str) -> None:
+    """The course's nbgrader_config.py, with its exchange folder (see :func:`init_course`);
+    one already there is kept, with the inert-pages block added if it lacks it."""
+    config = root / "nbgrader_config.py"
+    if config.exists():
+        _add_inert_pages(config)
+        return
+    exchange_dir = Path(exchange).expanduser().resolve() if exchange else root / "exchange"
+    exchange_dir.mkdir(parents=True, exist_ok=True)
+    text = _CONFIG.format(root=str(root), exchange=str(exchange_dir), course_id=course_id)
+    from autograder import exchange as private
+
+    if private.layout_problem(exchange_dir, course_id) is None:
+        # root laid out a private exchange here (`cobotlab course exchange`): keep its
+        # modes, and release and collect with its classes
+        text += private.config_block(exchange_dir, course_id)
+    else:
+        os.chmod(exchange_dir, 0o777)   # nbgrader's own requirement (it resets others)
+    config.write_text(text)
 
 
 def _add_inert_pages(config: Path) -> None:
@@ -315,14 +326,8 @@ def _cross_check(grade: grading.SubmissionGrade, nb: dict, cell_map: dict[str, s
 
 
 def grade_course(course_dir, assignment: str, workers: int = 1, *,
-                 run_nbgrader: bool = False, nbgrader_kernel: bool = False,
-                 nbgrader_cell_timeout_s: int | None = None,
-                 nbgrader_timeout_s: float = 300,
-                 limits: grading.Limits = grading.Limits(),
-                 caps: freeze.Caps = freeze.Caps(),
-                 fresh: bool = False, nonce: str | None = None, quiet: bool = False,
-                 students=None, progress=None, cluster=None,
-                 template: bool = True, rescore: bool = False) -> list[dict]:
+                 options: GradeOptions | None = None, progress=None, cluster=None,
+                 **settings) -> list[dict]:
     """Grade every submission of ``assignment`` in ``course_dir/submitted`` and write results.
 
     One straight line of stages, each a function of the one before, so that no submission
@@ -332,8 +337,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
        refuse a concurrent run, back up the gradebook;
     2. **freeze**: every submission is copied, as data (regular files only, capped), into
        grader-private storage before any student code runs (:mod:`autograder.freeze`);
-    3. **draw**: each submission's hidden problems, from the secret, in this process
-       (:class:`autograder.grading.HiddenProblems`); the truth never leaves it;
+    3. **draw**: every submission's hidden problems, from the secret, in this process,
+       all of them before any code runs (:func:`autograder.grading.draw_all`); only their
+       inputs go to a sandbox or a cluster's worker;
     4. **execute**: per student, one sandboxed worker runs the notebook once and calls the
        graded functions on the problems' inputs (:func:`autograder.grading.execute_notebook`),
        an :class:`~autograder.grading.Execution`: what each call came to, nothing scored; it
@@ -354,6 +360,9 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
         course_dir: an nbgrader course made by :func:`init_course`.
         assignment: e.g. ``"lab0_frames"``.
         workers: submissions graded in parallel (each in its own sandbox).
+        options: every setting below as one :class:`autograder.grade_options.GradeOptions`;
+            or pass them as keywords (``settings``), not both. The run reads them from
+            that one frozen value.
         run_nbgrader: run nbgrader's autograde (stage 4) for its cell results; otherwise use
             whatever nbgrader results ``gradebook.db`` already holds, if any.
         nbgrader_kernel: run nbgrader's autograde with its own kernel, sandboxed, a second
@@ -396,25 +405,35 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     submission's worker from it into a sandbox of its own (:mod:`autograder.template`);
     False starts a new interpreter per submission (the results are the same, slower).
     """
-    run = _begin(course_dir, assignment, workers, limits, fresh, nonce, quiet, cluster, rescore)
+    options = _options(workers, options, settings)
+    run = _begin(course_dir, assignment, options, cluster)
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        frozen = _freeze(run.root, assignment, Path(store), caps, students)
+        frozen = _freeze(run.root, assignment, Path(store), options.caps, options.students)
         problems = _problems(run, frozen)
-        if rescore:
+        if options.rescore:
             executed = _kept_executions(run, frozen, problems, progress)
         else:
-            executed = _execute(run, frozen, problems, Path(store), workers, run_nbgrader,
-                                nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-                                progress, cluster, template and cluster is None)
+            executed = _execute(run, frozen, problems, Path(store), progress, cluster)
     if run.problems == "job":   # a shard job: home scores what it kept (autograder.shards)
-        return _end_job(run, frozen, problems, executed, quiet)
-    grades = [_score(run, sub, problems, executed[sub.student_id]) for sub in frozen]
-    rows = _record(run, frozen, problems, executed, grades, run_nbgrader)
+        return _end_job(run, frozen, executed)
+    grades = [_score(run, sub, executed[sub.student_id]) for sub in frozen]
+    rows, grades = _record(run, frozen, executed, grades)
     _end_run(run, rows, grades, executed)
-    if not quiet:
-        _print_summary(grades, assignment, time.monotonic() - run.started, workers, run.notes,
-                       executed, rescore)
+    if not options.quiet:
+        _print_summary(grades, assignment, time.monotonic() - run.started, run.notes,
+                       executed, options)
     return rows
+
+
+def _options(workers: int, options: GradeOptions | None, settings: dict) -> GradeOptions:
+    """The run's one :class:`GradeOptions`: ``options``, or one made of ``workers`` and the
+    keyword ``settings`` (TypeError names a keyword grade_course does not take)."""
+    if options is None:
+        return GradeOptions(workers=workers, **settings)
+    if settings or workers != 1:
+        raise TypeError("grade_course takes options= or keyword settings (workers included), "
+                        f"not both: got options and {sorted(settings) or ['workers']}")
+    return options
 
 
 # ----------------------------------------------------------------- stage 1: begin
@@ -435,6 +454,7 @@ class GradeRun:
     limits: grading.Limits
     notes: list[str]
     started: float
+    options: GradeOptions = GradeOptions()
 
 
 def _course(course_dir, assignment: str) -> Path:
@@ -464,10 +484,11 @@ def _secret_or_job(root: Path, assignment: str, fresh, nonce, rescore, cluster) 
     return ""
 
 
-def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce,
-           quiet: bool, cluster, rescore: bool) -> GradeRun:
+def _begin(course_dir, assignment: str, options: GradeOptions, cluster) -> GradeRun:
     """Check the request, recover from an interrupted run, refuse a concurrent one, back up
     the gradebook; the run's shared values."""
+    workers, limits, quiet = options.workers, options.limits, options.quiet
+    fresh, nonce, rescore = options.fresh, options.nonce, options.rescore
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     root = _course(course_dir, assignment)
@@ -489,7 +510,7 @@ def _begin(course_dir, assignment: str, workers: int, limits, fresh: bool, nonce
     # a cluster whose workers would grade differently (lab version) is refused here
     cluster_note = cluster.check(assignment) if cluster is not None else None
     run = GradeRun(root, private, assignment, secret, nonce, problems, limits,
-                   _begin_run(root, private), started)
+                   _begin_run(root, private), started, options)
     unverified = registry.verification_note(assignment)
     if unverified:
         run.notes.append(f"warning: {unverified}")
@@ -539,20 +560,23 @@ def _freeze(root: Path, assignment: str, store: Path, caps: freeze.Caps,
 # ----------------------------------------------------------------- stage 3: draw
 
 
-def _problems(run: GradeRun, frozen):
-    """Every submission's hidden problems: drawn from the secret here, or, in a shard job,
-    the inputs home wrote for each (refused, naming them, when some are missing)."""
+def _problems(run: GradeRun, frozen) -> grading.DrawnProblems:
+    """Every usable submission's hidden problems, all of them now, before any code runs:
+    drawn from the secret here, or, in a shard job, the inputs home wrote for each (refused,
+    naming them, when some are missing)."""
+    usable = [s.student_id for s in frozen if s.accepted and s.notebooks]
     if run.problems != "job":
-        return grading.HiddenProblems(run.assignment, run.secret, run.nonce)
+        return grading.draw_all(run.assignment, run.secret, run.nonce, usable)
     problems = shard_job.BundledProblems(run.root, run.assignment)
-    missing = problems.missing([s.student_id for s in frozen if s.accepted and s.notebooks])
+    missing = problems.missing(usable)
     if missing:
         raise ValueError(
             f"this shard job holds no problems of {run.assignment} for "
             f"{', '.join(printable(m, 80) for m in missing[:20])}: write them at home "
             "(`python -m autograder.shards job HOME ASSIGNMENT JOB --students @FILE`), or "
             "leave them out of --students")
-    return problems
+    return grading.DrawnProblems(run.assignment, {sid: problems.of(sid) for sid in usable},
+                                 problems.kernel)
 
 
 # ----------------------------------------------------------------- stage 4: execute
@@ -561,97 +585,52 @@ def _problems(run: GradeRun, frozen):
 @dataclass
 class Executed:
     """Stage 4's value for one submission: what its code did (``execution``; None when it
-    was not run: refused, no notebook, or the grader failed on every attempt), nbgrader's
-    own run of it, the grader's failed attempts, and the frozen submission's digest (a kept
-    execution belongs to that submission only)."""
+    was not run: refused, no notebook, or the grader failed on every attempt), the problems
+    it ran on (the run's draw; a rescore's, drawn with the nonce its kept execution names),
+    nbgrader's own run of it, the grader's failed attempts, and the frozen submission's
+    digest (a kept execution belongs to that submission only)."""
 
     execution: grading.Execution | None = None
     nbgrader: scratch.ScratchResult | None = None
     grader_errors: list[str] = field(default_factory=list)
     submission: str = ""
+    problems: grading.Problems | None = None
 
 
-def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Path, workers,
-             run_nbgrader, nbgrader_kernel, nbgrader_timeout_s, nbgrader_cell_timeout_s,
-             progress=None, cluster=None, use_template=False) -> dict[str, Executed]:
+def _execute(run: GradeRun, frozen, problems: grading.DrawnProblems, store: Path,
+             progress=None, cluster=None) -> dict[str, Executed]:
     """{student: :class:`Executed`} for every frozen submission. With ``cluster``, each
-    runs on a worker of that Dask cluster (:mod:`autograder.cluster`); with
-    ``use_template``, each grading thread forks its workers from a template of its own."""
-    root, assignment, limits = run.root, run.assignment, run.limits
+    runs on a worker of that Dask cluster (:mod:`autograder.cluster`); otherwise, with the
+    ``template`` option, each grading thread forks its workers from a template of its own."""
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
-    templates = _Templates(root, assignment, limits, run.notes) if use_template else None
-    if cluster is not None:
-        execute_notebook = cluster.execute_notebook
-    else:
-        def execute_notebook(paths, problems_of_one, limits, run_tests=False):
-            mine = templates.mine() if templates is not None else None
-            return grading.execute_notebook(paths, problems_of_one, limits, run_tests,
-                                            template=mine)
-    template = known = None
-    if run_nbgrader:
-        try:
-            template = scratch.make_template(root, assignment, store,
-                                             gradebook.duedate(root, assignment))
-            known = gradebook.template_cells(template, assignment)
-        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
-            run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
-
-    in_worker = (not nbgrader_kernel and known is not None
-                 and len({name for name, _ in known}) == 1)
-
-    def attempts(execute_once, errors: list[str]):
-        """execute_once()'s execution, or None: up to GRADER_ATTEMPTS tries, each a fresh
-        sandbox, worker and cgroup; the failed attempts' errors go to ``errors``."""
-        for _ in range(GRADER_ATTEMPTS):
-            try:
-                return execute_once()
-            except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
-                errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
-        return None
+    use_template = run.options.template and cluster is None
+    templates = _Templates(run.root, run.assignment, run.limits, run.notes) \
+        if use_template else None
+    executor = _Executor(run, problems, templates, cluster, *_nbgrader_template(run, store))
+    lock, finished = threading.Lock(), []
 
     def one(sub: freeze.Frozen) -> Executed:
-        done = Executed(submission=_submission_digest(sub))
-        if sub.accepted and sub.notebooks:
-            done.execution, done.nbgrader = execute_one(sub, done.grader_errors)
+        done = executor.one(sub)
         if progress is not None:
             with lock:
                 finished.append(sub.student_id)
                 progress(len(finished), len(frozen), sub.student_id)
         return done
 
-    def execute_one(sub: freeze.Frozen, errors: list[str]):
-        """(execution or None, nbgrader's result or None) of one usable submission."""
-        if templates is not None:
-            templates.mine()   # this thread's, built before nbgrader's share is timed
-        mine = problems.of(sub.student_id)
-        nb = execution = None
-        if template is not None:
-            def run_tests(paths):
-                ran = attempts(lambda: execute_notebook(paths, mine, limits, run_tests=True),
-                               errors)
-                if ran is None:
-                    raise grading.GraderError("the grader failed on every attempt")
-                return ran, grading.kernel_verdicts(mine, ran)
-
-            try:
-                if in_worker:   # one run of the cells for both nbgrader and the grader
-                    nb, execution = scratch.autograde_in_worker(sub, assignment, root, template,
-                                                                known, run_tests)
-                else:   # the in-worker run takes one notebook: nbgrader's own kernel
-                    nb = scratch.autograde_one(sub, assignment, root, template, known,
-                                               timeout_s=nbgrader_timeout_s,
-                                               cell_timeout_s=nbgrader_cell_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
-                nb = scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"])
-        if execution is None and len(errors) < GRADER_ATTEMPTS:
-            # not run in nbgrader's run (no cross-check, or nbgrader refused the notebook)
-            execution = attempts(lambda: execute_notebook(sub.notebooks, mine, limits), errors)
-        return execution, (nb if execution is not None else None)
-
-    lock, finished = threading.Lock(), []
     if progress is not None:
         progress(0, len(frozen), "")
+    try:
+        done = _in_threads(one, frozen, run.options.workers)
+    finally:
+        if templates is not None:
+            templates.close()
+    return {sub.student_id: d for sub, d in zip(frozen, done)}
+
+
+def _in_threads(one, frozen, workers: int) -> list:
+    """[one(sub) for sub in frozen], ``workers`` at a time; on any exception (Ctrl-C
+    included) every sandbox is stopped before it propagates."""
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         done = list(pool.map(one, frozen))
@@ -662,11 +641,94 @@ def _execute(run: GradeRun, frozen, problems: grading.HiddenProblems, store: Pat
         pool.shutdown(wait=True, cancel_futures=True)
         sandbox.allow_starts()
         raise
-    finally:
-        if templates is not None:
-            templates.close()
     pool.shutdown()
-    return {sub.student_id: d for sub, d in zip(frozen, done)}
+    return done
+
+
+def _nbgrader_template(run: GradeRun, store: Path) -> tuple[Path | None, list | None]:
+    """(nbgrader's throwaway template course, the grade cells it knows), or (None, None)
+    without ``run_nbgrader`` or when it cannot be made (the run's notes say why)."""
+    if not run.options.run_nbgrader:
+        return None, None
+    try:
+        template = scratch.make_template(run.root, run.assignment, store,
+                                         gradebook.duedate(run.root, run.assignment))
+        return template, gradebook.template_cells(template, run.assignment)
+    except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grades
+        run.notes.append(f"nbgrader cross-check skipped: {printable(exc, 300)}")
+        return None, None
+
+
+def _attempts(execute_once, errors: list[str]):
+    """execute_once()'s execution, or None: up to GRADER_ATTEMPTS tries, each a fresh
+    sandbox, worker and cgroup; the failed attempts' errors go to ``errors``."""
+    for _ in range(GRADER_ATTEMPTS):
+        try:
+            return execute_once()
+        except Exception as exc:  # noqa: BLE001 - the grader's failure, never the student's
+            errors.append(f"{type(exc).__name__}: {printable(exc, 300)}")
+    return None
+
+
+class _Executor:
+    """Runs one submission at a time (from any grading thread): in nbgrader's run of its
+    cells when there is one (``template``, ``known``), else on its own."""
+
+    def __init__(self, run: GradeRun, problems: grading.DrawnProblems, templates, cluster,
+                 template: Path | None, known: list | None):
+        self.run, self.problems, self.templates, self.cluster = run, problems, templates, cluster
+        self.template, self.known = template, known
+        # one run of the cells for both nbgrader and the grader takes a single notebook
+        self.in_worker = (not run.options.nbgrader_kernel and known is not None
+                          and len({name for name, _ in known}) == 1)
+
+    def one(self, sub: freeze.Frozen) -> Executed:
+        """Stage 4's value for ``sub`` (its code run only if it is usable)."""
+        done = Executed(submission=_submission_digest(sub))
+        if sub.accepted and sub.notebooks:
+            done.problems = self.problems.of(sub.student_id)
+            done.execution, done.nbgrader = self._usable(sub, done.problems,
+                                                         done.grader_errors)
+        return done
+
+    def _notebook(self, paths, mine: grading.Problems, run_tests: bool = False):
+        if self.cluster is not None:
+            return self.cluster.execute_notebook(paths, mine, self.run.limits, run_tests)
+        template = self.templates.mine() if self.templates is not None else None
+        return grading.execute_notebook(paths, mine, self.run.limits, run_tests,
+                                        template=template)
+
+    def _usable(self, sub: freeze.Frozen, mine: grading.Problems, errors: list[str]):
+        """(execution or None, nbgrader's result or None) of one usable submission."""
+        if self.templates is not None:
+            self.templates.mine()   # this thread's, built before nbgrader's share is timed
+        nb = execution = None
+        if self.template is not None:
+            nb, execution = self._with_nbgrader(sub, mine, errors)
+        if execution is None and len(errors) < GRADER_ATTEMPTS:
+            # not run in nbgrader's run (no cross-check, or nbgrader refused the notebook)
+            execution = _attempts(lambda: self._notebook(sub.notebooks, mine), errors)
+        return execution, (nb if execution is not None else None)
+
+    def _with_nbgrader(self, sub: freeze.Frozen, mine: grading.Problems, errors: list[str]):
+        """(nbgrader's result, the execution made in its run or None)."""
+        def run_tests(paths):
+            ran = _attempts(lambda: self._notebook(paths, mine, run_tests=True), errors)
+            if ran is None:
+                raise grading.GraderError("the grader failed on every attempt")
+            return ran, grading.kernel_verdicts(mine, ran)
+
+        run, options = self.run, self.run.options
+        try:
+            if self.in_worker:   # one run of the cells for both nbgrader and the grader
+                return scratch.autograde_in_worker(sub, run.assignment, run.root,
+                                                   self.template, self.known, run_tests)
+            # the in-worker run takes one notebook: nbgrader's own kernel
+            return scratch.autograde_one(sub, run.assignment, run.root, self.template,
+                                         self.known, timeout_s=options.nbgrader_timeout_s,
+                                         cell_timeout_s=options.nbgrader_cell_timeout_s), None
+        except Exception as exc:  # noqa: BLE001 - a grader bug must not lose the row
+            return scratch.ScratchResult(notes=[f"nbgrader run failed: {printable(exc)}"]), None
 
 
 def _submission_digest(sub: freeze.Frozen) -> str:
@@ -748,18 +810,18 @@ def kept_path(assignment: str, student_id: str) -> str:
     return f"{_KEPT}/{assignment}/{executions.file_key(student_id)}.json"
 
 
-def _keep(run: GradeRun, problems: grading.HiddenProblems, student_id: str,
-          done: Executed) -> None:
+def _keep(run: GradeRun, student_id: str, done: Executed) -> None:
     """Keep what a submission's code did, for ``rescore``: its execution, the problems'
     inputs digest and nonce it ran on, nbgrader's flags and notes of that run, and the
     digest of the frozen submission it belongs to."""
     record.write_file(run.private, kept_path(run.assignment, student_id),
-                      kept_bytes(run, problems.of(student_id), done))
+                      kept_bytes(run, done))
 
 
-def kept_bytes(run: GradeRun, problems: grading.Problems, done: Executed) -> bytes:
-    """The kept form of ``done`` (see :func:`_keep`) for ``problems``' student."""
-    ex = done.execution
+def kept_bytes(run: GradeRun, done: Executed) -> bytes:
+    """The kept form of ``done`` (see :func:`_keep`): an execution and the problems it ran
+    on."""
+    ex, problems = done.execution, done.problems
     kept = {"format": executions.FORMAT, "student_id": problems.student_id,
             "assignment": run.assignment, "nonce": run.nonce, "submission": done.submission,
             "inputs": executions.inputs_digest(problems, ex.kernel_runs),
@@ -769,7 +831,7 @@ def kept_bytes(run: GradeRun, problems: grading.Problems, done: Executed) -> byt
     return json.dumps(kept).encode("utf-8")
 
 
-def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
+def _kept_executions(run: GradeRun, frozen, problems: grading.DrawnProblems,
                      progress=None) -> dict[str, Executed]:
     """Stage 4 without running anything: each usable submission's execution as the last
     grade run kept it, checked to be this submission's and to have run on the problems'
@@ -798,7 +860,7 @@ def _kept_executions(run: GradeRun, frozen, problems: grading.HiddenProblems,
     return out
 
 
-def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+def _load_kept(run: GradeRun, problems: grading.DrawnProblems, sub: freeze.Frozen,
                done: Executed) -> str | None:
     """Fill ``done`` from the kept execution of ``sub``; None, or why it cannot be used."""
     data = _read_private(run.private, kept_path(run.assignment, sub.student_id))
@@ -807,7 +869,7 @@ def _load_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Froz
     return use_kept(run, problems, sub, done, data)
 
 
-def use_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen,
+def use_kept(run: GradeRun, problems: grading.DrawnProblems, sub: freeze.Frozen,
              done: Executed, data: bytes, from_job: bool = False) -> str | None:
     """Fill ``done`` from ``data``, a kept execution of ``sub`` (untrusted bytes: this
     course's, or a shard job's with ``from_job``, whose nbgrader findings are its word and
@@ -842,8 +904,7 @@ def use_kept(run: GradeRun, problems: grading.HiddenProblems, sub: freeze.Frozen
     uneven = _uneven_counts(mine, execution)
     if uneven:
         return f"not one outcome per problem of {', '.join(uneven)}"
-    problems.keep(mine)
-    done.execution = execution
+    done.problems, done.execution = mine, execution
     errors = kept.get("grader_errors")
     done.grader_errors = [printable(e, 400) for e in errors[:8]] if isinstance(errors, list) \
         else []
@@ -887,10 +948,11 @@ def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
     root, secret = _course_and_secret(course_dir, assignment)
     run = GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "report",
                    grading.Limits(), [], time.monotonic())
-    problems = grading.HiddenProblems(assignment, secret, None)
     out: dict[str, KeptSubmission] = {}
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        for sub in _freeze(root, assignment, Path(store), freeze.Caps()):
+        frozen = _freeze(root, assignment, Path(store), freeze.Caps())
+        problems = _problems(run, frozen)
+        for sub in frozen:
             texts = {Path(p).name: Path(p).read_text(encoding="utf-8", errors="replace")
                      for p in sub.notebooks}
             if not (sub.accepted and sub.notebooks):
@@ -900,16 +962,14 @@ def kept_submissions(course_dir, assignment: str) -> dict[str, KeptSubmission]:
             done = Executed(submission=_submission_digest(sub))
             why = _load_kept(run, problems, sub, done)
             out[sub.student_id] = KeptSubmission(
-                problems.of(sub.student_id) if why is None else None, done.execution, texts,
-                why)
+                done.problems if why is None else None, done.execution, texts, why)
     return out
 
 
 # ----------------------------------------------------------------- stage 5: score
 
 
-def _score(run: GradeRun, sub: freeze.Frozen, problems: grading.HiddenProblems,
-           done: Executed) -> grading.SubmissionGrade:
+def _score(run: GradeRun, sub: freeze.Frozen, done: Executed) -> grading.SubmissionGrade:
     """The grade of one submission from its execution (:func:`grading.score_execution`),
     with the freeze's flags and notes first and nbgrader's and the time-outs' after; a
     refused submission, or one without a notebook, scores zero; one the grader failed on
@@ -919,7 +979,7 @@ def _score(run: GradeRun, sub: freeze.Frozen, problems: grading.HiddenProblems,
     elif done.execution is None:
         grade = _ungraded(sub, run.assignment, done.grader_errors)
     else:
-        grade = grading.score_execution(problems.of(sub.student_id), done.execution)
+        grade = grading.score_execution(done.problems, done.execution)
         if done.grader_errors:
             grade.notes.append(f"graded after {len(done.grader_errors)} grader error(s), each "
                                f"retried in a fresh sandbox: {'; '.join(done.grader_errors)}")
@@ -977,9 +1037,14 @@ def _write_autograded(root: Path, assignment: str, sub: freeze.Frozen,
         write_exchange_files(root, assignment, sub)
 
 
-def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
-            executed: dict[str, Executed], grades, run_nbgrader: bool) -> list[dict]:
+def _record(run: GradeRun, frozen, executed: dict[str, Executed],
+            scored) -> tuple[list[dict], list[grading.SubmissionGrade]]:
+    """(the grades.csv rows, the grades as recorded): ``scored`` written into the course.
+    What recording adds (nbgrader's cross-check flags, a restored gradebook's flag, notes
+    of what could not be written) goes on copies; ``scored`` is read, never changed."""
     root, assignment, private, run_notes = run.root, run.assignment, run.private, run.notes
+    run_nbgrader = run.options.run_nbgrader
+    grades = [dataclasses.replace(g, flags=list(g.flags), notes=list(g.notes)) for g in scored]
     unreleasable = unreleasable_note(assignment, frozen)
     if unreleasable and run_nbgrader:
         run_notes.append(unreleasable)
@@ -987,18 +1052,7 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
                          f"the next run grades them again): {', '.join(ungraded)}")
-    by_student = {g.student_id: g for g in grades}
-    nb_runs = {sid: d.nbgrader for sid, d in executed.items()
-               if d.nbgrader is not None and run.problems != "rescore"}
-    for sub in frozen:
-        result = nb_runs.get(sub.student_id)
-        if result is None:
-            continue
-        try:
-            _record_nbgrader(root, assignment, sub, result)
-        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
-            by_student[sub.student_id].notes.append(
-                f"could not record nbgrader's result: {printable(exc)}")
+    nb_runs = _record_nbgrader_runs(run, frozen, executed, grades)
     damaged = _check_gradebook(root, private, run_notes)
 
     # A submission the grader could not grade gets nothing in the gradebook, not a zero.
@@ -1040,21 +1094,44 @@ def _record(run: GradeRun, frozen, problems: grading.HiddenProblems,
     # every assignment graded so far, one row per student and assignment (this run's replace)
     record.update_csv(root, GRADES_CSV, GRADE_COLUMNS, rows, key=("assignment", "student_id"))
     if run.problems != "rescore":   # a rescore's executions are those it read
-        for sub in frozen:
-            done = executed[sub.student_id]
-            if done.execution is None:
-                continue
-            try:
-                _keep(run, problems, sub.student_id, done)
-            except (OSError, ValueError) as exc:
-                note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
-                if note not in run_notes:
-                    run_notes.append(note)
-    return rows
+        _keep_all(run, frozen, executed)
+    return rows, grades
 
 
-def _end_job(run: GradeRun, frozen, problems, executed: dict[str, Executed],
-             quiet: bool) -> list[dict]:
+def _record_nbgrader_runs(run: GradeRun, frozen, executed: dict[str, Executed],
+                          grades) -> dict[str, scratch.ScratchResult]:
+    """{student: nbgrader's run} of this run's submissions (none in a rescore), each
+    written into the course; a failure to is noted on the (record's own) grade."""
+    by_student = {g.student_id: g for g in grades}
+    nb_runs = {sid: d.nbgrader for sid, d in executed.items()
+               if d.nbgrader is not None and run.problems != "rescore"}
+    for sub in frozen:
+        result = nb_runs.get(sub.student_id)
+        if result is None:
+            continue
+        try:
+            _record_nbgrader(run.root, run.assignment, sub, result)
+        except Exception as exc:  # noqa: BLE001 - the cross-check is lost, not the grade
+            by_student[sub.student_id].notes.append(
+                f"could not record nbgrader's result: {printable(exc)}")
+    return nb_runs
+
+
+def _keep_all(run: GradeRun, frozen, executed: dict[str, Executed]) -> None:
+    """Keep each execution of the run for ``rescore``; a failure to is in the run's notes."""
+    for sub in frozen:
+        done = executed[sub.student_id]
+        if done.execution is None:
+            continue
+        try:
+            _keep(run, sub.student_id, done)
+        except (OSError, ValueError) as exc:
+            note = f"executions not kept (no rescore for them): {printable(exc, 200)}"
+            if note not in run.notes:
+                run.notes.append(note)
+
+
+def _end_job(run: GradeRun, frozen, executed: dict[str, Executed]) -> list[dict]:
     """A shard job's end: each execution kept for home to score (``cobotlab merge``), the
     autograded notebooks of nbgrader's run for formgrader at home, the run's log; nothing
     scored, no grades.csv, nothing in the gradebook. Returns a row (no score) for each
@@ -1067,13 +1144,13 @@ def _end_job(run: GradeRun, frozen, problems, executed: dict[str, Executed],
                 failed.append(grade_row(run.assignment, sub.student_id, {}, None, 0.0,
                                         "grader_error", sub.timestamp))
             continue
-        _keep(run, problems, sub.student_id, done)
+        _keep(run, sub.student_id, done)
         kept += 1
         if done.nbgrader is not None:
             _write_autograded(run.root, run.assignment, sub, done.nbgrader)
     run.notes.append(f"shard job: {kept} execution(s) kept for the home course to score")
     _end_run(run, failed, [], executed)
-    if not quiet:
+    if not run.options.quiet:
         print(f"{run.assignment}: executed {kept} submission(s); nothing was scored here. "
               f"Bring back {run.root / grading.PRIVATE_DIR / _KEPT} and "
               f"{run.root / 'autograded'}, then run `cobotlab merge` at home")
@@ -1318,9 +1395,10 @@ def _announce_fallback() -> None:
         print(f"cobotlab: {warning}", file=sys.stderr, flush=True)
 
 
-def _print_summary(grades, assignment: str, elapsed: float, workers: int, run_notes,
-                   executed: dict[str, Executed], rescore: bool = False) -> None:
-    if rescore:
+def _print_summary(grades, assignment: str, elapsed: float, run_notes,
+                   executed: dict[str, Executed], options: GradeOptions) -> None:
+    workers = options.workers
+    if options.rescore:
         print(f"{assignment}: rescored {len(grades)} submissions in {elapsed:.1f} s from the "
               "executions the last grade run kept (no student code ran)")
     else:

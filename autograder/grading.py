@@ -52,6 +52,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
@@ -80,7 +81,8 @@ __all__ = [
     "Worker",
     "NotebookRunner",
     "Problems",
-    "HiddenProblems",
+    "DrawnProblems",
+    "draw_all",
     "draw_problems",
     "Execution",
     "FunctionRun",
@@ -858,7 +860,7 @@ class Worker:
 class Problems:
     """One submission's hidden problems: ``trials[function]`` in the lab's order, truth
     included, and the public trials ``hidden_test(function)`` scores on (the kernel seeds);
-    drawn on the trusted side (:class:`HiddenProblems`)."""
+    drawn on the trusted side (:class:`DrawnProblems`)."""
 
     assignment: str
     student_id: str
@@ -887,33 +889,33 @@ class KernelTrials:
             return self._drawn[name]
 
 
-class HiddenProblems:
-    """Every submission's hidden problems of one run: drawn from the secret, the run's nonce
-    (None: the course's fixed problems), the assignment, the student id and the function
-    name (:func:`problem_rng`), each set when first asked for (by the thread that grades
-    that submission, so draws overlap other submissions' work) and kept for scoring."""
+class DrawnProblems:
+    """Every submission's hidden problems of one run, drawn before any code runs (from the
+    secret, the run's nonce, the assignment, the student id and the function name:
+    :func:`problem_rng`), and read-only from then on: the draw stage's value, which the
+    execute stage sends the inputs of and the score stage scores on."""
 
-    def __init__(self, assignment: str, secret: str, nonce: str | None):
-        self.assignment, self._secret, self._nonce = assignment, secret, nonce
-        self.kernel = KernelTrials(assignment)
-        self._drawn: dict[str, Problems] = {}
-        self._lock = threading.Lock()
+    def __init__(self, assignment: str, by_student: dict[str, Problems],
+                 kernel: KernelTrials):
+        self.assignment, self.kernel = assignment, kernel
+        self._by_student = MappingProxyType(dict(by_student))
 
     def of(self, student_id: str) -> Problems:
-        with self._lock:
-            known = self._drawn.get(student_id)
-        if known is not None:
-            return known
-        problems = draw_problems(self.assignment, student_id, self._secret, self._nonce,
-                                 self.kernel)
-        with self._lock:
-            return self._drawn.setdefault(student_id, problems)
+        """The student's problems; KeyError naming the student when none were drawn."""
+        try:
+            return self._by_student[student_id]
+        except KeyError:
+            raise KeyError(f"no problems of {self.assignment} were drawn for "
+                           f"{student_id!r}: it was not among this run's submissions") from None
 
-    def keep(self, problems: Problems) -> None:
-        """Use ``problems`` for their student (a rescore's, drawn with the nonce of the run
-        that the student's kept execution came from)."""
-        with self._lock:
-            self._drawn[problems.student_id] = problems
+
+def draw_all(assignment: str, secret: str, nonce: str | None,
+             student_ids) -> DrawnProblems:
+    """The hidden problems of each of ``student_ids`` (see :func:`draw_problems`), drawn now,
+    all of them, with one set of public kernel-seed trials shared by all."""
+    kernel = KernelTrials(assignment)
+    return DrawnProblems(assignment, {sid: draw_problems(assignment, sid, secret, nonce, kernel)
+                                      for sid in dict.fromkeys(student_ids)}, kernel)
 
 
 def draw_problems(assignment: str, student_id: str, secret: str, nonce: str | None,

@@ -63,8 +63,8 @@ def refuse_secret(root: Path) -> None:
 
 class BundledProblems:
     """In the job: each student's problems as home wrote them (inputs only, no truth to
-    score with, no tolerance), in the shape of :class:`autograder.grading.HiddenProblems`
-    (``of``, ``kernel``) so the execute stage takes either."""
+    score with, no tolerance), which the draw stage reads, every student's before any code
+    runs, into a :class:`autograder.grading.DrawnProblems` as it would have drawn them."""
 
     def __init__(self, root: Path, assignment: str):
         self.root, self.assignment = Path(root), assignment

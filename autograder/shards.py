@@ -139,7 +139,7 @@ def _returned(run: course.GradeRun, problems, shard: Path, frozen) -> tuple[dict
         if why:
             refused.append(f"{freeze.printable(sid, 80)} ({why})")
         else:
-            clean[sid] = course.kept_bytes(run, problems.of(sid), done)
+            clean[sid] = course.kept_bytes(run, done)
     return clean, refused, missing
 
 
@@ -160,10 +160,10 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     gradebook.require_assignment(root, assignment)
     run = course.GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "merge",
                           grading.Limits(), [], time.monotonic())
-    problems = grading.HiddenProblems(assignment, secret, None)
     notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         frozen = course._freeze(root, assignment, Path(store), freeze.Caps())
+        problems = course._problems(run, frozen)
         clean, refused, missing = _returned(run, problems, shard, frozen)
         if refused:
             raise ValueError(

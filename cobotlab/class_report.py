@@ -32,6 +32,7 @@ import math
 import re
 from collections import defaultdict
 from dataclasses import dataclass, field
+from enum import Enum
 from itertools import combinations
 from pathlib import Path
 
@@ -170,13 +171,27 @@ def similar_pairs(written: dict[str, dict[str, str]]) -> list[tuple[str, str, li
 # --------------------------------------------------------------------------- the numbers
 
 
+class Status(Enum):
+    """Where a submission stands in the gradebook; the value is the words the page and
+    scores.csv show, ``scored`` what the page decides by."""
+
+    GRADED = "graded"
+    LATE = "late"
+    UNGRADED = "ungraded (the grader failed)"
+    NOT_GRADED_YET = "not graded yet"
+
+    @property
+    def scored(self) -> bool:
+        return self in (Status.GRADED, Status.LATE)
+
+
 @dataclass
 class ClassNumbers:
     """Everything the page shows, as plain values (the CSV files hold the same)."""
 
     assignment: str
     scores: dict = field(default_factory=dict)        # gradebook.class_scores
-    status: dict[str, str] = field(default_factory=dict)
+    status: dict[str, Status] = field(default_factory=dict)
     not_rescored: dict[str, str] = field(default_factory=dict)   # student: why
     functions: list[str] = field(default_factory=list)
     checks: dict[str, list[str]] = field(default_factory=dict)   # function: its checks
@@ -204,9 +219,9 @@ def class_numbers(course_dir, assignment: str) -> ClassNumbers:
     by_name = {s.name: s for s in specs}
     for sid in sorted(set(kept) | set(n.scores)):
         entry = n.scores.get(sid)
-        n.status[sid] = ("not graded yet" if entry is None else "ungraded (the grader failed)"
-                         if entry["score"] is None else "late" if entry["seconds_late"] > 0
-                         else "graded")
+        n.status[sid] = (Status.NOT_GRADED_YET if entry is None else Status.UNGRADED
+                         if entry["score"] is None else Status.LATE if entry["seconds_late"] > 0
+                         else Status.GRADED)
     for sid, sub in sorted(kept.items()):
         if sub.execution is None:
             n.not_rescored[sid] = sub.why or "no execution kept"
@@ -220,12 +235,10 @@ def class_numbers(course_dir, assignment: str) -> ClassNumbers:
             for c in f.checks:
                 if c.credit < 1.0:
                     n.lost_check[(f.name, c.name)].append(sid)
-            for message in f.error_counts:
-                if message.startswith(checks.MISTAKE_NOTE):
-                    label = message[len(checks.MISTAKE_NOTE):]
-                    who = n.mistakes.setdefault((f.name, label), [])
-                    if sid not in who:
-                        who.append(sid)
+            for label in f.mistakes:
+                who = n.mistakes.setdefault((f.name, label), [])
+                if sid not in who:
+                    who.append(sid)
             run = runs.get(f.name)
             if run is None or run.forbidden:
                 continue
@@ -335,7 +348,7 @@ def write_class_report(course_dir, assignment: str, out=None) -> Path:
         "scores": _csv(out / "scores.csv", (
             "student_id", "status", "raw_score", "late_submission_penalty", "score",
             "max_score", "manual_cells", "timestamp", "duedate", "seconds_late"), [
-            (sid, n.status[sid], *(("",) * 8 if e is None else (
+            (sid, n.status[sid].value, *(("",) * 8 if e is None else (
                 _fmt(e["raw_score"]), _fmt(e["penalty"]), _fmt(e["score"]),
                 _fmt(e["max_score"]), ";".join(e["manual"]), _fmt(e["timestamp"]),
                 _fmt(e["duedate"]), _fmt(e["seconds_late"]))))
@@ -378,12 +391,11 @@ def _page(n: ClassNumbers, figs: dict, files: dict) -> str:
         return f'<a href="{files[key]}">{files[key]}</a>'
 
     e = html.escape
-    late = [(sid, n.status[sid], _fmt(n.scores[sid]["timestamp"]),
+    late = [(sid, n.status[sid].value, _fmt(n.scores[sid]["timestamp"]),
              f"{n.scores[sid]['seconds_late'] / 3600:.1f}", _fmt(n.scores[sid]["raw_score"]),
              _fmt(n.scores[sid]["penalty"])) for sid in n.status
             if sid in n.scores and n.scores[sid]["seconds_late"] > 0]
-    unscored = [(sid, n.status[sid]) for sid in n.status
-                if n.status[sid].startswith(("ungraded", "not graded"))]
+    unscored = [(sid, status.value) for sid, status in n.status.items() if not status.scored]
     mistakes = [(f, label, len(who), ", ".join(who))
                 for (f, label), who in sorted(n.mistakes.items(), key=lambda kv: -len(kv[1]))]
     pairs = [(a, b, ", ".join(names), f"{len(names)} of {both}") for a, b, names, both in n.pairs]

@@ -30,3 +30,27 @@ def test_every_file_and_function_it_names_exists():
     for dotted in names:
         module, attr = dotted.split(".")
         assert hasattr(importlib.import_module(f"autograder.{module}"), attr), dotted
+
+
+def test_where_to_fix_what_names_one_existing_file_per_symptom():
+    section = DOC.split("## Where to fix what", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines()
+            if line.startswith("| ") and not line.startswith(("| symptom", "| ---"))]
+    assert len(rows) >= 10, rows
+    for row in rows:
+        symptom, first = (cell.strip() for cell in row.strip("|").split("|"))
+        files = re.findall(r"`([\w/.<>]+\.py)`", first)
+        assert len(files) == 1 and first == f"`{files[0]}`", (symptom, first)
+        if "<lab>" in files[0]:
+            files[0] = files[0].replace("<lab>", "lab0_frames")
+        assert (ROOT / files[0]).is_file(), (symptom, files[0])
+
+
+def test_the_stage_table_names_the_functions_the_line_calls():
+    source = (ROOT / "autograder" / "course.py").read_text()
+    body = source.split("def grade_course(", 1)[1].split("\ndef ", 1)[0]
+    table = DOC.split("| stage | function |", 1)[1].split("\n\n", 1)[0]
+    for stage in ("_begin", "_freeze", "_problems", "_execute", "_score", "_record",
+                  "_end_run"):
+        assert f"{stage}(" in body, f"grade_course no longer calls {stage}"
+        assert f"course.{stage}" in table or stage == "_freeze", stage
