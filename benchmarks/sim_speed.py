@@ -1,20 +1,22 @@
 """How fast is each simulator engine? RGB-D frames per second, IK, a move, peak memory.
 
 Run:  python benchmarks/sim_speed.py [--arm ur5e] [--frames 20] [--seed 0] [--quick]
+                                    [--lab lab4_stereo | --lab none]
 
 Measures both engines (MuJoCo and PyBullet) in one run, side by side, each in its own
 process so that its peak memory (``ru_maxrss``) is its own. Per engine: ``capture()`` with
 depth (RGB-D) at 640x480 and 1280x720 in both mounts (eye-to-hand: a fixed camera seeing the
 whole arm; eye-in-hand: the camera on the flange above the board), the median IK solve, one
-10 cm ``move_to`` and back, the time to build the cell, and the process's peak resident
-memory. Frames per second are 1 / mean frame time with a 95 % bootstrap interval over the
+10 cm ``move_to`` and back, the time to build the cell, the process's peak resident
+memory, and a lab's source notebook top to bottom (its simulator cells with the solutions;
+kernel start included; one run, so no interval). Frames per second are 1 / mean frame time with a 95 % bootstrap interval over the
 frames (2000 resamples); the MuJoCo/PyBullet ratio's interval resamples both engines.
 Rendering is on the CPU here (PyBullet's TinyRenderer; MuJoCo's OpenGL through Mesa's
 llvmpipe via EGL), so the numbers depend on the machine's cores and on other load.
 The goal (issue 49): MuJoCo at least twice PyBullet's RGB-D frame rate.
 
-Not measured here: a lab's simulator cells top to bottom (``tests/test_lab*.py -k
-source_notebook_runs`` with ``COBOTLAB_SIM_ENGINE`` set times them; docs/simulation.md).
+The lab runs in a Jupyter kernel started by the engine's process with ``COBOTLAB_SIM_ENGINE``
+set, so the notebook's own ``connect("sim", ...)`` picks the engine, as a student's would.
 """
 
 from __future__ import annotations
@@ -88,7 +90,24 @@ def pick_and_place(engine: str, arm: str, seed: int) -> dict:
                 "pick_placed": bool(placed)}
 
 
-def measure(engine: str, arm: str, frames: int, seed: int, resolutions) -> dict:
+def lab_notebook_s(engine: str, lab: str) -> float:
+    """Wall seconds to run ``labs/<lab>/<lab>.ipynb`` top to bottom on ``engine``."""
+    import os
+    from pathlib import Path
+
+    import nbformat
+    from nbclient import NotebookClient
+
+    path = Path(__file__).resolve().parents[1] / "labs" / lab / f"{lab}.ipynb"
+    nb = nbformat.read(path, as_version=4)
+    os.environ["COBOTLAB_SIM_ENGINE"] = engine   # the kernel inherits it
+    t0 = time.perf_counter()
+    NotebookClient(nb, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()
+    return time.perf_counter() - t0
+
+
+def measure(engine: str, arm: str, frames: int, seed: int, resolutions, lab: str) -> dict:
     """Everything for one engine (run in its own process: see ``main``)."""
     from robots import connect
 
@@ -104,6 +123,8 @@ def measure(engine: str, arm: str, frames: int, seed: int, resolutions) -> dict:
         out.update(ik_and_move(cell, seed))
     out.update(pick_and_place(engine, arm, seed))
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if lab != "none":   # after the peak: the kernel is another process
+        out["lab"], out["lab_s"] = lab, lab_notebook_s(engine, lab)
     return out
 
 
@@ -126,7 +147,7 @@ def ratio_interval(times_a, times_b, rng) -> tuple[float, float, float]:
 
 def run_engine(engine: str, args) -> dict:
     cmd = [sys.executable, __file__, "--engine", engine, "--arm", args.arm, "--frames",
-           str(args.frames), "--seed", str(args.seed)] + (["--quick"] if args.quick else [])
+           str(args.frames), "--seed", str(args.seed), "--lab", args.lab] + (["--quick"] if args.quick else [])
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         return {"engine": engine, "error": done.stderr.strip().splitlines()[-1]}
@@ -167,6 +188,9 @@ def report(results: dict, args) -> None:
              lambda r: f"{r['pick_s']:.1f} ({'placed' if r['pick_placed'] else 'NOT placed'})"),
             ("the same, simulated (s)", lambda r: f"{r['pick_sim_s']:.1f}"),
             ("peak memory of the process (MB)", lambda r: f"{r['peak_mb']:.0f}")]
+    if all("lab_s" in r for r in ok.values()):
+        rows.append((f"{args.lab} notebook top to bottom, one run (s)",
+                     lambda r: f"{r['lab_s']:.1f}"))
     for label, cell in rows:
         print(f"| {label} | " + " | ".join(cell(r) for r in ok.values()) + " |")
     if len(ok) == 2:
@@ -184,11 +208,14 @@ def main(argv=None) -> None:
     parser.add_argument("--frames", type=int, default=20, help="frames per measurement")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="640x480 only (a smoke run)")
+    parser.add_argument("--lab", default="lab4_stereo",
+                        help="a lab whose source notebook is timed per engine, or 'none'")
     parser.add_argument("--engine", choices=ENGINES, help=argparse.SUPPRESS)  # one child run
     args = parser.parse_args(argv)
     resolutions = RESOLUTIONS[:1] if args.quick else RESOLUTIONS
     if args.engine:
-        print(json.dumps(measure(args.engine, args.arm, args.frames, args.seed, resolutions)))
+        print(json.dumps(measure(args.engine, args.arm, args.frames, args.seed, resolutions,
+                                 args.lab)))
         return
     report({engine: run_engine(engine, args) for engine in ENGINES}, args)
 

@@ -30,8 +30,8 @@ The simulator's engine
 "sim" is one workcell built by one of two engines (``SIM_ENGINES``): MuJoCo
 (``sim_backends.mujoco_world``, wheels for every system) or PyBullet (``sim_backends.world``,
 wheels for Linux x86_64 and CPython <= 3.11 only). ``engine=`` picks one; without it
-(``default_sim_engine``) PyBullet is used where it is installed, since the MuJoCo engine does
-not yet build every scene the labs use, and MuJoCo where only it is installed. An engine that
+(``default_sim_engine``) MuJoCo is used, since it is the one every student can install and it
+builds every scene the labs use, and PyBullet where only PyBullet is installed. An engine that
 is asked for but not installed, or a scene the MuJoCo engine cannot build, raises
 ``BackendNotAvailableError`` naming what to ``pip install``: a lab never silently runs on a
 different engine than the one asked for.
@@ -78,7 +78,7 @@ SIM_ENGINES: dict[str, tuple[str, str, str]] = {
     "pybullet": ("sim_backends.world:create_workcell", "pybullet", "pip install pybullet"),
 }
 # Tried in this order when no engine is named (see the module docstring for why).
-DEFAULT_ENGINE_ORDER = ("pybullet", "mujoco")
+DEFAULT_ENGINE_ORDER = ("mujoco", "pybullet")
 
 _registry: dict[str, Callable[..., Workcell]] = {}
 

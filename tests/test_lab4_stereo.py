@@ -100,7 +100,13 @@ def test_notebook_solutions_agree_with_the_instructor_references():
 # --------------------------------------------------------------------------- notebooks
 
 
-def test_source_notebook_runs_with_solutions_and_hidden_tests():
+# Both engines: the text's table gives each engine's numbers. This is also the suite's lab on
+# PyBullet (the other labs run on the default engine, MuJoCo, which paid for it: lab 4 there
+# takes about 10 s, on PyBullet about 23 s, and labs 1-3 got 23 s faster with the default).
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_source_notebook_runs_with_solutions_and_hidden_tests(engine, monkeypatch):
+    pytest.importorskip(engine, reason=f"the {engine} engine is not installed")
+    monkeypatch.setenv("COBOTLAB_SIM_ENGINE", engine)   # the kernel inherits it
     nb = kit.execute_source(ASSIGNMENT, timeout_s=180)
     hidden = [c for c in nb.cells if "BEGIN HIDDEN TESTS" in c.source]
     assert len(hidden) == len(FUNCTIONS)
@@ -108,20 +114,32 @@ def test_source_notebook_runs_with_solutions_and_hidden_tests():
     assert "20 views seen by both cameras" in text
     assert "pybullet build time" not in text
     # What the text says about these outputs: Q's (cx - cx')/Tx is zero with the default
-    # rectification and not without it; the stereo points are worst along depth, the
-    # calibration's check points along camera x, from a tilt mostly about camera y.
+    # rectification and not without it; on both engines the calibration's check points are
+    # worst along camera x, from a tilt mostly about camera y; the stereo points' worst axis
+    # and the tilt's size are each engine's, as section 7's table gives them.
+    stereo_worst, tilt_range = SECTION_7_TABLE[engine]
     assert "Q[3, 3] = 0:" in text and "flags=0 instead: Q[3, 3] = 0 " not in text
     check_rmse = _vector_after(text, "per-axis RMSE on 12 check points (mm, camera x y z):")
     stereo_rmse = _vector_after(text, "stereo error of all 48 corners (mm RMS, camera x y z):")
     tilt = _vector_after(text, "rotation error of base_T_cam as a rotation vector, camera axes (deg):")
-    assert np.argmax(check_rmse) == 0 and np.argmax(stereo_rmse) == 2, (check_rmse, stereo_rmse)
-    assert np.argmax(np.abs(tilt)) == 1 and 1.0 < abs(tilt[1]) < 4.0, tilt
+    assert np.argmax(check_rmse) == 0, (engine, check_rmse)
+    assert np.argmax(stereo_rmse) == stereo_worst, (engine, stereo_rmse)
+    assert np.argmax(np.abs(tilt)) == 1 and tilt_range[0] < abs(tilt[1]) < tilt_range[1], \
+        (engine, tilt)
     import nbformat
 
     markdown = " ".join(" ".join(c.source.split()) for c in nbformat.read(
         kit.source_notebook(ASSIGNMENT), as_version=4).cells if c.cell_type == "markdown")
-    assert "comes out largest along the camera's $x$ axis" in markdown
-    assert "about two degrees, mostly about the camera's $y$ axis" in markdown
+    assert "On both, the calibration's error on the check points comes out largest along the " \
+        "camera's $x$ axis" in markdown
+    assert "tilt the triangle's frame, mostly about the camera's $y$ axis" in markdown
+    assert "| MuJoCo (the default) | 0.5 / 1.9 / 1.1 |" in markdown
+    assert "| PyBullet | 2.2 / 0.9 / 4.1 |" in markdown
+
+
+# Section 7's table for SEED = 2: the stereo points' worst camera axis (depth on PyBullet; y on
+# MuJoCo, whose calibration leaves the left c_y a pixel off) and the tilt about camera y (deg).
+SECTION_7_TABLE = {"pybullet": (2, (1.0, 4.0)), "mujoco": (1, (0.1, 1.0))}
 
 
 def _vector_after(text: str, label: str) -> np.ndarray:

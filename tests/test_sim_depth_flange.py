@@ -87,7 +87,8 @@ def _fit_face(depth, mask, intr):
 @pytest.mark.parametrize("arm", ["panda", "ur5e", "ur10e", "aubo_i5", "cobotta"])
 def test_bare_flange_is_an_iso_9409_disc_in_depth(arm):
     spec = FLANGES[arm]
-    with connect("sim", arm=arm, mount="eye_to_hand", tool=None, flange_target=False,
+    with connect("sim", engine="pybullet", arm=arm, mount="eye_to_hand", tool=None,
+                 flange_target=False,
                  seed=0, width=160, height=120) as cell:
         assert cell.truth.flange is spec and cell.truth.flange_target is None
         assert cell.robot.tool is None
@@ -266,8 +267,8 @@ def test_depth_model_reaches_the_cameras_through_connect():
 
 @pytest.mark.parametrize("arm, scene", [("panda", "calibration"), ("cobotta", "chess")])
 def test_rectangle_mark_lies_on_the_table_with_its_true_size(arm, scene):
-    with connect("sim", arm=arm, scene=scene, mount="eye_to_hand", seed=3, width=160,
-                 height=120, rectangle_mark=True) as cell:
+    with connect("sim", engine="pybullet", arm=arm, scene=scene, mount="eye_to_hand",
+                 seed=3, width=160, height=120, rectangle_mark=True) as cell:
         truth = cell.truth
         assert truth.rectangle_size == (0.1, 0.1)
         base_T_rect = truth.base_T_rectangle

@@ -61,10 +61,11 @@ def test_the_engine_comes_from_the_argument_then_the_environment_then_lab_toml(t
     assert "engine" not in resolve_connect_options("ur", {}, tmp_path, env)[1]
 
 
-def test_the_default_engine_is_pybullet_where_installed_else_mujoco():
-    assert backends.default_sim_engine(lambda package: True) == "pybullet"
+def test_the_default_engine_is_mujoco_where_installed_else_pybullet():
+    assert backends.default_sim_engine(lambda package: True) == "mujoco"
     assert backends.default_sim_engine(lambda package: package == "mujoco") == "mujoco"
-    with pytest.raises(BackendNotAvailableError, match=r"pip install pybullet.*pip install 'mujoco"):
+    assert backends.default_sim_engine(lambda package: package == "pybullet") == "pybullet"
+    with pytest.raises(BackendNotAvailableError, match=r"pip install 'mujoco.*pip install pybullet"):
         backends.default_sim_engine(lambda package: False)
 
 

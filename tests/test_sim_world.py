@@ -48,7 +48,8 @@ def _hand_eye(mount):
 
 
 def test_connect_sim_gives_a_workcell_with_truth():
-    with connect("sim", arm="panda", mount="eye_in_hand", seed=0, width=320, height=240) as cell:
+    with connect("sim", engine="pybullet", arm="panda", mount="eye_in_hand", seed=0,
+                 width=320, height=240) as cell:   # SimWorkcell is the PyBullet engine's
         assert isinstance(cell, SimWorkcell) and isinstance(cell, Workcell)
         assert cell.kind == "sim" and cell.cameras == {"cam": cell.camera}
         frame = cell.camera.capture()

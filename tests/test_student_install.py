@@ -116,8 +116,10 @@ def _build_env(tmp_path_factory, wheel) -> Path:
     venv.EnvBuilder(with_pip=True, system_site_packages=False, clear=True).create(env_dir)
     python = env_dir / "bin" / "python"
     # --no-compile: the test imports each module once, so byte-compiling all of JupyterLab
-    # and its dependencies up front would only cost time.
-    _run([str(python), "-m", "pip", "install", "--quiet", "--no-compile", str(wheel)])
+    # and its dependencies up front would only cost time. --only-binary: a student's laptop
+    # has no compiler, so every dependency must come as a wheel (issue 49).
+    _run([str(python), "-m", "pip", "install", "--quiet", "--no-compile",
+          "--only-binary", ":all:", str(wheel)])
     return env_dir
 
 
@@ -248,6 +250,10 @@ def test_lab0_runs_in_the_student_env_and_solutions_is_missing(student_env, tmp_
     for spec in checks.SPECS["lab0_frames"]:  # full marks from check(...) on every function
         assert f"{spec.name}: {spec.points:g} / {spec.points:g} points" in text, text
     assert "import solutions raised: No module named 'solutions'" in text, text
+    # Lab 0's simulator cell ran on MuJoCo: the student install has no PyBullet at all.
+    assert not list((student_env / "lib").glob("python*/site-packages/pybullet*")), \
+        "the student install must not pull PyBullet in"
+    assert list((student_env / "lib").glob("python*/site-packages/mujoco/__init__.py"))
     prefix = text.split("kernel prefix:")[1].split()[0]
     assert Path(prefix).resolve() == student_env.resolve(), prefix
 

@@ -113,7 +113,7 @@ def test_drawn_panda_meshes_lie_on_the_simulators_collision_surfaces():
 
     from sim_backends.flanges import FLANGE_PROUD_M
 
-    with connect("sim", arm="panda", seed=0, width=96, height=72) as cell:
+    with connect("sim", engine="pybullet", arm="panda", seed=0, width=96, height=72) as cell:
         cell.robot.move_joints(cell.robot.joint_positions() + 0.3, 0.5)
         view = make_view(cell)
         client, body = cell.client, cell.arm.body_id
@@ -217,7 +217,8 @@ def test_an_estimate_is_dashed_beside_the_truth_and_follows_the_flange(cell):
 def test_the_chess_scene_shows_every_piece_and_follows_a_moved_one():
     from sim_backends.scene import set_pose_of_body
 
-    with connect("sim", arm="ur5e", scene="chess", seed=0, width=160, height=120) as cell:
+    with connect("sim", engine="pybullet", arm="ur5e", scene="chess", seed=0, width=160,
+                 height=120) as cell:   # moves a piece through PyBullet
         view = make_view(cell)
         tree = scene_tree(view)
         pieces = cell.truth.pieces
