@@ -573,7 +573,7 @@ def _problems(run: GradeRun, frozen) -> grading.DrawnProblems:
         raise ValueError(
             f"this shard job holds no problems of {run.assignment} for "
             f"{', '.join(printable(m, 80) for m in missing[:20])}: write them at home "
-            "(`python -m autograder.shards job HOME ASSIGNMENT JOB --students @FILE`), or "
+            "(`cobotlab shard HOME ASSIGNMENT JOB STUDENT...`), or "
             "leave them out of --students")
     return grading.DrawnProblems(run.assignment, {sid: problems.of(sid) for sid in usable},
                                  problems.kernel)
