@@ -41,8 +41,8 @@ LONGEST_FIRST = (
     "test_grading_contention.py",   # ~115 s
     "test_student_install.py",      # ~100 s
     "test_instructor_docs.py",      # ~90 s
-    "test_cli.py",                  # ~85 s
     "test_answer_free.py",          # ~85 s
+    "test_cli.py",                  # ~55 s
 )
 
 
