@@ -53,7 +53,8 @@ demo: $(STAMP)
 # both cores busy while one waits on a kernel, Chromium or a socket; making the suite faster
 # means spending less CPU. Grading limits count CPU seconds: the extra load changes no grade.
 # --no-loadscope-reorder: xdist would start the files with the most tests first, which puts
-# the one-test grading files (minutes each) last; tests/conftest.py puts slow files first.
+# the one-test grading files (minutes each) last; tests/conftest.py starts the longest files
+# first (its LONGEST_FIRST, longest first), then the other files with slow tests.
 # compileall first: the bytecode of the checkout's own packages, as pip writes it for a
 # regular install. Where the environment sets PYTHONDONTWRITEBYTECODE (this machine does),
 # each of the suite's several hundred interpreters (grading workers, kernels, the CLI)

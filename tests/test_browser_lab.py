@@ -45,10 +45,15 @@ LABS = ("lab0_frames", "lab1_flange")
 RUN_TIMEOUT_S = 180.0      # Run All Cells, until the kernel is idle with every cell numbered
 SERVER_TIMEOUT_S = 60.0    # jupyter lab, from start to answering /api/status
 # Without the background-networking flags Chromium keeps dialling Google's hosts, which this
-# closed network refuses; --no-sandbox because CI runs as root.
+# closed network refuses; --no-sandbox because CI runs as root. No GPU here: without the last
+# two flags Chromium composited every frame in its GPU process through SwiftShader (software
+# GL), 5.5 of the 18 s of CPU it spent on lab 0's run; composited in software by the browser
+# itself it spent 10-11 s (issue 51). No page opened with these needs WebGL
+# (tests/test_viewer.py, which does, launches Chromium with its own flags).
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--disable-gpu-compositing", "--disable-software-rasterizer",
 ]
 # A Python exception as it ends a traceback ("ValueError: ...", "AssertionError", ...).
 EXCEPTION_LINE = re.compile(r"^\s*\w*(Error|Exception)\b", re.MULTILINE)

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import course_kit as kit
 import pytest
+from test_cli import check_quick_demo
 
 from autograder import sandbox
 
@@ -205,6 +206,7 @@ def test_a_regular_install_runs_a_course(regular, regular_course, tmp_path):
     demo = subprocess.run([str(bin_dir / "cobotlab"), "demo", "--quick"], capture_output=True,
                           text=True, env=env, cwd=tmp_path, timeout=600)
     assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:]
+    check_quick_demo(demo, tmp_path / "out")   # the demo's own checks (its default --out)
 
 
 # The probe runs as student code would: it lists what it can read and import of the planted

@@ -6,6 +6,7 @@ tested on the inputs its twins disagreed on. Fast: no course, no sandbox."""
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -31,7 +32,11 @@ def _functions():
                 stack.append((child, name))
 
 
-NODES = list(_functions())
+@functools.cache
+def _nodes() -> tuple:
+    """_functions(), walked once, when a test first asks: at import, every test worker paid
+    its 2 s of CPU while collecting, whether it ran this file or not."""
+    return tuple(_functions())
 
 
 def _names(node) -> set[str]:
@@ -41,14 +46,14 @@ def _names(node) -> set[str]:
 
 def test_the_net_score_is_computed_once():
     """Points less a late penalty: only gradebook.net_score subtracts one."""
-    found = {(path, fn) for path, fn, node in NODES
+    found = {(path, fn) for path, fn, node in _nodes()
              if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Sub)
              and any("penalty" in n for n in _names(node))}
     assert found == {("autograder/gradebook.py", "net_score")}
 
 
 def test_the_no_graded_functions_check_is_made_once():
-    found = {(path, fn) for path, fn, node in NODES
+    found = {(path, fn) for path, fn, node in _nodes()
              if isinstance(node, ast.Constant) and isinstance(node.value, str)
              and "no graded functions are registered" in node.value}
     assert found == {("autograder/grading.py", "specs_of")}
@@ -63,7 +68,7 @@ def test_one_reader_of_nbgrader_cell_metadata():
         return node.id if isinstance(node, ast.Name) else ""
 
     found = set()
-    for path, fn, node in NODES:
+    for path, fn, node in _nodes():
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and \
                 node.func.attr == "get" and node.args and \
                 isinstance(node.args[0], ast.Constant) and node.args[0].value == "nbgrader":
@@ -79,7 +84,7 @@ def test_one_reader_of_nbgrader_cell_metadata():
 
 
 def test_one_roster_reader():
-    found = {(path, fn) for path, fn, node in NODES
+    found = {(path, fn) for path, fn, node in _nodes()
              if isinstance(node, ast.Attribute) and node.attr == "DictReader"
              and "roster" in fn}
     assert found == {("autograder/roster.py", "read_roster")}

@@ -2,12 +2,13 @@
 
 Asks the package registry with pip's own resolver (benchmarks/wheels_everywhere.py), with no
 compiler in sight: ``--only-binary :all:`` for a target platform and Python. One target per
-system here, the four Pythons spread over them: 5 joint pip calls (student, course and the
-SDKs with a wheel; about 7 CPU seconds each, most of it pip parsing the big index pages of
-NumPy, SciPy, OpenCV and MuJoCo) and 11 small ones (an SDK the table says has no wheel), all
-at once: about 50 s of CPU and a minute of wall time, most of it waiting on the registry.
-``benchmarks/wheels_everywhere.py`` runs all 20 targets. The rest are checks of the pieces
-that need no network.
+Python here, on four of the five systems: 4 joint pip calls (student, course and the SDKs with
+a wheel; about 7 CPU seconds each, most of it pip parsing the big index pages of NumPy, SciPy,
+OpenCV and MuJoCo) and a small one per SDK the table says has no wheel there, all at once.
+The file cost 50 s of CPU with a target per system (5); the suite is CPU-bound (issue 51), so
+Linux aarch64, the rarest system a student brings, is left to
+``benchmarks/wheels_everywhere.py``, which runs all 20 targets. The rest are checks of the
+pieces that need no network.
 """
 
 from __future__ import annotations
@@ -25,9 +26,10 @@ import wheels_everywhere as wheels  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 # Ubuntu 24.04's Python on a PC, the Intel Mac on the newest Python (its MuJoCo and OpenCV are
-# capped), the oldest Python on the rarest system: each system once, each Python at least once.
-SLICE = {("linux-x86_64", "3.12"), ("linux-aarch64", "3.10"), ("win-amd64", "3.13"),
-         ("mac-arm64", "3.11"), ("mac-x86_64", "3.13")}
+# capped), Windows on the oldest (its own markers: tomli, pywinpty): each Python once.
+SLICE = {("linux-x86_64", "3.12"), ("win-amd64", "3.10"), ("mac-arm64", "3.11"),
+         ("mac-x86_64", "3.13")}
+BENCHMARK_ONLY = {"linux-aarch64"}
 
 
 def _target(system: str, python: str) -> wheels.Target:
@@ -35,8 +37,9 @@ def _target(system: str, python: str) -> wheels.Target:
     return found
 
 
+@pytest.mark.slow   # started early: a minute of waiting on the registry is no run's tail
 @pytest.mark.timeout(900)
-def test_student_course_and_real_installs_resolve_to_wheels_on_each_system():
+def test_student_course_and_real_installs_resolve_to_wheels_on_each_python():
     targets = [_target(*key) for key in sorted(SLICE)]
     reports = wheels.check_targets(targets)
     failures = [f for r in reports for f in r.failures]
@@ -55,9 +58,10 @@ def test_a_package_without_a_wheel_is_named_with_its_target():
     assert "pybullet" in found.errors, found
 
 
-def test_the_slice_covers_every_system_and_python():
-    assert {s for s, _ in SLICE} == {s.key for s in wheels.SYSTEMS}
-    assert {p for _, p in SLICE} == set(wheels.PYTHONS)
+def test_the_slice_covers_every_python_and_every_system_but_one():
+    assert {s for s, _ in SLICE} | BENCHMARK_ONLY == {s.key for s in wheels.SYSTEMS}
+    assert not {s for s, _ in SLICE} & BENCHMARK_ONLY
+    assert sorted(p for _, p in SLICE) == sorted(wheels.PYTHONS)
     assert len(wheels.TARGETS) == 20
 
 
