@@ -22,7 +22,7 @@ from collections import Counter
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
-from autograder.outcomes import Failed, student_words
+from autograder.outcomes import Failed, Place, student_words
 from autograder.page_policy import POLICY_META
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
@@ -62,9 +62,10 @@ _VERDICTS = {
     "not_graded": ("missing", "not graded"),
 }
 
+# The grader's cell references in the words of a message or note, renumbered for display
+# (what is decided about a failure's place comes from its typed Failure.place instead).
 _WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
 _HUNG_CELL = re.compile(r"^cell (\d+): ")
-_STUDENT_CELL = re.compile(r"\((cell In \[\d+\], line \d+)\)")   # student_location's form
 
 
 def _esc(text, limit: int = MAX_TEXT) -> str:
@@ -78,6 +79,19 @@ def _cell_name(index: int, origins: list[CellOrigin]) -> str:
     origin = origins[index]
     several = len({o.notebook for o in origins}) > 1
     return (f"{origin.notebook} " if several else "") + f"cell In [{origin.prompt}]"
+
+
+def _line_name(place: Place, origins: list[CellOrigin]) -> str:
+    """``place`` as the student names it: "cell In [n], line m" (the notebook first when
+    several)."""
+    return f"{_cell_name(place.cell, origins)}, line {place.line}"
+
+
+def _in_one_notebook(place: Place | None, origins: list[CellOrigin]) -> bool:
+    """``place`` is one of ``origins``' cells, all of one notebook: the not-implemented
+    sentence names the line only then (it says "the released notebook", one notebook)."""
+    return place is not None and 0 <= place.cell < len(origins) \
+        and len({o.notebook for o in origins}) == 1
 
 
 def student_location(text: str, origins: list[CellOrigin]) -> str:
@@ -132,11 +146,11 @@ def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
     if timed or skipped:
         limits = [x.limit_s for x in failures.values() if x.limit_s is not None]
         limit = f" of {min(limits):g} s of CPU time" if limits else ""
-        stopped = next((w[0] for x in failures.values() if x.kind is Failed.TIMED_OUT
-                        and (w := _WHERE.search(f"({x.where})"))), "")
+        stopped = next((x.place for x in failures.values() if x.kind is Failed.TIMED_OUT
+                        and x.place is not None), None)
         line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
                 f"{timed or 1}{of} problem(s)"
-                + (f" (stopped at {student_location(stopped, origins)[1:-1]})" if stopped else ""))
+                + (f" (stopped at {_line_name(stopped, origins)})" if stopped else ""))
         if skipped:
             line += (f"; the other {skipped} problem(s) were then not run, and count as "
                      "failed. Look for a loop that never ends or work that grows too fast")
@@ -212,10 +226,9 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     parts = [f"<section class='function'><h2>{_esc(f.name)}: {f.points:g} / "
              f"{f.max_points:g} <span class='badge {css}'>{label}</span></h2>"]
     if verdict == "not_implemented":
-        where = next((_esc(w[1], 120) for m in f.error_counts
-                      if (x := f.failures.get(m)) is not None and x.where
-                      and (w := _STUDENT_CELL.fullmatch(student_location(f"({x.where})",
-                                                                         origins)))), "")
+        where = next((_esc(_line_name(x.place, origins), 120) for m in f.error_counts
+                      if (x := f.failures.get(m)) is not None
+                      and _in_one_notebook(x.place, origins)), "")
         parts.append(f"<p>Not implemented yet: <code>{_esc(f.name)}</code> still raises "
                      "<code>NotImplementedError</code> (the placeholder of the released "
                      f"notebook{', ' + where if where else ''}) on every problem. Replace "

@@ -16,7 +16,7 @@ from autograder import checks, grading
 from autograder.checks import CheckResult, FunctionResult
 from autograder.feedback import error_lines, feedback_html, function_verdict
 from autograder.grading import CellOrigin, SubmissionGrade
-from autograder.outcomes import Cause, Failed, Failure, raised
+from autograder.outcomes import Cause, Failed, Failure, Place, raised
 
 SECRET = "feedback-secret-" + "x" * 24
 LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
@@ -90,7 +90,7 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
         error_labels=[(f"chain of {k}", stub) for k in range(1, 6)],
         n_problems=6, n_failed=6, error_counts={stub: 6},
         failures={stub: Failure(Failed.RAISED, exception="NotImplementedError",
-                                where="cell 1, line 3")})
+                                place=Place(1, 3))})
     assert function_verdict(f) == "not_implemented"
     section = _section(feedback_html(_grade(f, origins=_origins(2, 4))), "compose_chain")
     assert "not implemented" in section and "Not implemented yet" in section
@@ -116,7 +116,7 @@ def test_missing_function_forbidden_routine_and_time_out_are_said_plainly():
         n_failed=6, error_counts={"timed out (cell 1, line 4)": 1,
                                   "skipped: an earlier problem timed out after 3 s": 5},
         failures={"timed out (cell 1, line 4)": Failure(Failed.TIMED_OUT,
-                                                        where="cell 1, line 4"),
+                                                        place=Place(1, 4)),
                   "skipped: an earlier problem timed out after 3 s": Failure(
                       Failed.SKIPPED, cause=Cause.TIMED_OUT, limit_s=3.0)})
     assert [function_verdict(f) for f in (missing, banned, hung)] == \

@@ -14,7 +14,7 @@ import pytest
 
 from autograder import checks, grading
 from autograder.inside import wire
-from autograder.outcomes import Failed
+from autograder.outcomes import Failed, Place
 from robots import geometry as geo
 from solutions.registration import fit_rigid
 
@@ -626,3 +626,19 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
             assert ({Failed.TIMED_OUT, Failed.SKIPPED} if "LOOPS" in misbehaves
                     else {Failed.WORKER_STOPPED, Failed.SKIPPED}) <= errors, errors
     assert {0, 2, 3, 4, 5} <= kinds
+
+
+@pytest.mark.parametrize("claimed, place", [
+    ([3, 7], (3, 7)), ((0, 1), (0, 1)),
+    (None, None), ("cell 3, line 7", None), ([3], None), ([3, 7, 1], None),
+    ([-1, 7], None), ([3, 0], None), ([True, 7], None), ([3.0, 7], None),
+    ([10**9, 7], None), ([3, 10**9], None)])
+def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
+    """A failure's place is the worker's ``[cell, line]``, never read out of its words; a
+    claim that is no place (the worker is untrusted) leaves the failure without one."""
+    reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
+             "failure": "raised", "exception": "ValueError", "place": claimed}
+    failure = grading._reported_failure(reply, "cell 9, line 9")
+    assert failure.place == (None if place is None else Place(*place))
+    with pytest.raises(ValueError, match="Place.line"):
+        Place(3, 0)

@@ -191,7 +191,9 @@ def _failure(exc: BaseException) -> dict:
     """The reply for a cell or call that raised ``exc``. A time-out by the CPU timer says so:
     the grader then charges it to the submission without judging starvation (the one claim
     it takes from the worker, since it can only cost the submission that makes it)."""
-    reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+    frame = _student_frame(exc)
+    reply = {"ok": False, "error": _describe(exc), "where": _where(frame),
+             "place": _place(frame)}
     if isinstance(exc, _Timeout):
         reply["failure"] = "timed_out"
         if exc.by_cpu:
@@ -201,12 +203,37 @@ def _failure(exc: BaseException) -> dict:
     return reply
 
 
-def _where(exc: BaseException) -> str:
-    """The student's own line that raised, e.g. "cell 4, line 7" (no grader frames)."""
+# The file name each cell was compiled under -> its index: a failure's place is looked up
+# here, not read back out of the name (student code may compile its own "<cell ...>").
+_CELL_FILES: dict[str, int] = {}
+
+
+def _cell_file(index) -> str:
+    """The file name cell ``index`` is compiled under, remembered for :func:`_place`."""
+    name = f"<cell {index}>"
+    if isinstance(index, int) and not isinstance(index, bool):
+        _CELL_FILES[name] = index
+    return name
+
+
+def _student_frame(exc: BaseException):
+    """The innermost frame of ``exc``'s traceback in a notebook cell (no grader frames)."""
     for frame in reversed(traceback.extract_tb(exc.__traceback__)):
         if frame.filename.startswith("<cell"):
-            return f"{frame.filename.strip('<>')}, line {frame.lineno}"
-    return ""
+            return frame
+    return None
+
+
+def _where(frame) -> str:
+    """The student's own line that raised, in words, e.g. "cell 4, line 7"."""
+    return f"{frame.filename.strip('<>')}, line {frame.lineno}" if frame is not None else ""
+
+
+def _place(frame) -> list[int] | None:
+    """The same line as ``[cell index, line]`` (a typed place for the grader), or None."""
+    if frame is None or frame.filename not in _CELL_FILES or not frame.lineno:
+        return None
+    return [_CELL_FILES[frame.filename], frame.lineno]
 
 
 def _run_guarded(fn, cpu_s: float, wall_s: float):
@@ -373,7 +400,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             index = request.get("index", 0)
             out.take(), err.take()
             try:
-                code = compile(str(request.get("source", "")), f"<cell {index}>", "exec")
+                code = compile(str(request.get("source", "")), _cell_file(index), "exec")
                 _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
                 reply = {"ok": True}
             except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
