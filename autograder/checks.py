@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autograder import forbidden, mistakes, practice, registry
+from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
 from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
@@ -168,17 +169,13 @@ class FunctionResult:
     max_points: float
     checks: list[CheckResult] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
-    # For feedback: problems run and problems not fully right, how many problems each
-    # distinct error (problem label left out) happened on, and the forbidden routines used.
+    # For feedback: problems run and problems not fully right, and the forbidden routines used.
     n_problems: int = 0
     n_failed: int = 0
-    error_counts: dict[str, int] = field(default_factory=dict)
     forbidden: tuple[str, ...] = ()
-    # The kind of failure behind each message of ``error_counts`` that is a failed call's
-    # (a time-out, a problem skipped, a raise); a message the scoring wrote has none.
-    failures: dict[str, Failure] = field(default_factory=dict)
-    # (problem label, message) of each line of ``errors``, in the same order.
-    error_labels: list[tuple[str, str]] = field(default_factory=list)
+    # What went wrong on each problem that erred, in the order the scoring met them
+    # (``errors`` is their first lines); the feedback's counts and groups derive from it.
+    problem_errors: tuple[ProblemError, ...] = ()
     # The classic mistakes the answers looked like (each spec mistake's or classic
     # transform's words, once each, in the order first met): what the class report counts.
     mistakes: tuple[str, ...] = ()
@@ -188,9 +185,24 @@ class FunctionResult:
         return self.points / self.max_points if self.max_points else 0.0
 
     @property
+    def error_groups(self) -> list[ErrorGroup]:
+        """Each distinct message once with its count, typed failure and labels (see
+        :func:`autograder.errors.error_groups`); a verdict written without
+        problems (a forbidden routine's) is its ``errors``, on no problem."""
+        if not self.problem_errors:
+            return [ErrorGroup(e, 0, None) for e in dict.fromkeys(self.errors)]
+        return error_groups(self.problem_errors)
+
+    @property
+    def error_counts(self) -> dict[str, int]:
+        """{message: problems it was said on}, from :attr:`problem_errors`."""
+        return {g.message: g.count for g in error_groups(self.problem_errors)}
+
+    @property
     def lost_to_time(self) -> bool:
         """Some problem was lost to a time limit (see :attr:`Failure.lost_to_time`)."""
-        return any(x.lost_to_time for x in self.failures.values())
+        return any(g.failure is not None and g.failure.lost_to_time
+                   for g in error_groups(self.problem_errors))
 
     @property
     def failed_checks(self) -> list[str]:
@@ -337,24 +349,12 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     """
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
-    errors: list[str] = []
-    labelled: list[tuple[str, str]] = []
-    counts: dict[str, int] = {}
-    failures: dict[str, Failure] = {}
+    found: list[ProblemError] = []
     mistakes: dict[str, None] = {}
 
     def note(message: str, label: str, first: bool = False,
              failure: Failure | None = None) -> None:
-        line = f"on a {label} problem: {message}"
-        if line not in errors:
-            at = 0 if first else len(errors)
-            errors.insert(at, line)
-            labelled.insert(at, (label, message))
-        # capped: a submission can make every message distinct
-        if message in counts or len(counts) < 20:
-            counts[message] = counts.get(message, 0) + 1
-            if failure is not None:
-                failures.setdefault(message, failure)
+        found.append(ProblemError(label, message, failure, leads=first))
 
     # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
     table = []
@@ -405,10 +405,9 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     results = [_check_result(c, per_check[c.name]) for c in spec.checks]
     total = sum(c.weight * r.credit for c, r in zip(spec.checks, results))
     points = round(spec.points * total / sum(c.weight for c in spec.checks), 2)
-    return FunctionResult(spec.name, points, spec.points, results, errors[:5],
-                          n_problems=len(trials), n_failed=n_failed, error_counts=counts,
-                          failures=failures, error_labels=labelled[:5],
-                          mistakes=tuple(mistakes))
+    return FunctionResult(spec.name, points, spec.points, results, error_lines(found),
+                          n_problems=len(trials), n_failed=n_failed,
+                          problem_errors=tuple(found), mistakes=tuple(mistakes))
 
 
 def _check_result(c, rows: list[tuple]) -> CheckResult:
