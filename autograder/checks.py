@@ -351,26 +351,11 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     found: list[ProblemError] = []
     mistakes: dict[str, None] = {}
-
-    def note(message: str, label: str, first: bool = False,
-             failure: Failure | None = None) -> None:
-        found.append(ProblemError(label, message, failure, leads=first))
-
     # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
     table = []
     for trial, outcome in zip(trials, outcomes):
-        measured = None
-        message, failure = outcome.error, outcome.failure
-        if trial.raises is not None:
-            raised = outcome.has_raised(trial.raises)
-            measured = {c.name: 0.0 for c in spec.checks} if raised else None
-            message = None if raised else (f"expected {trial.raises} on this degenerate input, "
-                                           f"got {message or 'a return value'}")
-            failure = None   # the message is the scoring's, whatever the call did
-        elif outcome.error is None:
-            measured, message = _measured(spec, outcome.value, trial)
-        if message is not None:
-            note(message, trial.label, failure=failure)
+        measured, error = _measured_or_error(spec, trial, outcome)
+        found += [error] if error is not None else []
         table.append((measured, _problem_rows(spec, trial, measured)))
     # An edge case (all-or-nothing, or a degenerate input that must raise) earns credit only
     # when the method is right on at least one ordinary problem: the identity for a zero
@@ -394,20 +379,39 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             and measured is not None and trial.raises is None else None
         if hint is not None:
             mistakes.setdefault(hint)
-            note(f"{MISTAKE_NOTE}{hint}", trial.label, first=True)
+            found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint}", leads=True))
         for name, row in rows.items():
             per_check[name].append(row)
-    if gated:
-        note(f"answered right, but {gated} edge case(s) like this count only when the answer "
-             "is right on at least one ordinary problem too, and it is right on none",
-             next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
-             first=True)  # first: why right answers earned nothing, past the cap of five
+    if gated:   # leads: why right answers earned nothing, past the cap of five lines
+        found.append(ProblemError(
+            next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
+            f"answered right, but {gated} edge case(s) like this count only when the answer "
+            "is right on at least one ordinary problem too, and it is right on none",
+            leads=True))
     results = [_check_result(c, per_check[c.name]) for c in spec.checks]
     total = sum(c.weight * r.credit for c, r in zip(spec.checks, results))
     points = round(spec.points * total / sum(c.weight for c in spec.checks), 2)
     return FunctionResult(spec.name, points, spec.points, results, error_lines(found),
                           n_problems=len(trials), n_failed=n_failed,
                           problem_errors=tuple(found), mistakes=tuple(mistakes))
+
+
+def _measured_or_error(spec: FunctionSpec, trial: Trial,
+                       outcome: TrialOutcome) -> tuple[dict | None, ProblemError | None]:
+    """One problem's ``{check: error}`` (None: nothing to measure) and what went wrong on
+    it, if anything: the call's failure, an answer that cannot be measured, or a degenerate
+    input that did not raise as it must."""
+    if trial.raises is not None:
+        if outcome.has_raised(trial.raises):
+            return {c.name: 0.0 for c in spec.checks}, None
+        # the message is the scoring's, whatever the call did: no failure behind it
+        return None, ProblemError(trial.label, f"expected {trial.raises} on this degenerate "
+                                  f"input, got {outcome.error or 'a return value'}")
+    if outcome.error is not None:
+        return None, ProblemError(trial.label, outcome.error, outcome.failure)
+    measured, message = _measured(spec, outcome.value, trial)
+    return measured, (None if message is None
+                      else ProblemError(trial.label, message, outcome.failure))
 
 
 def _check_result(c, rows: list[tuple]) -> CheckResult:

@@ -396,20 +396,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             send(rep_fd, _preload(request))
             continue
         if op == "cell":
-            started, cpu_started = time.monotonic(), time.process_time()
-            index = request.get("index", 0)
-            out.take(), err.take()
-            try:
-                code = compile(str(request.get("source", "")), _cell_file(index), "exec")
-                _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
-                reply = {"ok": True}
-            except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
-                reply = _failure(exc)
-            reply["seconds"] = time.monotonic() - started
-            reply["cpu_seconds"] = time.process_time() - cpu_started
-            reply["output_chars"] = out.total + err.total
-            reply["stdout"], reply["stderr"] = out.take(), err.take()
-            send(rep_fd, reply)
+            send(rep_fd, _run_cell(request, namespace, out, err))
         elif op == "call":
             reply = _called(namespace, request, request.get("args", []),
                             _tables(request), guard, out, err, tripwire_of)
@@ -435,6 +422,25 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 send(rep_fd, {"ok": False, "error": f"a batch reply could not be sent ({exc})"})
         else:
             send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
+
+
+def _run_cell(request: dict, namespace: dict, out: _CappedWriter, err: _CappedWriter) -> dict:
+    """The reply to a "cell" request: run its ``source`` in ``namespace`` within its limits;
+    what it printed, its seconds of wall clock and of CPU, or its failure."""
+    started, cpu_started = time.monotonic(), time.process_time()
+    out.take(), err.take()
+    try:
+        code = compile(str(request.get("source", "")), _cell_file(request.get("index", 0)),
+                       "exec")
+        _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
+        reply = {"ok": True}
+    except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
+        reply = _failure(exc)
+    reply["seconds"] = time.monotonic() - started
+    reply["cpu_seconds"] = time.process_time() - cpu_started
+    reply["output_chars"] = out.total + err.total
+    reply["stdout"], reply["stderr"] = out.take(), err.take()
+    return reply
 
 
 def _called(namespace: dict, request: dict, args, tables: dict, guard, out, err,
