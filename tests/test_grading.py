@@ -642,3 +642,21 @@ def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
     assert failure.place == (None if place is None else Place(*place))
     with pytest.raises(ValueError, match="Place.line"):
         Place(3, 0)
+
+
+def test_the_worker_reports_the_place_of_a_cell_it_ran_and_no_other():
+    """The place is looked up from the cells the worker compiled: a "<cell ...>" file name
+    the student's code makes up itself gives the words, but no place."""
+    from autograder.inside import worker
+
+    namespace: dict = {}
+    exec(compile("def f():\n    x = 1\n    raise ValueError('no')", worker._cell_file(3),
+                 "exec"), namespace)
+    made_up = compile("raise KeyError('k')", "<cell forged>", "exec")
+    for call, place, where in ((namespace["f"], [3, 3], "cell 3, line 3"),
+                               (lambda: exec(made_up, {}), None, "cell forged, line 1")):
+        try:
+            call()
+        except Exception as exc:  # noqa: BLE001 - the test's own raise
+            reply = worker._failure(exc)
+        assert reply["place"] == place and reply["where"] == where

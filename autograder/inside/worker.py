@@ -13,7 +13,9 @@ grader, so student code that patches this module gains nothing but a zero.
 Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}`` runs one
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
-the cell wrote to stdout and to stderr;
+the cell wrote to stdout and to stderr; a failed cell or call's reply says where the
+student's code stopped, in words (``"where"``) and as ``"place": [cell index, line]`` (null
+when no cell of the notebook was on the stack);
 ``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
 routines graded functions must not call (:class:`autograder.inside.tripwire.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
