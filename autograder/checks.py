@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autograder import forbidden, mistakes, practice, registry
+from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
 from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
@@ -168,17 +169,13 @@ class FunctionResult:
     max_points: float
     checks: list[CheckResult] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
-    # For feedback: problems run and problems not fully right, how many problems each
-    # distinct error (problem label left out) happened on, and the forbidden routines used.
+    # For feedback: problems run and problems not fully right, and the forbidden routines used.
     n_problems: int = 0
     n_failed: int = 0
-    error_counts: dict[str, int] = field(default_factory=dict)
     forbidden: tuple[str, ...] = ()
-    # The kind of failure behind each message of ``error_counts`` that is a failed call's
-    # (a time-out, a problem skipped, a raise); a message the scoring wrote has none.
-    failures: dict[str, Failure] = field(default_factory=dict)
-    # (problem label, message) of each line of ``errors``, in the same order.
-    error_labels: list[tuple[str, str]] = field(default_factory=list)
+    # What went wrong on each problem that erred, in the order the scoring met them
+    # (``errors`` is their first lines); the feedback's counts and groups derive from it.
+    problem_errors: tuple[ProblemError, ...] = ()
     # The classic mistakes the answers looked like (each spec mistake's or classic
     # transform's words, once each, in the order first met): what the class report counts.
     mistakes: tuple[str, ...] = ()
@@ -188,9 +185,24 @@ class FunctionResult:
         return self.points / self.max_points if self.max_points else 0.0
 
     @property
+    def error_groups(self) -> list[ErrorGroup]:
+        """Each distinct message once with its count, typed failure and labels (see
+        :func:`autograder.errors.error_groups`); a verdict written without
+        problems (a forbidden routine's) is its ``errors``, on no problem."""
+        if not self.problem_errors:
+            return [ErrorGroup(e, 0, None) for e in dict.fromkeys(self.errors)]
+        return error_groups(self.problem_errors)
+
+    @property
+    def error_counts(self) -> dict[str, int]:
+        """{message: problems it was said on}, from :attr:`problem_errors`."""
+        return {g.message: g.count for g in error_groups(self.problem_errors)}
+
+    @property
     def lost_to_time(self) -> bool:
         """Some problem was lost to a time limit (see :attr:`Failure.lost_to_time`)."""
-        return any(x.lost_to_time for x in self.failures.values())
+        return any(g.failure is not None and g.failure.lost_to_time
+                   for g in error_groups(self.problem_errors))
 
     @property
     def failed_checks(self) -> list[str]:
@@ -337,40 +349,13 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     """
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
-    errors: list[str] = []
-    labelled: list[tuple[str, str]] = []
-    counts: dict[str, int] = {}
-    failures: dict[str, Failure] = {}
+    found: list[ProblemError] = []
     mistakes: dict[str, None] = {}
-
-    def note(message: str, label: str, first: bool = False,
-             failure: Failure | None = None) -> None:
-        line = f"on a {label} problem: {message}"
-        if line not in errors:
-            at = 0 if first else len(errors)
-            errors.insert(at, line)
-            labelled.insert(at, (label, message))
-        # capped: a submission can make every message distinct
-        if message in counts or len(counts) < 20:
-            counts[message] = counts.get(message, 0) + 1
-            if failure is not None:
-                failures.setdefault(message, failure)
-
     # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
     table = []
     for trial, outcome in zip(trials, outcomes):
-        measured = None
-        message, failure = outcome.error, outcome.failure
-        if trial.raises is not None:
-            raised = outcome.has_raised(trial.raises)
-            measured = {c.name: 0.0 for c in spec.checks} if raised else None
-            message = None if raised else (f"expected {trial.raises} on this degenerate input, "
-                                           f"got {message or 'a return value'}")
-            failure = None   # the message is the scoring's, whatever the call did
-        elif outcome.error is None:
-            measured, message = _measured(spec, outcome.value, trial)
-        if message is not None:
-            note(message, trial.label, failure=failure)
+        measured, error = _measured_or_error(spec, trial, outcome)
+        found += [error] if error is not None else []
         table.append((measured, _problem_rows(spec, trial, measured)))
     # An edge case (all-or-nothing, or a degenerate input that must raise) earns credit only
     # when the method is right on at least one ordinary problem: the identity for a zero
@@ -394,21 +379,39 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             and measured is not None and trial.raises is None else None
         if hint is not None:
             mistakes.setdefault(hint)
-            note(f"{MISTAKE_NOTE}{hint}", trial.label, first=True)
+            found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint}", leads=True))
         for name, row in rows.items():
             per_check[name].append(row)
-    if gated:
-        note(f"answered right, but {gated} edge case(s) like this count only when the answer "
-             "is right on at least one ordinary problem too, and it is right on none",
-             next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
-             first=True)  # first: why right answers earned nothing, past the cap of five
+    if gated:   # leads: why right answers earned nothing, past the cap of five lines
+        found.append(ProblemError(
+            next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
+            f"answered right, but {gated} edge case(s) like this count only when the answer "
+            "is right on at least one ordinary problem too, and it is right on none",
+            leads=True))
     results = [_check_result(c, per_check[c.name]) for c in spec.checks]
     total = sum(c.weight * r.credit for c, r in zip(spec.checks, results))
     points = round(spec.points * total / sum(c.weight for c in spec.checks), 2)
-    return FunctionResult(spec.name, points, spec.points, results, errors[:5],
-                          n_problems=len(trials), n_failed=n_failed, error_counts=counts,
-                          failures=failures, error_labels=labelled[:5],
-                          mistakes=tuple(mistakes))
+    return FunctionResult(spec.name, points, spec.points, results, error_lines(found),
+                          n_problems=len(trials), n_failed=n_failed,
+                          problem_errors=tuple(found), mistakes=tuple(mistakes))
+
+
+def _measured_or_error(spec: FunctionSpec, trial: Trial,
+                       outcome: TrialOutcome) -> tuple[dict | None, ProblemError | None]:
+    """One problem's ``{check: error}`` (None: nothing to measure) and what went wrong on
+    it, if anything: the call's failure, an answer that cannot be measured, or a degenerate
+    input that did not raise as it must."""
+    if trial.raises is not None:
+        if outcome.has_raised(trial.raises):
+            return {c.name: 0.0 for c in spec.checks}, None
+        # the message is the scoring's, whatever the call did: no failure behind it
+        return None, ProblemError(trial.label, f"expected {trial.raises} on this degenerate "
+                                  f"input, got {outcome.error or 'a return value'}")
+    if outcome.error is not None:
+        return None, ProblemError(trial.label, outcome.error, outcome.failure)
+    measured, message = _measured(spec, outcome.value, trial)
+    return measured, (None if message is None
+                      else ProblemError(trial.label, message, outcome.failure))
 
 
 def _check_result(c, rows: list[tuple]) -> CheckResult:

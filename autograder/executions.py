@@ -5,8 +5,12 @@ The form is :mod:`autograder.inside.wire`'s JSON (arrays as raw little-endian by
 back is the value the worker sent, bit for bit, so a rescore scores exactly what the grade
 run scored). Reading one back validates everything: the functions are the lab's, in order,
 every string is capped, every count and time is a bounded number, every value passes
-:func:`autograder.inside.wire.decode`. What fails is refused (:class:`ExecutionRefused`), never
-half-read.
+:func:`autograder.inside.wire.decode`, a failure's place is ``[cell, line]`` within
+:class:`~autograder.outcomes.Place`'s bounds. What fails is refused
+(:class:`ExecutionRefused`), never half-read. An execution kept before failures had a typed
+place (its failures carry ``where``, words) is refused too, with a message saying to run
+the student code again (``cobotlab grade`` without ``--rescore``): its words are not parsed
+back into a place.
 
 The problems' inputs travel the same way (:func:`problems_to_wire`): a cluster task carries
 them instead of the secret. A function graded in one call gets its inputs only; a closed
@@ -24,7 +28,7 @@ from autograder import checks
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, CellRun, Execution, FunctionRun, Problems
 from autograder.inside import wire
-from autograder.outcomes import Cause, Failed, Failure, Note, TrialOutcome, student_words
+from autograder.outcomes import Cause, Failed, Failure, Note, Place, TrialOutcome, student_words
 
 __all__ = ["FORMAT", "ExecutionRefused", "file_key", "to_wire", "from_wire", "problems_to_wire",
            "problems_from_wire", "inputs_digest"]
@@ -89,7 +93,8 @@ def _failure_to_wire(failure: Failure | None):
         return None
     return {"kind": failure.kind.value, "exception": failure.exception,
             "cause": failure.cause.value if failure.cause is not None else None,
-            "limit_s": failure.limit_s, "where": failure.where}
+            "limit_s": failure.limit_s,
+            "place": None if failure.place is None else failure.place.to_wire()}
 
 
 def _failure_from_wire(data, what: str) -> Failure | None:
@@ -105,7 +110,29 @@ def _failure_from_wire(data, what: str) -> Failure | None:
     return Failure(kind, exception=_text(data.get("exception"), 80, f"{what}.exception"),
                    cause=cause,
                    limit_s=None if limit is None else _number(limit, f"{what}.limit_s"),
-                   where=_text(data.get("where"), 60, f"{what}.where"))
+                   place=_place(data, what))
+
+
+def _place(data: dict, what: str) -> Place | None:
+    """A failure's ``place``: null, or ``[cell, line]`` of non-negative integers within
+    :class:`Place`'s bounds. A failure with a ``where`` and no ``place`` was kept by a
+    cobotlab that wrote the place as words, which are not read back: it is refused."""
+    if "place" not in data:
+        raise ExecutionRefused(
+            f"{what} has no place (kept by an older cobotlab, which wrote it as words); "
+            "run the lab's student code again: `cobotlab grade` without --rescore (with "
+            "--replay <nonce> for a `cobotlab grade --fresh` run's problems)")
+    value = data["place"]
+    if value is None:
+        return None
+    value = _items(value, 2, f"{what}.place")
+    if len(value) != 2:
+        raise ExecutionRefused(f"{what}.place is not [cell, line]")
+    cell, line = _count(value[0], f"{what}.place.cell"), _count(value[1], f"{what}.place.line")
+    try:
+        return Place(cell, line)
+    except ValueError as exc:   # a count, but out of Place's bounds
+        raise ExecutionRefused(f"{what}.place: {exc}") from None
 
 
 def _outcome_to_wire(outcome: TrialOutcome) -> dict:

@@ -20,9 +20,10 @@ import re
 from collections import Counter
 
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
+from autograder.errors import ErrorGroup
 from autograder.freeze import printable
 from autograder.grading import CellOrigin, SubmissionGrade
-from autograder.outcomes import Failed, student_words
+from autograder.outcomes import Failed, Place, student_words
 from autograder.page_policy import POLICY_META
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
@@ -62,9 +63,10 @@ _VERDICTS = {
     "not_graded": ("missing", "not graded"),
 }
 
+# The grader's cell references in the words of a message or note, renumbered for display
+# (what is decided about a failure's place comes from its typed Failure.place instead).
 _WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
 _HUNG_CELL = re.compile(r"^cell (\d+): ")
-_STUDENT_CELL = re.compile(r"\((cell In \[\d+\], line \d+)\)")   # student_location's form
 
 
 def _esc(text, limit: int = MAX_TEXT) -> str:
@@ -80,19 +82,23 @@ def _cell_name(index: int, origins: list[CellOrigin]) -> str:
     return (f"{origin.notebook} " if several else "") + f"cell In [{origin.prompt}]"
 
 
+def _line_name(place: Place, origins: list[CellOrigin]) -> str:
+    """``place`` as the student names it: "cell In [n], line m" (the notebook first when
+    several)."""
+    return f"{_cell_name(place.cell, origins)}, line {place.line}"
+
+
+def _in_one_notebook(place: Place | None, origins: list[CellOrigin]) -> bool:
+    """``place`` is one of ``origins``' cells, all of one notebook: the not-implemented
+    sentence names the line only then (it says "the released notebook", one notebook)."""
+    return place is not None and 0 <= place.cell < len(origins) \
+        and len({o.notebook for o in origins}) == 1
+
+
 def student_location(text: str, origins: list[CellOrigin]) -> str:
     """``text`` with the grader's "cell N" references renumbered as the student's cells."""
     text = _WHERE.sub(lambda m: f"({_cell_name(int(m[1]), origins)}, line {m[2]})", text)
     return _HUNG_CELL.sub(lambda m: f"{_cell_name(int(m[1]), origins)}: ", text)
-
-
-def _problem_counts(f: FunctionResult) -> Counter:
-    """{error message: problems it happened on}; ``errors`` themselves (uncounted) when the
-    result carries no counts (a forbidden routine's verdict)."""
-    if f.error_counts:
-        return Counter(f.error_counts)
-    return Counter({message or e: 0 for e, (_, message) in
-                    zip(f.errors, f.error_labels or [("", "")] * len(f.errors))})
 
 
 def function_verdict(f: FunctionResult) -> str:
@@ -100,58 +106,62 @@ def function_verdict(f: FunctionResult) -> str:
     not_implemented, not_found, forbidden, timed_out, not_graded)."""
     if f.forbidden:
         return "forbidden"
-    counts = _problem_counts(f)
-    failures = {m: f.failures.get(m) for m in counts}
-    if f.n_problems and counts:
-        if sum(n for m, n in counts.items() if failures[m] is not None
-               and failures[m].kind is Failed.RAISED
-               and failures[m].exception == "NotImplementedError") >= f.n_problems:
+    groups = f.error_groups
+    if f.n_problems and groups:
+        if sum(g.count for g in groups if g.failure is not None
+               and g.failure.kind is Failed.RAISED
+               and g.failure.exception == "NotImplementedError") >= f.n_problems:
             return "not_implemented"
-        if sum(n for m, n in counts.items() if failures[m] is not None
-               and failures[m].kind is Failed.NOT_FOUND) >= f.n_problems:
+        if sum(g.count for g in groups if g.failure is not None
+               and g.failure.kind is Failed.NOT_FOUND) >= f.n_problems:
             return "not_found"
     if f.max_points and f.points >= f.max_points:
         return "passed"
-    if any(x is not None and x.is_time_out for x in failures.values()):
+    if any(g.failure is not None and g.failure.is_time_out for g in groups):
         return "timed_out"
     if not f.n_problems and not any(c.n_trials for c in f.checks):
         return "not_graded"
     return "partial" if f.points > 0 else "failed"
 
 
+def _time_out_line(f: FunctionResult, groups: list[ErrorGroup], origins: list[CellOrigin],
+                   of: str) -> str | None:
+    """The time-out said in words (what stopped, and what was therefore not run), or None."""
+    timed = sum(g.count for g in groups if g.failure.kind is Failed.TIMED_OUT)
+    skipped = sum(g.count for g in groups if g.failure.skipped_after_earlier)
+    if not (timed or skipped):
+        return None
+    limits = [g.failure.limit_s for g in groups if g.failure.limit_s is not None]
+    limit = f" of {min(limits):g} s of CPU time" if limits else ""
+    stopped = next((g.failure.place for g in groups if g.failure.kind is Failed.TIMED_OUT
+                    and g.failure.place is not None), None)
+    line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
+            f"{timed or 1}{of} problem(s)"
+            + (f" (stopped at {_line_name(stopped, origins)})" if stopped else ""))
+    if skipped:
+        line += (f"; the other {skipped} problem(s) were then not run, and count as "
+                 "failed. Look for a loop that never ends or work that grows too fast")
+    return line + "."
+
+
 def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
     """Plain-text lines, one per distinct error of ``f`` with the number of problems it
     happened on; a time-out is said in words (what stopped, and what was therefore not run).
     Text from student code is capped but not yet HTML-escaped."""
-    counts = _problem_counts(f)
-    failures = {m: x for m in counts if (x := f.failures.get(m)) is not None}
+    groups = f.error_groups
     of = f" of {f.n_problems}" if f.n_problems else ""
-    lines = []
-    timed = sum(counts[m] for m, x in failures.items() if x.kind is Failed.TIMED_OUT)
-    skipped = sum(counts[m] for m, x in failures.items() if x.skipped_after_earlier)
-    if timed or skipped:
-        limits = [x.limit_s for x in failures.values() if x.limit_s is not None]
-        limit = f" of {min(limits):g} s of CPU time" if limits else ""
-        stopped = next((w[0] for x in failures.values() if x.kind is Failed.TIMED_OUT
-                        and (w := _WHERE.search(f"({x.where})"))), "")
-        line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
-                f"{timed or 1}{of} problem(s)"
-                + (f" (stopped at {student_location(stopped, origins)[1:-1]})" if stopped else ""))
-        if skipped:
-            line += (f"; the other {skipped} problem(s) were then not run, and count as "
-                     "failed. Look for a loop that never ends or work that grows too fast")
-        lines.append(line + ".")
+    timed = _time_out_line(f, [g for g in groups if g.failure is not None], origins, of)
+    lines = [timed] if timed else []
     merged: Counter = Counter()
     kinds: dict[str, list[str]] = {}
-    for message, n in counts.items():
-        if message in failures and failures[message].is_time_out:
+    for g in groups:
+        if g.failure is not None and g.failure.is_time_out:
             continue
-        shown = student_location(printable(message, MAX_TEXT), origins)
-        merged[shown] += n
+        # messages that read the same once the cells are renumbered are one line
+        shown = student_location(printable(g.message, MAX_TEXT), origins)
+        merged[shown] += g.count
         labels = kinds.setdefault(shown, [])
-        for label, said in f.error_labels:
-            if said == message and label and label not in labels:
-                labels.append(label)
+        labels.extend(label for label in g.labels if label not in labels)
     for message, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]:
         which = f": {', '.join(kinds[message][:3])}" if kinds.get(message) else ""
         lines.append(f"{message} (on {n}{of} problems{which})" if n else message)
@@ -212,10 +222,9 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     parts = [f"<section class='function'><h2>{_esc(f.name)}: {f.points:g} / "
              f"{f.max_points:g} <span class='badge {css}'>{label}</span></h2>"]
     if verdict == "not_implemented":
-        where = next((_esc(w[1], 120) for m in f.error_counts
-                      if (x := f.failures.get(m)) is not None and x.where
-                      and (w := _STUDENT_CELL.fullmatch(student_location(f"({x.where})",
-                                                                         origins)))), "")
+        where = next((_esc(_line_name(g.failure.place, origins), 120)
+                      for g in f.error_groups if g.failure is not None
+                      and _in_one_notebook(g.failure.place, origins)), "")
         parts.append(f"<p>Not implemented yet: <code>{_esc(f.name)}</code> still raises "
                      "<code>NotImplementedError</code> (the placeholder of the released "
                      f"notebook{', ' + where if where else ''}) on every problem. Replace "
@@ -247,7 +256,7 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     if f.checks:
         parts.append(_check_table(f))
     # When every problem raised, the errors are the story; what a check measures is not.
-    crashed = f.n_problems and sum(_problem_counts(f).values()) >= f.n_problems
+    crashed = f.n_problems and sum(g.count for g in f.error_groups) >= f.n_problems
     failing = [] if crashed else [c for c in f.checks if c.credit < 1.0]
     errors = error_lines(f, origins)
     if failing or errors:

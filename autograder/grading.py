@@ -506,11 +506,14 @@ _REPORTED = {"raised": Failed.RAISED, "timed_out": Failed.TIMED_OUT,
 def _reported_failure(reply: dict, where: str) -> Failure:
     """The typed failure a call's reply reports. The worker is untrusted: the kinds it may
     claim are those that only cost the submission (a raise, a time-out, no such function,
-    an unusable value); an exception's type name is what the code raised, capped."""
+    an unusable value); an exception's type name is what the code raised, capped; its
+    place is the typed ``place`` (``where`` is only the words of the message)."""
+    from autograder.outcomes import Place  # here: grading.py's imports are being split
+
     kind = _REPORTED.get(reply.get("failure"), Failed.RAISED)
     exception = reply.get("exception")
     exception = exception[:80] if kind is Failed.RAISED and isinstance(exception, str) else ""
-    return Failure(kind, exception=exception, where=where)
+    return Failure(kind, exception=exception, place=Place.claimed(reply.get("place")))
 
 
 class Worker:

@@ -6,7 +6,9 @@ message: the grader decides what follows a time-out (the rest of the function's 
 skipped, a ``timed_out:<function>`` flag, the feedback's "Timed out" line) from
 ``failure.kind``, so rewording a message changes what students read and nothing else.
 ``error`` stays the text the feedback shows. In the same way a :class:`Flag` says which
-graded function it is about, and a :class:`Note` whether a student may read it.
+graded function it is about, a :class:`Note` whether a student may read it, and a
+:class:`Place` which line of the student's code a failure stopped at (the feedback names it
+as the student's cell from the numbers, never from the words of the message).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Failed", "Cause", "Failure", "raised", "TrialOutcome", "Flag", "Note"]
+__all__ = ["Failed", "Cause", "Place", "Failure", "raised", "TrialOutcome", "Flag", "Note"]
 
 
 class Failed(str, enum.Enum):
@@ -40,18 +42,57 @@ class Cause(str, enum.Enum):
     OTHER = "other"                      # killed, crashed, a malformed or oversized reply
 
 
+# Bounds of a place a worker or a kept execution may claim: an execution holds at most this
+# many cells (see autograder.executions), and no cell of a lab notebook is this long.
+MAX_CELLS = 20000
+MAX_LINE = 10**6
+
+
+@dataclass(frozen=True)
+class Place:
+    """A line of the student's code as the grader ran it: ``cell``, the grader's index of
+    the code cell (0-based, the order of ``Execution.cell_origins``, not the student's
+    ``In [n]``); ``line``, 1-based within that cell."""
+
+    cell: int
+    line: int
+
+    def __post_init__(self):
+        for name, low, high in (("cell", 0, MAX_CELLS - 1), ("line", 1, MAX_LINE)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ValueError(f"Place.{name} = {value!r} is not an integer within "
+                                 f"{low}..{high}; give the cell's index and the line's number")
+
+    @classmethod
+    def claimed(cls, value) -> Place | None:
+        """The place a worker's reply claims (``[cell, line]``), or None when it claims none
+        or one that is no place: the worker is untrusted, and a wrong place costs only the
+        submission's own feedback its line number."""
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            return None
+        try:
+            return cls(*value)
+        except ValueError:
+            return None
+
+    def to_wire(self) -> list[int]:
+        """The place as the worker's reply and a kept execution carry it: ``[cell, line]``."""
+        return [self.cell, self.line]
+
+
 @dataclass(frozen=True)
 class Failure:
     """A typed failure. ``exception``: the raised exception's type name (RAISED); ``cause``
     (SKIPPED, WORKER_STOPPED); ``limit_s``: the CPU limit in seconds that an earlier
-    problem's time-out or a closed loop ran into, when it is known; ``where``: the
-    student's line it stopped at ("cell 4, line 7"), when known."""
+    problem's time-out or a closed loop ran into, when it is known; ``place``: the
+    student's line it stopped at, when known."""
 
     kind: Failed
     exception: str = ""
     cause: Cause | None = None
     limit_s: float | None = None
-    where: str = ""
+    place: Place | None = None
 
     @property
     def is_time_out(self) -> bool:

@@ -25,7 +25,7 @@ import errno
 import os
 import stat
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["Why", "Refused", "Entry", "Folder", "Skipped", "TreeCaps", "kind_of",
@@ -315,59 +315,79 @@ def copy_tree(src: Folder, dest: Path, caps: TreeCaps, *, ignore=frozenset(),
     as data, in name order, within ``caps``; returns what was skipped. Names in ``ignore``
     are skipped silently, names ``bad_name`` refuses are skipped (``BAD_NAME``); links,
     pipes, sockets and devices are skipped (``LINK``, ``NOT_REGULAR``), never opened."""
-    skipped: list[Skipped] = []
-    budget = [caps.total_bytes, caps.files]
-    _copy_into(src, dest, caps, ignore, bad_name, 0, "", budget, skipped)
-    return skipped
+    copy = _Copy(caps, ignore, bad_name, caps.total_bytes, caps.files)
+    _copy_into(copy, src, dest, 0, "")
+    return copy.skipped
 
 
-def _copy_into(src: Folder, dest: Path, caps: TreeCaps, ignore, bad_name, depth: int,
-               prefix: str, budget: list, skipped: list) -> None:
-    def skip(entry: Entry, why: Why, detail: str) -> None:
-        skipped.append(Skipped(prefix + entry.name, entry.name, why, detail, entry.kind))
+@dataclass
+class _Copy:
+    """One :func:`copy_tree`: its rules, what is left of its budget, what it skipped."""
 
+    caps: TreeCaps
+    ignore: frozenset
+    bad_name: Callable[[str], bool]
+    bytes_left: int
+    files_left: int
+    skipped: list[Skipped] = field(default_factory=list)
+
+    def skip(self, prefix: str, entry: Entry, why: Why, detail: str) -> None:
+        """Note ``entry`` of the folder at path ``prefix`` as not copied, and why."""
+        self.skipped.append(Skipped(prefix + entry.name, entry.name, why, detail, entry.kind))
+
+
+def _copy_into(copy: _Copy, src: Folder, dest: Path, depth: int, prefix: str) -> None:
+    """Copy what ``src`` (at ``depth``, its path ``prefix``) holds into ``dest``."""
     try:
         entries = src.entries()
     except (OSError, Refused) as exc:
         why = exc.detail if isinstance(exc, Refused) else exc.strerror
-        skipped.append(Skipped(prefix.rstrip("/"), src.where.rsplit("/", 1)[-1],
-                               Why.UNREADABLE, f"cannot be listed ({why})", "folder"))
+        copy.skipped.append(Skipped(prefix.rstrip("/"), src.where.rsplit("/", 1)[-1],
+                                    Why.UNREADABLE, f"cannot be listed ({why})", "folder"))
         return
     for entry in entries:
-        if entry.name in ignore:
+        if entry.name in copy.ignore:
             continue
-        if bad_name(entry.name):
-            skip(entry, Why.BAD_NAME, "unusable file name")
-            continue
-        if entry.kind == "folder":
-            if depth + 1 >= caps.depth:
-                skip(entry, Why.TOO_DEEP, f"folders nested over {caps.depth} deep")
-                continue
-            try:
-                child = src.folder(entry.name)
-            except Refused as exc:   # swapped since the listing
-                skip(entry, exc.why, exc.detail)
-                continue
-            with child:
-                (dest / entry.name).mkdir(mode=0o755)
-                _copy_into(child, dest / entry.name, caps, ignore, bad_name, depth + 1,
-                           f"{prefix}{entry.name}/", budget, skipped)
-            continue
-        if entry.kind != "regular file":
-            skip(entry, Why.LINK if entry.kind == "symlink" else Why.NOT_REGULAR,
-                 f"{entry.kind}, not a regular file")
-            continue
-        if budget[1] <= 0:
-            skip(entry, Why.TOO_MANY, f"more than {caps.files} files")
-            continue
-        try:
-            data = src.read(entry.name, min(caps.file_bytes, budget[0]))
-        except Refused as exc:
-            skip(entry, exc.why, exc.detail)
-            continue
-        budget[0] -= len(data)
-        budget[1] -= 1
-        fd = os.open(dest / entry.name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
-                     | os.O_CLOEXEC, 0o644)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        if copy.bad_name(entry.name):
+            copy.skip(prefix, entry, Why.BAD_NAME, "unusable file name")
+        elif entry.kind == "folder":
+            _copy_folder(copy, src, dest, entry, depth + 1, prefix)
+        elif entry.kind != "regular file":
+            copy.skip(prefix, entry, Why.LINK if entry.kind == "symlink" else Why.NOT_REGULAR,
+                      f"{entry.kind}, not a regular file")
+        elif copy.files_left <= 0:
+            copy.skip(prefix, entry, Why.TOO_MANY, f"more than {copy.caps.files} files")
+        else:
+            _copy_file(copy, src, dest, entry, prefix)
+
+
+def _copy_folder(copy: _Copy, parent: Folder, dest: Path, entry: Entry, depth: int,
+                 prefix: str) -> None:
+    """Copy the folder ``entry`` of ``parent`` (itself at ``depth``) into ``dest``."""
+    if depth >= copy.caps.depth:
+        copy.skip(prefix, entry, Why.TOO_DEEP, f"folders nested over {copy.caps.depth} deep")
+        return
+    try:
+        child = parent.folder(entry.name)
+    except Refused as exc:   # swapped since the listing
+        copy.skip(prefix, entry, exc.why, exc.detail)
+        return
+    with child:
+        (dest / entry.name).mkdir(mode=0o755)
+        _copy_into(copy, child, dest / entry.name, depth, f"{prefix}{entry.name}/")
+
+
+def _copy_file(copy: _Copy, src: Folder, dest: Path, entry: Entry, prefix: str) -> None:
+    """Copy the regular file ``entry`` of ``src`` into ``dest``, within the budget left."""
+    name = entry.name
+    try:
+        data = src.read(name, min(copy.caps.file_bytes, copy.bytes_left))
+    except Refused as exc:
+        copy.skip(prefix, entry, exc.why, exc.detail)
+        return
+    copy.bytes_left -= len(data)
+    copy.files_left -= 1
+    fd = os.open(dest / name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
+                 | os.O_CLOEXEC, 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)

@@ -616,6 +616,35 @@ def _probe() -> Capabilities:
         evidence.append("COBOTLAB_SANDBOX=rlimits: sandbox disabled on request")
         return Capabilities(False, False, None, tuple(evidence),
                             "the sandbox was turned off (COBOTLAB_SANDBOX=rlimits); unset it")
+    bwrap, root, why = _probe_tools(evidence)
+    cgroup = _probe_cgroup(evidence)
+    cpu_share = _probe_cpu(cgroup, evidence)
+    _probe_run_queue(evidence)
+    try:
+        syscalls.program()
+        filtered, unfiltered_why = True, ""
+    except syscalls.UnsupportedMachine as exc:
+        filtered, unfiltered_why = False, str(exc)
+    caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why, filtered, cpu_share)
+    if not bwrap:
+        return caps
+    ok, said, lines = _probe_bwrap(caps, evidence)
+    denied = lines[1:2] == [f"-1 {syscalls.DENIED_ERRNO}"]
+    if not filtered:
+        evidence.append(f"keyring calls in the sandbox: not filtered ({unfiltered_why})")
+    elif ok:
+        evidence.append("keyring calls in the sandbox: " + (
+            "denied by the seccomp filter (EPERM), in a new session keyring" if denied
+            else f"NOT denied (keyctl gave {lines[1].strip()!r}): rows are flagged"))
+    if not ok:
+        return Capabilities(False, False, cgroup, tuple(evidence), _why_bwrap_failed(
+            said, root), False, cpu_share)
+    return Capabilities(True, root, cgroup, tuple(evidence), "", filtered and denied,
+                        cpu_share)
+
+
+def _probe_tools(evidence: list[str]) -> tuple[bool, bool, str]:
+    """(bubblewrap usable as far as its tools go, running as root, why not when it is not)."""
     root = os.geteuid() == 0
     bwrap = shutil.which("bwrap") is not None
     why = ""
@@ -628,54 +657,33 @@ def _probe() -> Capabilities:
         why = ("setpriv is not installed, so root cannot be dropped inside the sandbox; "
                "install util-linux (apt-get install util-linux), or grade as a regular user")
         bwrap = False
-    cgroup = _probe_cgroup(evidence)
-    cpu_share = _probe_cpu(cgroup, evidence)
-    _probe_run_queue(evidence)
+    return bwrap, root, why
+
+
+def _probe_bwrap(caps: Capabilities, evidence: list[str]) -> tuple[bool, str, list[str]]:
+    """Run a small Python in the sandbox ``caps`` describes: (it ran, what bubblewrap said
+    on stderr, its stdout's lines padded with two empty ones). Its first line is its uid
+    and network interfaces; its second what keyctl(KEYCTL_GET_KEYRING_ID, session) gave."""
+    from autograder.views import interpreter_view
+
+    jail = Jail.of_view(interpreter_view(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
+    keyctl = syscalls.keyctl_number() if caps.syscall_filter else -1
+    probe = [sys.executable, "-I", "-c",
+             "import os,socket,ctypes; open('/tmp/p','w').write('x'); "
+             "print(os.getuid(), len(socket.if_nameindex())); "
+             "c=ctypes.CDLL(None,use_errno=True); c.syscall.restype=ctypes.c_long; "
+             f"print(c.syscall({keyctl},0,-3,0) if {keyctl}>0 else 0, ctypes.get_errno())"]
     try:
-        syscalls.program()
-        filtered, unfiltered_why = True, ""
-    except syscalls.UnsupportedMachine as exc:
-        filtered, unfiltered_why = False, str(exc)
-    caps = Capabilities(bwrap, root, cgroup, tuple(evidence), why, filtered, cpu_share)
-    if bwrap:
-        from autograder.views import interpreter_view
-
-        jail = Jail.of_view(interpreter_view(), scratch_mb=1, env={"PATH": "/usr/bin:/bin"})
-        # Second line: what keyctl(KEYCTL_GET_KEYRING_ID, session) gives in the sandbox.
-        keyctl = syscalls.keyctl_number() if filtered else -1
-        probe = [sys.executable, "-I", "-c",
-                 "import os,socket,ctypes; open('/tmp/p','w').write('x'); "
-                 "print(os.getuid(), len(socket.if_nameindex())); "
-                 "c=ctypes.CDLL(None,use_errno=True); c.syscall.restype=ctypes.c_long; "
-                 f"print(c.syscall({keyctl},0,-3,0) if {keyctl}>0 else 0, ctypes.get_errno())"]
-        said, lines = "", []
-        try:
-            done = subprocess.run(command(probe, jail, caps=caps), capture_output=True,
-                                  text=True, timeout=30, check=False)
-            ok = done.returncode == 0
-            said = done.stderr.strip()
-            lines = done.stdout.splitlines() + ["", ""]
-            evidence.append(f"bwrap probe: exit {done.returncode}, uid and interfaces "
-                            f"{lines[0].strip()!r} {said[:200]!r}")
-        except (OSError, subprocess.SubprocessError) as exc:
-            ok = False
-            said = str(exc)
-            evidence.append(f"bwrap probe failed: {exc}")
-        denied = lines[1:2] == [f"-1 {syscalls.DENIED_ERRNO}"]
-        if not filtered:
-            evidence.append(f"keyring calls in the sandbox: not filtered ({unfiltered_why})")
-        elif ok:
-            evidence.append("keyring calls in the sandbox: " + (
-                "denied by the seccomp filter (EPERM), in a new session keyring" if denied
-                else f"NOT denied (keyctl gave {lines[1].strip()!r}): rows are flagged"))
-        if not ok:
-            caps = Capabilities(False, False, cgroup, tuple(evidence), _why_bwrap_failed(
-                said, root), False, cpu_share)
-        else:
-            caps = Capabilities(True, root, cgroup, tuple(evidence), "", filtered and denied,
-                                cpu_share)
-    return caps
-
+        done = subprocess.run(command(probe, jail, caps=caps), capture_output=True,
+                              text=True, timeout=30, check=False)
+    except (OSError, subprocess.SubprocessError) as exc:
+        evidence.append(f"bwrap probe failed: {exc}")
+        return False, str(exc), []
+    said = done.stderr.strip()
+    lines = done.stdout.splitlines() + ["", ""]
+    evidence.append(f"bwrap probe: exit {done.returncode}, uid and interfaces "
+                    f"{lines[0].strip()!r} {said[:200]!r}")
+    return done.returncode == 0, said, lines
 
 
 # What bubblewrap says when the kernel (a sysctl, AppArmor, a container's seccomp profile)

@@ -209,22 +209,29 @@ def _lay_out(course: Path, frozen: Frozen, assignment: str, template_db: Path) -
     shutil.copy2(template_db, course / "gradebook.db")
 
 
+# What nbgrader's own run may use besides its time and memory: processes in its cgroup,
+# megabytes of its scratch course, megabytes of one autograded notebook read back.
+MAX_PROCESSES = 256
+SCRATCH_MB = 512
+NOTEBOOK_MB = 20.0
+
+
 def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path,
                   known: dict[tuple[str, str], float], *, timeout_s: float = 300,
-                  cell_timeout_s: int | None = None, memory_mb: int = 3072,
-                  max_processes: int = 256, scratch_mb: int = 512,
-                  notebook_mb: float = 20.0) -> ScratchResult:
+                  cell_timeout_s: int | None = None, memory_mb: int = 3072) -> ScratchResult:
     """Run ``nbgrader autograde`` on one frozen submission in a throwaway course.
 
     Never raises because of the submission: a hang past ``timeout_s`` kills every process of
     the run (cgroup, PID namespace); whatever it did, the result holds validated cell scores
     only (missing ones are 0) and the autograded notebooks if they are well-formed JSON.
+    ``memory_mb`` is for all its processes together; the other caps are
+    :data:`MAX_PROCESSES`, :data:`SCRATCH_MB` and :data:`NOTEBOOK_MB`.
     """
     if sandbox.stopping():
         raise sandbox.Interrupted("grading was interrupted")
     result = ScratchResult()
     caps = sandbox.capabilities()
-    with sandbox.ScratchDir(scratch_mb) as scratch:
+    with sandbox.ScratchDir(SCRATCH_MB) as scratch:
         course = scratch.path / "course"
         _lay_out(course, frozen, assignment, template_db)
         (course / "source" / assignment).mkdir(parents=True)  # the read-only bind's mount point
@@ -245,7 +252,7 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
             jail = kernel_jail(course, scratch.path / "home", source,
                                scratch.path / "nbgrader_config.py", assignment)
             if caps.cgroup:
-                cgroup = sandbox.Cgroup(memory_mb, max_processes)
+                cgroup = sandbox.Cgroup(memory_mb, MAX_PROCESSES)
             command = sandbox.command(nbgrader + [f"--CourseDirectory.root={INSIDE}"], jail,
                                       cgroup)
             env, cwd = {}, "/"
@@ -278,7 +285,7 @@ def autograde_one(frozen: Frozen, assignment: str, root: Path, template_db: Path
         result.notes.append(f"nbgrader autograde: {result.seconds:.1f} s")
         if sandbox.stopping():   # killed by stop_all(): what it left is not a result
             raise sandbox.Interrupted("grading was interrupted")
-        _collect(course, assignment, frozen.student_id, known, notebook_mb, result)
+        _collect(course, assignment, frozen.student_id, known, NOTEBOOK_MB, result)
     return result
 
 
@@ -334,7 +341,7 @@ def _collect(course: Path, assignment: str, student: str, known: dict[tuple[str,
 
 def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db: Path,
                         known: dict[tuple[str, str], float], run_tests, *,
-                        notebook_mb: float = 20.0):
+                        notebook_mb: float = NOTEBOOK_MB):
     """nbgrader's autograde of one frozen submission, its cells run once by cobotlab's grader.
 
     nbgrader's own converter runs here, in the trusted process, on a throwaway course (the

@@ -146,8 +146,7 @@ def score(mistake: mistake_corpus.Mistake, seeds) -> Draw:
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")  # a bug's NaN and overflow warnings are its own
         result = checks.evaluate(mistake.func, mistake.function, seeds, mistake.lab)
-    note = checks.MISTAKE_NOTE
-    names = tuple(k[len(note):] for k in result.error_counts if k.startswith(note))
+    names = result.mistakes   # the typed names, not the words of the messages
     code_words = {words for t in practice.practice_trials(mistake.lab, mistake.function, seeds)
                   for words, _ in (t.mistakes or [])}
     if not names:

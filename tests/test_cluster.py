@@ -26,6 +26,7 @@ from nbgrader.api import Gradebook
 
 from autograder import checks, cluster, executions, grading, registry, sandbox
 from autograder.course import grade_course
+from autograder.outcomes import Place
 from cobotlab.cli import main
 
 # Found, not imported: importing distributed here cost every test worker 1.4 s of CPU while
@@ -106,7 +107,7 @@ def _execution() -> grading.Execution:
         ex.functions.append(grading.FunctionRun(spec.name, outcomes))
     ex.functions[0].outcomes[0] = checks.TrialOutcome(
         error="timed out (cell 1, line 2)", failure=checks.Failure(
-            checks.Failed.TIMED_OUT, where="cell 1, line 2"))
+            checks.Failed.TIMED_OUT, place=Place(1, 2)))
     ex.cell_origins = [grading.CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
     ex.cell_runs = [grading.CellRun(ex.cell_origins[0], "", "", "printed", "")]
     ex.kernel_tests = ["invert_pose"]
@@ -130,6 +131,7 @@ def test_an_execution_round_trips_and_scores_the_same():
     assert after.score == before.score and 0 < before.score < before.max_score
     assert back.cell_runs == ex.cell_runs and back.kernel_tests == ["invert_pose"]
     assert back.functions[0].outcomes[0].failure.kind is checks.Failed.TIMED_OUT
+    assert back.functions[0].outcomes[0].failure.place == Place(1, 2)
     assert before.kernel_checks == after.kernel_checks == {"invert_pose": None}
 
 
@@ -184,6 +186,22 @@ def _tampered(edit):
     (lambda d: d["kernel_runs"].update(compose_chain=d["kernel_runs"]["invert_pose"]),
      "no test cell called"),
     (lambda d: d.update(format=0), "format"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[-1, 2]),
+     "place.cell is not a count"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[1, True]),
+     "place.line is not a count"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[1, 0]),
+     "Place.line = 0"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[10**6, 2]),
+     "Place.cell"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[1, 2, 3]),
+     "list of at most 2"),
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place="cell 1, line 2"),
+     "not a list"),
+    # kept by the cobotlab that wrote a place as words: refused, naming what grades it again
+    (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(
+        {"where": "cell 1, line 2"}) or d["functions"][0]["outcomes"][0]["failure"].pop(
+        "place"), "older cobotlab.*`cobotlab grade` without --rescore"),
 ])
 def test_replies_that_do_not_add_up_are_refused(edit, why):
     with pytest.raises(executions.ExecutionRefused, match=why):

@@ -14,9 +14,10 @@ import numpy as np
 
 from autograder import checks, grading
 from autograder.checks import CheckResult, FunctionResult
+from autograder.errors import ProblemError
 from autograder.feedback import error_lines, feedback_html, function_verdict
 from autograder.grading import CellOrigin, SubmissionGrade
-from autograder.outcomes import Cause, Failed, Failure, raised
+from autograder.outcomes import Cause, Failed, Failure, Place, raised
 
 SECRET = "feedback-secret-" + "x" * 24
 LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
@@ -54,9 +55,9 @@ def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees
         [_check(n_full=5, n=8, worst=float("inf"), describe="the rotation block of the pose")],
         errors=[f"on a {label} problem: {message}" for label in ("zero rotation", "tiny rotation",
                                                                   "half turn")],
-        error_labels=[(label, message) for label in ("zero rotation", "tiny rotation",
-                                                     "half turn")],
-        n_problems=8, n_failed=3, error_counts={message: 3})
+        n_problems=8, n_failed=3,
+        problem_errors=tuple(ProblemError(label, message) for label in (
+            "zero rotation", "tiny rotation", "half turn")))
     # the grader's cell 2 is the student's In [7] (magic and hidden cells were dropped)
     page = feedback_html(_grade(f, origins=_origins(1, 4, 7)))
     section = _section(page, "pose_from_rotvec")
@@ -87,10 +88,10 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
         "compose_chain", 0.0, 3.0,
         [_check(n_full=0, worst=float("inf"), describe="HINT: multiply left to right")],
         errors=[f"on a chain of {k} problem: {stub}" for k in range(1, 6)],
-        error_labels=[(f"chain of {k}", stub) for k in range(1, 6)],
-        n_problems=6, n_failed=6, error_counts={stub: 6},
-        failures={stub: Failure(Failed.RAISED, exception="NotImplementedError",
-                                where="cell 1, line 3")})
+        n_problems=6, n_failed=6,
+        problem_errors=tuple(ProblemError(f"chain of {k}", stub, Failure(
+            Failed.RAISED, exception="NotImplementedError", place=Place(1, 3)))
+            for k in range(1, 7)))
     assert function_verdict(f) == "not_implemented"
     section = _section(feedback_html(_grade(f, origins=_origins(2, 4))), "compose_chain")
     assert "not implemented" in section and "Not implemented yet" in section
@@ -98,27 +99,26 @@ def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
     assert "HINT" not in section and "FAILED" not in section and "within tolerance" not in section
     # raising NotImplementedError on some problems only is an error like any other
     partial = FunctionResult("compose_chain", 1.0, 3.0, [_check(n_full=4)], n_problems=6,
-                             n_failed=2, error_counts={stub: 2},
-                             failures={stub: raised("NotImplementedError")})
+                             n_failed=2, problem_errors=(
+                                 ProblemError("a", stub, raised("NotImplementedError")),) * 2)
     assert function_verdict(partial) == "partial"
 
 
 def test_missing_function_forbidden_routine_and_time_out_are_said_plainly():
     missing = FunctionResult("invert_pose", 0.0, 3.0, [_check(n_full=0)], n_problems=6,
                              n_failed=6,
-                             error_counts={"no function named invert_pose is defined": 6},
-                             failures={"no function named invert_pose is defined":
-                                       Failure(Failed.NOT_FOUND)})
+                             problem_errors=(ProblemError(
+                                 "a", "no function named invert_pose is defined",
+                                 Failure(Failed.NOT_FOUND)),) * 6)
     spec = checks.spec_for("pose_from_rotvec", "lab0_frames")
     banned = checks.forbidden_result(spec, ["scipy.spatial.transform.Rotation.from_rotvec"])
     hung = FunctionResult(
         "compose_chain", 0.0, 3.0, [_check(n_full=0, worst=float("inf"))], n_problems=6,
-        n_failed=6, error_counts={"timed out (cell 1, line 4)": 1,
-                                  "skipped: an earlier problem timed out after 3 s": 5},
-        failures={"timed out (cell 1, line 4)": Failure(Failed.TIMED_OUT,
-                                                        where="cell 1, line 4"),
-                  "skipped: an earlier problem timed out after 3 s": Failure(
-                      Failed.SKIPPED, cause=Cause.TIMED_OUT, limit_s=3.0)})
+        n_failed=6, problem_errors=(
+            ProblemError("a", "timed out (cell 1, line 4)",
+                         Failure(Failed.TIMED_OUT, place=Place(1, 4))),
+            *[ProblemError("a", "skipped: an earlier problem timed out after 3 s",
+                           Failure(Failed.SKIPPED, cause=Cause.TIMED_OUT, limit_s=3.0))] * 5))
     assert [function_verdict(f) for f in (missing, banned, hung)] == \
         ["not_found", "forbidden", "timed_out"]
     page = feedback_html(_grade(missing, banned, hung))
@@ -140,7 +140,8 @@ def test_student_text_is_escaped_and_capped():
     hostile = "<script>alert('x')</script>" + "A" * 20_000
     f = FunctionResult("invert_pose", 0.0, 3.0, [_check(n_full=0, worst=float("inf"))],
                        errors=[f"on a random problem: {hostile}"], n_problems=6, n_failed=6,
-                       error_counts={f"{i} {hostile}": 1 for i in range(20)})
+                       problem_errors=tuple(ProblemError("random", f"{i} {hostile}")
+                                            for i in range(20)))
     notes = [grading.cell_error_note(hostile, "cell 0, line 1"),
              grading.cell_error_note("\x1b[31m</code>")]
     grade = SubmissionGrade("<b>bob</b>", "lab0_frames", [f], [], notes)

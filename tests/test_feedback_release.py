@@ -22,6 +22,7 @@ from traitlets.config import Config
 from autograder import feedback_release, freeze, grading
 from autograder.checks import CheckResult, FunctionResult
 from autograder.course import _CONFIG
+from autograder.errors import ProblemError
 from autograder.feedback import feedback_html, feedback_section
 from autograder.grading import SubmissionGrade
 from autograder.nbgrader_hooks import AddCobotlabFeedback
@@ -34,8 +35,9 @@ STAMP = "2026-11-20 10:00:00.000000 UTC"
 def _grade(flags=(), notes=()) -> SubmissionGrade:
     check = CheckResult("translation", "mm", 0.0, 0, 6, 1990.0, 1990.0, 1e-6, "")
     f = FunctionResult("invert_pose", 1.5, 3.0, [check], n_problems=6, n_failed=6,
-                       error_counts={"this answer looks like a classic mistake: its "
-                                     "translation is -t, not -R^T t": 6})
+                       problem_errors=(ProblemError("", "this answer looks like a "
+                                                    "classic mistake: its translation is "
+                                                    "-t, not -R^T t"),) * 6)
     return SubmissionGrade("ann", LAB, [f], list(flags), list(notes))
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from autograder import checks, grading
 from autograder.inside import wire
-from autograder.outcomes import Failed
+from autograder.outcomes import Failed, Place
 from robots import geometry as geo
 from solutions.registration import fit_rigid
 
@@ -626,3 +626,37 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
             assert ({Failed.TIMED_OUT, Failed.SKIPPED} if "LOOPS" in misbehaves
                     else {Failed.WORKER_STOPPED, Failed.SKIPPED}) <= errors, errors
     assert {0, 2, 3, 4, 5} <= kinds
+
+
+@pytest.mark.parametrize("claimed, place", [
+    ([3, 7], (3, 7)), ((0, 1), (0, 1)),
+    (None, None), ("cell 3, line 7", None), ([3], None), ([3, 7, 1], None),
+    ([-1, 7], None), ([3, 0], None), ([True, 7], None), ([3.0, 7], None),
+    ([10**9, 7], None), ([3, 10**9], None)])
+def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
+    """A failure's place is the worker's ``[cell, line]``, never read out of its words; a
+    claim that is no place (the worker is untrusted) leaves the failure without one."""
+    reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
+             "failure": "raised", "exception": "ValueError", "place": claimed}
+    failure = grading._reported_failure(reply, "cell 9, line 9")
+    assert failure.place == (None if place is None else Place(*place))
+    with pytest.raises(ValueError, match="Place.line"):
+        Place(3, 0)
+
+
+def test_the_worker_reports_the_place_of_a_cell_it_ran_and_no_other():
+    """The place is looked up from the cells the worker compiled: a "<cell ...>" file name
+    the student's code makes up itself gives the words, but no place."""
+    from autograder.inside import worker
+
+    namespace: dict = {}
+    exec(compile("def f():\n    x = 1\n    raise ValueError('no')", worker._cell_file(3),
+                 "exec"), namespace)
+    made_up = compile("raise KeyError('k')", "<cell forged>", "exec")
+    for call, place, where in ((namespace["f"], [3, 3], "cell 3, line 3"),
+                               (lambda: exec(made_up, {}), None, "cell forged, line 1")):
+        try:
+            call()
+        except Exception as exc:  # noqa: BLE001 - the test's own raise
+            reply = worker._failure(exc)
+        assert reply["place"] == place and reply["where"] == where

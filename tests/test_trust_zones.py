@@ -69,3 +69,43 @@ def test_the_workers_view_binds_the_inside_package_and_nothing_trusted():
     # the rest of what the worker sees of autograder is what a lab notebook imports
     assert set(views.WORKER_MODULES) - {"inside"} == {"__init__.py", "datasets.py",
                                                       "synthetic.py", "data"}
+
+
+def _top_level_autograder_imports(path: Path) -> set[str]:
+    """The autograder modules ``path`` imports when it is imported (not inside functions),
+    as files or folders below autograder/ ("checks.py", "scoring")."""
+    found = set()
+
+    def visit(node) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                continue
+            if isinstance(child, ast.ImportFrom) and child.module and not child.level \
+                    and child.module.split(".")[0] == "autograder":
+                parts = child.module.split(".")[1:]
+                names = [parts] if parts else [[a.name] for a in child.names]
+                for name in names:
+                    found.add(name[0] if (ROOT / name[0]).is_dir() else f"{name[0]}.py")
+            visit(child)
+
+    visit(ast.parse(path.read_text(), str(path)))
+    return found
+
+
+ROOT = Path(autograder.__file__).parent
+
+
+def test_nbgrader_kernels_view_holds_every_module_the_public_scoring_imports():
+    """nbgrader's own kernel imports autograder.checks for the hidden tests: every module
+    of autograder that import pulls in must be in its view, or every hidden test fails."""
+    seen, todo = set(), ["checks.py"]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        path = ROOT / name / "__init__.py" if (ROOT / name).is_dir() else ROOT / name
+        todo.extend(_top_level_autograder_imports(path))
+    missing = seen - set(views.KERNEL_MODULES)
+    assert not missing, f"autograder.checks imports {sorted(missing)}, not in KERNEL_MODULES"
+    assert {"checks.py", "outcomes.py", "errors.py"} <= seen

@@ -13,7 +13,9 @@ grader, so student code that patches this module gains nothing but a zero.
 Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}`` runs one
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
-the cell wrote to stdout and to stderr;
+the cell wrote to stdout and to stderr; a failed cell or call's reply says where the
+student's code stopped, in words (``"where"``) and as ``"place": [cell index, line]`` (null
+when no cell of the notebook was on the stack);
 ``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
 routines graded functions must not call (:class:`autograder.inside.tripwire.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
@@ -191,7 +193,9 @@ def _failure(exc: BaseException) -> dict:
     """The reply for a cell or call that raised ``exc``. A time-out by the CPU timer says so:
     the grader then charges it to the submission without judging starvation (the one claim
     it takes from the worker, since it can only cost the submission that makes it)."""
-    reply = {"ok": False, "error": _describe(exc), "where": _where(exc)}
+    frame = _student_frame(exc)
+    reply = {"ok": False, "error": _describe(exc), "where": _where(frame),
+             "place": _place(frame)}
     if isinstance(exc, _Timeout):
         reply["failure"] = "timed_out"
         if exc.by_cpu:
@@ -201,12 +205,37 @@ def _failure(exc: BaseException) -> dict:
     return reply
 
 
-def _where(exc: BaseException) -> str:
-    """The student's own line that raised, e.g. "cell 4, line 7" (no grader frames)."""
+# The file name each cell was compiled under -> its index: a failure's place is looked up
+# here, not read back out of the name (student code may compile its own "<cell ...>").
+_CELL_FILES: dict[str, int] = {}
+
+
+def _cell_file(index) -> str:
+    """The file name cell ``index`` is compiled under, remembered for :func:`_place`."""
+    name = f"<cell {index}>"
+    if isinstance(index, int) and not isinstance(index, bool):
+        _CELL_FILES[name] = index
+    return name
+
+
+def _student_frame(exc: BaseException):
+    """The innermost frame of ``exc``'s traceback in a notebook cell (no grader frames)."""
     for frame in reversed(traceback.extract_tb(exc.__traceback__)):
         if frame.filename.startswith("<cell"):
-            return f"{frame.filename.strip('<>')}, line {frame.lineno}"
-    return ""
+            return frame
+    return None
+
+
+def _where(frame) -> str:
+    """The student's own line that raised, in words, e.g. "cell 4, line 7"."""
+    return f"{frame.filename.strip('<>')}, line {frame.lineno}" if frame is not None else ""
+
+
+def _place(frame) -> list[int] | None:
+    """The same line as ``[cell index, line]`` (a typed place for the grader), or None."""
+    if frame is None or frame.filename not in _CELL_FILES or not frame.lineno:
+        return None
+    return [_CELL_FILES[frame.filename], frame.lineno]
 
 
 def _run_guarded(fn, cpu_s: float, wall_s: float):
@@ -369,20 +398,7 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
             send(rep_fd, _preload(request))
             continue
         if op == "cell":
-            started, cpu_started = time.monotonic(), time.process_time()
-            index = request.get("index", 0)
-            out.take(), err.take()
-            try:
-                code = compile(str(request.get("source", "")), f"<cell {index}>", "exec")
-                _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
-                reply = {"ok": True}
-            except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
-                reply = _failure(exc)
-            reply["seconds"] = time.monotonic() - started
-            reply["cpu_seconds"] = time.process_time() - cpu_started
-            reply["output_chars"] = out.total + err.total
-            reply["stdout"], reply["stderr"] = out.take(), err.take()
-            send(rep_fd, reply)
+            send(rep_fd, _run_cell(request, namespace, out, err))
         elif op == "call":
             reply = _called(namespace, request, request.get("args", []),
                             _tables(request), guard, out, err, tripwire_of)
@@ -408,6 +424,25 @@ def _serve(req_fd: int, rep_fd: int, namespace: dict, out: _CappedWriter,
                 send(rep_fd, {"ok": False, "error": f"a batch reply could not be sent ({exc})"})
         else:
             send(rep_fd, {"ok": False, "error": f"unknown request {op!r}"})
+
+
+def _run_cell(request: dict, namespace: dict, out: _CappedWriter, err: _CappedWriter) -> dict:
+    """The reply to a "cell" request: run its ``source`` in ``namespace`` within its limits;
+    what it printed, its seconds of wall clock and of CPU, or its failure."""
+    started, cpu_started = time.monotonic(), time.process_time()
+    out.take(), err.take()
+    try:
+        code = compile(str(request.get("source", "")), _cell_file(request.get("index", 0)),
+                       "exec")
+        _run_guarded(lambda: exec(code, namespace), *_limits_of(request))
+        reply = {"ok": True}
+    except BaseException as exc:  # noqa: BLE001 - a student's cell may raise anything
+        reply = _failure(exc)
+    reply["seconds"] = time.monotonic() - started
+    reply["cpu_seconds"] = time.process_time() - cpu_started
+    reply["output_chars"] = out.total + err.total
+    reply["stdout"], reply["stderr"] = out.take(), err.take()
+    return reply
 
 
 def _called(namespace: dict, request: dict, args, tables: dict, guard, out, err,

@@ -124,8 +124,12 @@ def _within_reach(trial: Trial) -> bool:
 # --------------------------------------------------------------------------- piece position
 
 
-def _trial_piece(rng, index: int) -> Trial:
-    h, w = 240, 320
+_PIECE_R = 0.009   # m: the radius of a piece's round top
+
+
+def _piece_scene(rng, h: int, w: int):
+    """A camera and a piece on a board: (K, the board's normal ``n`` and a point ``c`` of
+    it, the top of the piece, the centre of its sphere), in the camera frame, metres."""
     f = rng.uniform(280, 330)
     K = np.array([[f, 0, w / 2 - 0.5 + rng.uniform(-4, 4)],
                   [0, f, h / 2 - 0.5 + rng.uniform(-4, 4)], [0, 0, 1.0]])
@@ -137,42 +141,58 @@ def _trial_piece(rng, index: int) -> Trial:
     # image centre is. There the ray is 2 to 4.4 % longer than Z: a depth taken as the
     # distance along the ray (the mistake the lab's text warns of) is off by 3.3 mm or more,
     # beyond the tolerance; nearer the centre it hid within it on 4 draws of 30.
-    r = 0.009
-    height = 0.025 + r
+    height = 0.025 + _PIECE_R
     rho, phi = rng.uniform(0.2, 0.3), rng.uniform(0.0, 2.0 * np.pi)
     ray_top = np.array([rho * np.cos(phi), rho * np.sin(phi), 1.0])
     top = ray_top * (height + c @ n) / (ray_top @ n)  # on that ray, `height` above the plane
-    centre = top - r * n
+    return K, n, c, top, top - _PIECE_R * n
+
+
+def _piece_depth(K, n, c, centre, h: int, w: int):
+    """(the board's depth, the scene's depth) of every pixel, noiseless z-depth in m."""
+    f = K[0, 0]
     uu, vv = np.meshgrid(np.arange(w), np.arange(h))
     rays = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu, float)], axis=-1)
     z_plane = (c @ n) / (rays @ n)
     # Ray-sphere intersection (nearest root) in z-depth: |z ray - centre|^2 = r^2.
     a = np.sum(rays ** 2, axis=-1)
     b = rays @ centre
-    disc = b * b - a * (centre @ centre - r * r)
+    disc = b * b - a * (centre @ centre - _PIECE_R * _PIECE_R)
     z_sphere = np.where(disc >= 0, (b - np.sqrt(np.maximum(disc, 0))) / a, np.inf)
-    depth = np.minimum(z_plane, z_sphere)
+    return z_plane, np.minimum(z_plane, z_sphere)
+
+
+def _spoil_window(rng, depth, z_plane, uv, hole: bool) -> None:
+    """A hole in ``depth`` at the pixel ``uv``, or flying pixels on its 5x5 window's rim."""
+    u0, v0 = np.rint(uv).astype(int)
+    if hole:
+        # A shiny top: no depth in the 3x3 pixels around the requested one.
+        depth[v0 - 1:v0 + 2, u0 - 1:u0 + 2] = np.nan
+        return
+    # Flying pixels: two pixels on the window's rim read 0.1-0.3 m behind the board (the
+    # mixed returns a depth camera gives at a piece's edge). The text's median of the
+    # window ignores them; a mean of it is pulled by a centimetre or more, beyond the
+    # tolerance. Not beside a hole, where the median has only the rim's 16 pixels: two
+    # outliers there moved the reference to 1.08 of its tolerance in 60,000 problems;
+    # here its worst of 18,000 stays at 0.79, as without them.
+    rim = [(dv, du) for dv in range(-2, 3) for du in range(-2, 3)
+           if max(abs(dv), abs(du)) == 2]
+    for k in rng.choice(len(rim), 2, replace=False):
+        dv, du = rim[k]
+        depth[v0 + dv, u0 + du] = z_plane[v0 + dv, u0 + du] + rng.uniform(0.1, 0.3)
+
+
+def _trial_piece(rng, index: int) -> Trial:
+    h, w = 240, 320
+    K, n, c, top, centre = _piece_scene(rng, h, w)
+    f, r = K[0, 0], _PIECE_R
+    z_plane, depth = _piece_depth(K, n, c, centre, h, w)
     sigma = rng.uniform(0.0005, 0.0015)
     depth = depth + rng.normal(0.0, sigma, depth.shape)
     depth[rng.random(depth.shape) < 0.03] = np.nan  # scattered dropouts, as on a RealSense
     uv = np.array([K[0, 0] * top[0] / top[2] + K[0, 2], K[1, 1] * top[1] / top[2] + K[1, 2]])
     hole = index % 2 == 1
-    u0, v0 = np.rint(uv).astype(int)
-    if hole:
-        # A shiny top: no depth in the 3x3 pixels around the requested one.
-        depth[v0 - 1:v0 + 2, u0 - 1:u0 + 2] = np.nan
-    else:
-        # Flying pixels: two pixels on the window's rim read 0.1-0.3 m behind the board (the
-        # mixed returns a depth camera gives at a piece's edge). The text's median of the
-        # window ignores them; a mean of it is pulled by a centimetre or more, beyond the
-        # tolerance. Not beside a hole, where the median has only the rim's 16 pixels: two
-        # outliers there moved the reference to 1.08 of its tolerance in 60,000 problems;
-        # here its worst of 18,000 stays at 0.79, as without them.
-        rim = [(dv, du) for dv in range(-2, 3) for du in range(-2, 3)
-               if max(abs(dv), abs(du)) == 2]
-        for k in rng.choice(len(rim), 2, replace=False):
-            dv, du = rim[k]
-            depth[v0 + dv, u0 + du] = z_plane[v0 + dv, u0 + du] + rng.uniform(0.1, 0.3)
+    _spoil_window(rng, depth, z_plane, uv, hole)
     # Truth: the sphere's surface point on the ray through uv.
     ray = np.array([(uv[0] - K[0, 2]) / f, (uv[1] - K[1, 2]) / f, 1.0])
     bb, aa = ray @ centre, ray @ ray

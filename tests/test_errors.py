@@ -1,0 +1,46 @@
+"""FunctionResult's errors are typed per problem (ProblemError); the lines a student reads,
+the counts and the feedback's groups are derived from them, never joined by message text."""
+
+from __future__ import annotations
+
+from autograder import errors as pe
+from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
+from autograder.outcomes import Cause, Failed, Failure, Place, raised
+
+BOOM = raised("ValueError")
+HUNG = Failure(Failed.TIMED_OUT, place=Place(2, 5))
+SKIP = Failure(Failed.SKIPPED, cause=Cause.TIMED_OUT, limit_s=3.0)
+
+
+def test_lines_put_leading_errors_first_each_line_once_and_cap_them():
+    errors = [ProblemError("a", "ValueError: x", BOOM), ProblemError("b", "ValueError: x", BOOM),
+              ProblemError("a", "ValueError: x", BOOM),            # the same line again
+              ProblemError("c", "looks like mistake 1", leads=True),
+              ProblemError("d", "looks like mistake 2", leads=True),
+              ProblemError("b", "looks like mistake 2", leads=True)]
+    assert error_lines(errors) == [
+        "on a b problem: looks like mistake 2", "on a d problem: looks like mistake 2",
+        "on a c problem: looks like mistake 1", "on a a problem: ValueError: x",
+        "on a b problem: ValueError: x"]
+    many = [ProblemError(str(i), "m") for i in range(3 * pe.MAX_LINES)]
+    assert len(error_lines(many)) == pe.MAX_LINES
+
+
+def test_groups_count_each_message_with_its_first_failure_and_its_shown_labels():
+    errors = [ProblemError("e1", "returned NaN"),                  # the scoring's words
+              ProblemError("e1", "timed out", HUNG),
+              *[ProblemError(f"p{i}", "skipped", SKIP) for i in range(6)],
+              ProblemError("e2", "returned NaN", BOOM)]            # a failure met later
+    groups = error_groups(errors)
+    assert [g.message for g in groups] == ["returned NaN", "timed out", "skipped"]
+    assert groups[0] == ErrorGroup("returned NaN", 2, BOOM, ("e1",))
+    assert groups[1] == ErrorGroup("timed out", 1, HUNG, ("e1",))
+    # only the problems of the first lines are named: p0..p2 made lines 3-5, e2 none
+    assert groups[2] == ErrorGroup("skipped", 6, SKIP, ("p0", "p1", "p2"))
+
+
+def test_past_the_cap_a_new_message_is_not_counted_but_old_ones_still_are():
+    errors = [ProblemError("x", f"distinct {i}", BOOM) for i in range(pe.MAX_GROUPS + 5)]
+    errors.append(ProblemError("x", "distinct 0"))
+    groups = error_groups(errors)
+    assert len(groups) == pe.MAX_GROUPS and groups[0].count == 2
