@@ -114,6 +114,23 @@ def test_a_mujoco_only_install_runs_the_simulator_without_pybullet():
 # --------------------------------------------------------------------------- one description
 
 
+def test_each_engine_builds_the_one_checked_description():
+    # A new option is added (checked, documented) in layout.describe_workcell alone: neither
+    # engine's factory has parameters of its own, and each builder takes the description.
+    import inspect
+
+    from sim_backends import layout, mujoco_world, world
+
+    for engine in (world, mujoco_world):
+        factory = inspect.signature(engine.create_workcell).parameters.values()
+        assert [p.kind for p in factory] == [inspect.Parameter.VAR_KEYWORD], engine.__name__
+        (param,) = inspect.signature(engine.build_workcell).parameters.values()
+        assert "WorkcellDescription" in str(param.annotation), engine.__name__
+    with pytest.raises(TypeError, match="no_such_option"):
+        world.create_workcell(no_such_option=1)
+    assert "depth_model :" in layout.describe_workcell.__doc__
+
+
 @pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
 def test_both_engines_lay_the_cell_out_the_same_for_a_seed(mount):
     options = dict(arm="ur5e", mount=mount, seed=5, width=160, height=120,
