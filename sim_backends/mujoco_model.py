@@ -81,9 +81,8 @@ def arm_spec(spec: ArmSpec, drawn: bool = True):
 
 
 def configure_visual(s, max_canvas: tuple[int, int], shadows: bool = False) -> None:
-    """Off-screen buffer big enough for the largest camera canvas, single-sampled (see
-    below), fixed clipping planes; a shadow map only as big as the lighting needs (making it
-    costs time in every new cell)."""
+    """Off-screen buffer big enough for the largest camera canvas, fixed clipping planes; a
+    shadow map only as big as the lighting needs (making it costs time in every new cell)."""
     s.visual.global_.offwidth = int(max_canvas[0])
     s.visual.global_.offheight = int(max_canvas[1])
     s.stat.extent = 1.0  # so znear and zfar below are metres
@@ -91,14 +90,6 @@ def configure_visual(s, max_canvas: tuple[int, int], shadows: bool = False) -> N
     s.visual.map.zfar = FAR_M
     s.visual.headlight.active = 0  # only the described lights
     s.visual.quality.shadowsize = 2048 if shadows else 256
-    # No multisampling: reading a multisampled buffer back resolves colour by averaging the
-    # samples but depth by taking one of them, off the pixel's centre, so every silhouette
-    # in the depth image sat 0.37 px up and 0.1 px right of its projected truth (and of the
-    # same silhouette in RGB; measured with Mesa, where the 4x pattern's first sample is at
-    # (0.375, 0.125) of the pixel from its lower-left corner). Single-sampled, depth
-    # is sampled at the pixel centre, as PyBullet's and a pinhole's; RGB keeps every texture
-    # (the targets' corners land where they did) and loses only edge antialiasing.
-    s.visual.quality.offsamples = 0
 
 
 def add_lights(s, lighting: Lighting) -> None:
