@@ -120,7 +120,9 @@ def _cell(arm, seed, size, markerless: bool):
     # The published numbers (docs/benchmarks/depth_calibration.md, lab 5's plot) are PyBullet's;
     # COBOTLAB_SIM_ENGINE=mujoco measures the other engine. (On MuJoCo at the smoke run's
     # 320 x 240, seed 0's fourth view fails the rim-circle check at every noise level, 3.4 mm
-    # RMS: an engine difference in the D4xx edge model not yet explained.)
+    # RMS: MuJoCo draws the wrist housing where it is, PyBullet 0.8 mm proud and wider, and
+    # the D4xx edge dropouts erase MuJoCo's thinner housing ring, which lab 5's rim search
+    # needs; docs/simulation.md, "Depth at silhouettes".)
     options = dict(engine=os.environ.get("COBOTLAB_SIM_ENGINE", "pybullet"),
                    arm=arm, mount="eye_to_hand", seed=seed, width=size[0], height=size[1],
                    tool=None, pixel_noise=PIXEL_NOISE, encoder_noise_deg=ENCODER_NOISE_DEG,

@@ -1,22 +1,27 @@
-"""How fast is each simulator engine? RGB-D frames per second, IK, a move, peak memory.
+"""How fast is each simulator engine? RGB-D frames per second, IK, a move, peak memory, labs.
 
 Run:  python benchmarks/sim_speed.py [--arm ur5e] [--frames 20] [--seed 0] [--quick]
-                                    [--lab lab4_stereo | --lab none]
+                                    [--lab lab4_stereo,lab5_depth | --lab none] [--repeats 5]
 
 Measures both engines (MuJoCo and PyBullet) in one run, side by side, each in its own
 process so that its peak memory (``ru_maxrss``) is its own. Per engine: ``capture()`` with
 depth (RGB-D) at 640x480 and 1280x720 in both mounts (eye-to-hand: a fixed camera seeing the
-whole arm; eye-in-hand: the camera on the flange above the board), the median IK solve, one
-10 cm ``move_to`` and back, the time to build the cell, the process's peak resident
-memory, and a lab's source notebook top to bottom (its simulator cells with the solutions;
-kernel start included; one run, so no interval). Frames per second are 1 / mean frame time with a 95 % bootstrap interval over the
-frames (2000 resamples); the MuJoCo/PyBullet ratio's interval resamples both engines.
-Rendering is on the CPU here (PyBullet's TinyRenderer; MuJoCo's OpenGL through Mesa's
-llvmpipe via EGL), so the numbers depend on the machine's cores and on other load.
-The goal (issue 49): MuJoCo at least twice PyBullet's RGB-D frame rate.
+whole arm; eye-in-hand: the camera on the flange above the board), the median IK solve (CPU
+time of the solving thread), one 10 cm ``move_to`` and back, the time to build the cell, the
+process's peak resident memory. Frames per second are 1 / mean frame time with a 95 %
+bootstrap interval over the frames (2000 resamples); the MuJoCo/PyBullet ratio's interval
+resamples both engines. Rendering is on the CPU here (PyBullet's TinyRenderer; MuJoCo's
+OpenGL through Mesa's llvmpipe via EGL), so the numbers depend on the machine's cores and on
+other load. The goal (issue 49): MuJoCo at least twice PyBullet's RGB-D frame rate.
 
-The lab runs in a Jupyter kernel started by the engine's process with ``COBOTLAB_SIM_ENGINE``
-set, so the notebook's own ``connect("sim", ...)`` picks the engine, as a student's would.
+Labs (``--lab``, comma-separated): each lab's source notebook, every code cell top to bottom
+with its solutions and checks (IPython magics dropped), run in a fresh Python process per run
+with ``COBOTLAB_SIM_ENGINE`` set, so the notebook's own ``connect("sim", ...)`` picks the
+engine, as a student's would. ``--repeats`` runs per engine, interleaved (PyBullet, MuJoCo,
+then MuJoCo, PyBullet, ...) so slow spells of a shared machine fall on both. Measured in CPU
+seconds (the process's user + system time, every thread, and any process it waits for), not
+wall time, which other users' load inflates; the MuJoCo / PyBullet ratio of the mean CPU
+seconds has a 95 % bootstrap interval resampling each engine's runs. The goal: no lab slower.
 """
 
 from __future__ import annotations
@@ -49,7 +54,8 @@ def frame_times(camera, n: int) -> list[float]:
 
 
 def ik_and_move(cell, seed: int, n: int = 20) -> dict:
-    """Median IK ms over n poses near the start; wall and simulated s of a 10 cm move and back."""
+    """Median IK CPU ms over n poses near the start; wall and simulated s of a 10 cm move and
+    back."""
     from robots.geometry import compose, pose_from_rpy
 
     robot, arm = cell.robot, cell.arm
@@ -58,12 +64,13 @@ def ik_and_move(cell, seed: int, n: int = 20) -> dict:
     ik_ms = []
     for _ in range(n):
         offset = pose_from_rpy(*rng.uniform(-0.3, 0.3, 3), t=rng.uniform(-0.1, 0.1, 3))
-        t0 = time.perf_counter()
+        # CPU time of this thread: IK is single-threaded, and wall time carries other load.
+        t0 = time.thread_time()
         try:
             arm.solve_ik(compose(start, offset))
         except Exception:  # noqa: BLE001  (an unreachable draw still costs its time)
             pass
-        ik_ms.append(1e3 * (time.perf_counter() - t0))
+        ik_ms.append(1e3 * (time.thread_time() - t0))
     t_sim, t0 = arm.motion_time, time.perf_counter()
     robot.move_to(compose(start, pose_from_rpy(0, 0, 0, t=[0.1, 0, 0])), speed=0.1)
     robot.move_to(start, speed=0.1)
@@ -90,24 +97,59 @@ def pick_and_place(engine: str, arm: str, seed: int) -> dict:
                 "pick_placed": bool(placed)}
 
 
-def lab_notebook_s(engine: str, lab: str) -> float:
-    """Wall seconds to run ``labs/<lab>/<lab>.ipynb`` top to bottom on ``engine``."""
+def lab_cells_cpu_s(lab: str) -> float:
+    """CPU seconds of this process (every thread, and what it waited for) to run the code
+    cells of ``labs/<lab>/<lab>.ipynb`` top to bottom in one namespace, in the lab's folder,
+    with their printed output swallowed. The engine is ``COBOTLAB_SIM_ENGINE``'s."""
+    import contextlib
+    import io
     import os
     from pathlib import Path
 
+    import matplotlib
     import nbformat
-    from nbclient import NotebookClient
 
+    matplotlib.use("Agg")   # figures are drawn, never shown
     path = Path(__file__).resolve().parents[1] / "labs" / lab / f"{lab}.ipynb"
     nb = nbformat.read(path, as_version=4)
-    os.environ["COBOTLAB_SIM_ENGINE"] = engine   # the kernel inherits it
-    t0 = time.perf_counter()
-    NotebookClient(nb, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()
-    return time.perf_counter() - t0
+    os.chdir(path.parent)
+    namespace = {"__name__": "__main__"}
+    t0 = _cpu_s()
+    with contextlib.redirect_stdout(io.StringIO()):
+        for k, cell in enumerate(nb.cells):
+            if cell.cell_type == "code":
+                code = "\n".join(line for line in cell.source.splitlines()
+                                 if not line.lstrip().startswith(("%", "!")))
+                exec(compile(code, f"{lab} cell {k}", "exec"), namespace)  # noqa: S102
+    return _cpu_s() - t0
 
 
-def measure(engine: str, arm: str, frames: int, seed: int, resolutions, lab: str) -> dict:
+def _cpu_s() -> float:
+    self, children = (resource.getrusage(who) for who in (resource.RUSAGE_SELF,
+                                                           resource.RUSAGE_CHILDREN))
+    return self.ru_utime + self.ru_stime + children.ru_utime + children.ru_stime
+
+
+def lab_runs(labs, repeats: int) -> dict:
+    """{lab: {engine: [CPU s per run]}}: ``repeats`` fresh-process runs per engine and lab,
+    the engines' order alternating from one repeat to the next."""
+    import os
+
+    runs = {lab: {engine: [] for engine in ENGINES} for lab in labs}
+    for r in range(repeats):
+        for lab in labs:
+            for engine in (ENGINES if r % 2 == 0 else ENGINES[::-1]):
+                env = dict(os.environ, COBOTLAB_SIM_ENGINE=engine)
+                done = subprocess.run([sys.executable, __file__, "--run-lab", lab], env=env,
+                                      capture_output=True, text=True, check=False)
+                if done.returncode != 0:
+                    raise RuntimeError(f"{lab} failed on {engine}: "
+                                       f"{done.stderr.strip().splitlines()[-1]}")
+                runs[lab][engine].append(float(done.stdout.strip().splitlines()[-1]))
+    return runs
+
+
+def measure(engine: str, arm: str, frames: int, seed: int, resolutions) -> dict:
     """Everything for one engine (run in its own process: see ``main``)."""
     from robots import connect
 
@@ -123,8 +165,6 @@ def measure(engine: str, arm: str, frames: int, seed: int, resolutions, lab: str
         out.update(ik_and_move(cell, seed))
     out.update(pick_and_place(engine, arm, seed))
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    if lab != "none":   # after the peak: the kernel is another process
-        out["lab"], out["lab_s"] = lab, lab_notebook_s(engine, lab)
     return out
 
 
@@ -147,7 +187,7 @@ def ratio_interval(times_a, times_b, rng) -> tuple[float, float, float]:
 
 def run_engine(engine: str, args) -> dict:
     cmd = [sys.executable, __file__, "--engine", engine, "--arm", args.arm, "--frames",
-           str(args.frames), "--seed", str(args.seed), "--lab", args.lab] + (["--quick"] if args.quick else [])
+           str(args.frames), "--seed", str(args.seed)] + (["--quick"] if args.quick else [])
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         return {"engine": engine, "error": done.stderr.strip().splitlines()[-1]}
@@ -181,16 +221,13 @@ def report(results: dict, args) -> None:
     print("| | " + " | ".join(ok) + " |")
     print("|---|" + "---:|" * len(ok))
     rows = [("build a cell (median, s)", lambda r: f"{np.median(r['build_s']):.2f}"),
-            ("IK solve (median of 20, ms)", lambda r: f"{r['ik_ms']:.1f}"),
+            ("IK solve (median of 20, CPU ms)", lambda r: f"{r['ik_ms']:.1f}"),
             ("move_to 10 cm and back, wall (s)", lambda r: f"{r['move_s']:.3f}"),
             ("the same, simulated (s)", lambda r: f"{r['move_sim_s']:.3f}"),
             ("pick and place e2 -> e4, wall incl. building the cell (s)",
              lambda r: f"{r['pick_s']:.1f} ({'placed' if r['pick_placed'] else 'NOT placed'})"),
             ("the same, simulated (s)", lambda r: f"{r['pick_sim_s']:.1f}"),
             ("peak memory of the process (MB)", lambda r: f"{r['peak_mb']:.0f}")]
-    if all("lab_s" in r for r in ok.values()):
-        rows.append((f"{args.lab} notebook top to bottom, one run (s)",
-                     lambda r: f"{r['lab_s']:.1f}"))
     for label, cell in rows:
         print(f"| {label} | " + " | ".join(cell(r) for r in ok.values()) + " |")
     if len(ok) == 2:
@@ -202,22 +239,51 @@ def report(results: dict, args) -> None:
               f"{worst[1]:.2f}); MuJoCo {verdict} the 2x goal in every cell.")
 
 
+def report_labs(runs: dict, repeats: int) -> None:
+    """The labs' table: mean CPU seconds per engine and the MuJoCo / PyBullet ratio."""
+    rng = np.random.default_rng(1)
+    print(f"\nLabs' source notebooks top to bottom, CPU seconds, mean of {repeats} interleaved "
+          "runs per engine [95 % bootstrap interval]\n")
+    print("| lab | pybullet CPU s | mujoco CPU s | MuJoCo / PyBullet |")
+    print("|---|---:|---:|---:|")
+    for lab, by_engine in runs.items():
+        cells = []
+        for engine in ENGINES:
+            t = np.asarray(by_engine[engine])
+            means = rng.choice(t, size=(BOOTSTRAP, t.size)).mean(axis=1)
+            lo, hi = np.percentile(means, [2.5, 97.5])
+            cells.append(f"{t.mean():.2f} [{lo:.2f}, {hi:.2f}]")
+        q, lo, hi = ratio_interval(by_engine["pybullet"], by_engine["mujoco"], rng)
+        verdict = "slower" if lo > 1 else ("faster" if hi < 1 else "no difference shown")
+        print(f"| {lab} | " + " | ".join(cells) + f" | {q:.2f} [{lo:.2f}, {hi:.2f}] ({verdict}) |")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arm", default="ur5e", help="an arm both engines build")
     parser.add_argument("--frames", type=int, default=20, help="frames per measurement")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="640x480 only (a smoke run)")
-    parser.add_argument("--lab", default="lab4_stereo",
-                        help="a lab whose source notebook is timed per engine, or 'none'")
+    parser.add_argument("--lab", default="lab4_stereo,lab5_depth",
+                        help="labs (comma-separated) whose source notebooks are timed per "
+                             "engine, or 'none'")
+    parser.add_argument("--repeats", type=int, default=5, help="runs per engine and lab")
     parser.add_argument("--engine", choices=ENGINES, help=argparse.SUPPRESS)  # one child run
+    parser.add_argument("--run-lab", help=argparse.SUPPRESS)  # one lab run (a child)
     args = parser.parse_args(argv)
+    if args.run_lab:
+        print(lab_cells_cpu_s(args.run_lab))
+        return
     resolutions = RESOLUTIONS[:1] if args.quick else RESOLUTIONS
     if args.engine:
-        print(json.dumps(measure(args.engine, args.arm, args.frames, args.seed, resolutions,
-                                 args.lab)))
+        print(json.dumps(measure(args.engine, args.arm, args.frames, args.seed, resolutions)))
         return
+    if args.repeats < 2:
+        parser.error("--repeats must be at least 2 (an interval needs more than one run)")
     report({engine: run_engine(engine, args) for engine in ENGINES}, args)
+    labs = [] if args.lab == "none" else [lab for lab in args.lab.split(",") if lab]
+    if labs:
+        report_labs(lab_runs(labs, args.repeats), args.repeats)
 
 
 if __name__ == "__main__":

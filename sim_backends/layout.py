@@ -208,8 +208,41 @@ def describe_workcell(
     depth_model=None,
     rectangle_mark: bool = False,
 ) -> WorkcellDescription:
-    """Check the options of ``connect("sim", ...)`` (documented on
-    ``sim_backends.world.create_workcell``) and draw the random streams from ``seed``.
+    """Check the options of ``connect("sim", ...)`` (every engine's) and draw the random
+    streams from ``seed``; every random choice comes from it.
+
+    arm : one of ``sim_backends.arms.ARM_NAMES`` ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta").
+    mount : "eye_in_hand" (camera on the flange) or "eye_to_hand" (camera fixed in the cell).
+    scene : "calibration" or "chess" (see ``sim_backends.world``'s module docstring).
+    width, height : image size in pixels (default intrinsics scale with it).
+    intrinsics : ``robots.interfaces.Intrinsics`` to use instead of the default camera.
+    distortion : (k1, k2, p1, p2, k3) applied to the image (overrides ``intrinsics.dist``).
+    pixel_noise : Gaussian RGB noise std in 0..255 units. depth_noise : k in sigma_z = k z^2 (1/m).
+    encoder_noise_deg : std (degrees) of a constant offset per joint encoder: the robot then
+        reports joint angles and flange poses that are slightly off, as a real arm does.
+    mount_error : (mm, deg) between the nominal camera mount and the true one, in seeded
+        random directions; ``truth`` holds both.
+    lighting : preset name ("default", "dim", "side", "overhead") or a ``camera.Lighting``.
+    stereo_baseline : metres; adds a right camera at +baseline along the left camera's x.
+    tool : "suction", "gripper", "pointer", None, or "default" (none for calibration, suction
+        for chess).
+    target : calibration target on the table: "chessboard" (9x7 squares of 39 mm),
+        "charuco", "circles" or "aruco".
+    chess_position : "start", "random" (seeded, 12 pieces) or a dict square -> (kind, colour).
+    safety : a ``robots.safety.Safety`` to use instead of the arm's default limits.
+    overview_camera : chess scene, eye-in-hand only: also a fixed RGB-D camera
+        (``cell.cameras["overview"]``, same intrinsics and noise) on the far side of the board,
+        looking down at it, for the coarse stage of the staged approach-to-grasp. It sits
+        exactly where ``truth.base_T_overview_cam`` says (its calibration is not the point).
+    flange_target : calibration scene: False leaves the flange bare (no marker or board on
+        it), so with ``tool=None`` the camera sees the arm's ISO 9409-1 flange face; with a
+        fixed camera the arm then starts with the face turned to the camera.
+    depth_model : None (exact depth, plus ``depth_noise``), "d435" or a dict of fields or a
+        ``sim_backends.depth_noise.RealSenseDepthModel``: every camera's depth as a RealSense
+        D4xx streams it (z**2 noise, edge and grazing dropouts, range, 1 mm steps), seeded.
+        Not together with ``depth_noise``.
+    rectangle_mark : True lays a dark 100 mm x 100 mm square (3 mm thick) on the table beside
+        the board, at a seeded position and yaw (``truth.base_T_rectangle``).
 
     Raises ValueError naming the option, what is wrong and what to give instead.
     """
@@ -254,11 +287,6 @@ def describe_workcell(
     if not (chess_position in ("start", "random") or isinstance(chess_position, dict)):
         raise ValueError("chess_position must be 'start', 'random' or a dict "
                          f"square -> (kind, colour), got {chess_position!r}")
-
-    # Independent streams, so turning one knob never reshuffles another's draws.
-    # (spawn(8)[:7] equals spawn(7): adding a stream left the others' draws as they were.)
-    (rng_scene, rng_mount, rng_enc, rng_cam, rng_right, rng_chess, rng_overview,
-     rng_mark) = np.random.default_rng(seed).spawn(8)
 
     # Independent streams, so turning one knob never reshuffles another's draws.
     # (spawn(8)[:7] equals spawn(7): adding a stream left the others' draws as they were.)

@@ -1,8 +1,8 @@
 """The simulated workcell built by MuJoCo, behind ``robots.connect("sim", engine="mujoco")``.
 
-``create_workcell`` takes the same options as the PyBullet engine's
-(``sim_backends.world.create_workcell``, where they are documented), checks them and draws
-the random streams with ``sim_backends.layout.describe_workcell``, lays the cell out with the
+``create_workcell`` takes the options of every engine, checks them and draws the random
+streams with ``sim_backends.layout.describe_workcell`` (where they are documented), and
+``build_workcell`` builds that description: it lays the cell out with the
 same ``layout`` functions, and builds one MuJoCo model from the parts
 (``sim_backends.mujoco_model``): for a seed, the board, the camera mounts, the encoder
 offsets and the start pose are the same as on PyBullet. ``cell.truth`` is the same
@@ -65,7 +65,7 @@ from sim_backends.truth import SimTruth
 
 mujoco = import_mujoco()
 
-__all__ = ["MujocoWorkcell", "MujocoWorld", "create_workcell", "unsupported"]
+__all__ = ["MujocoWorkcell", "MujocoWorld", "build_workcell", "create_workcell", "unsupported"]
 
 TIME_STEP = 1.0 / 240.0  # as the PyBullet engine's
 _PIECE_MASS = 0.03  # kg, a piece of the 50 mm set (scaled with the cube of the set's size)
@@ -225,12 +225,17 @@ def _square_centre(name: str, square: float) -> list[float]:
 
 
 def create_workcell(**options) -> MujocoWorkcell:
-    """Build the simulated workcell on MuJoCo (options: ``sim_backends.world.create_workcell``).
+    """Build the simulated workcell on MuJoCo from ``connect("sim", ...)``'s options
+    (documented on ``sim_backends.layout.describe_workcell``, which checks them).
 
     Raises ValueError for a bad option (naming it) and BackendNotAvailableError for a part
     this engine does not build yet (naming the PyBullet engine).
     """
-    d = layout.describe_workcell(**options)
+    return build_workcell(layout.describe_workcell(**options))
+
+
+def build_workcell(d: layout.WorkcellDescription) -> MujocoWorkcell:
+    """Build the workcell ``d`` describes as one MuJoCo model (see ``create_workcell``)."""
     missing = unsupported(d)
     if missing is not None:
         raise BackendNotAvailableError(

@@ -1,9 +1,9 @@
 """The simulated workcell: arm + tool + camera(s) + scene, behind ``robots.connect("sim", ...)``.
 
-``create_workcell`` builds, from the engine-neutral description in ``sim_backends.layout``,
-a headless PyBullet world (DIRECT mode, TinyRenderer) that is
-deterministic for a seed, and returns a :class:`SimWorkcell` (a ``robots.Workcell``) whose
-``truth`` holds the ground truth that instructors and tests compare against.
+``create_workcell(**options)`` checks the options with ``sim_backends.layout.describe_workcell``
+(where they are documented) and ``build_workcell`` builds that engine-neutral description as
+a headless PyBullet world (DIRECT mode, TinyRenderer) that is deterministic for a seed, and
+returns a :class:`SimWorkcell` (a ``robots.Workcell``) whose ``truth`` holds the ground truth that instructors and tests compare against.
 
 Layout (PyBullet world frame, z up): the table top is z = 0 and the robot base stands on it at
 the origin facing +x. Scenes:
@@ -43,7 +43,7 @@ from robots.geometry import (
     make_pose,
     quat_xyzw_from_rotation,
 )
-from robots.interfaces import Intrinsics, Workcell
+from robots.interfaces import Workcell
 from sim_backends import layout, textures
 from sim_backends import scene as scn
 from sim_backends.camera import SimCamera
@@ -72,6 +72,7 @@ __all__ = [
     "TOOLS",
     "SimTruth",
     "SimWorkcell",
+    "build_workcell",
     "create_workcell",
     "default_intrinsics",
     "nominal_flange_T_cam",
@@ -138,81 +139,21 @@ def _target_on_flange(mount: str, arm, reach: float) -> tuple[textures.Target, n
 # --------------------------------------------------------------------------- factory
 
 
-def create_workcell(
-    arm: str = "panda",
-    mount: str = "eye_in_hand",
-    scene: str = "calibration",
-    seed: int = 0,
-    width: int = 640,
-    height: int = 480,
-    intrinsics: Intrinsics | None = None,
-    distortion=None,
-    pixel_noise: float = 0.0,
-    depth_noise: float = 0.0,
-    encoder_noise_deg: float = 0.0,
-    mount_error=(0.0, 0.0),
-    lighting="default",
-    stereo_baseline: float | None = None,
-    tool: str | None = "default",
-    target: str = "chessboard",
-    chess_position: str | dict = "start",
-    safety=None,
-    overview_camera: bool = False,
-    flange_target: bool = True,
-    depth_model=None,
-    rectangle_mark: bool = False,
-) -> SimWorkcell:
-    """Build the simulated workcell. Every random choice comes from ``seed``.
+def create_workcell(**options) -> SimWorkcell:
+    """Build the simulated workcell on PyBullet from ``connect("sim", ...)``'s options
+    (documented on ``sim_backends.layout.describe_workcell``, which checks them)."""
+    return build_workcell(describe_workcell(**options))
 
-    arm : one of ``sim_backends.arms.ARM_NAMES`` ("panda", "ur5e", "ur10e", "aubo_i5", "cobotta").
-    mount : "eye_in_hand" (camera on the flange) or "eye_to_hand" (camera fixed in the cell).
-    scene : "calibration" or "chess" (see the module docstring).
-    width, height : image size in pixels (default intrinsics scale with it).
-    intrinsics : ``robots.interfaces.Intrinsics`` to use instead of the default camera.
-    distortion : (k1, k2, p1, p2, k3) applied to the image (overrides ``intrinsics.dist``).
-    pixel_noise : Gaussian RGB noise std in 0..255 units. depth_noise : k in sigma_z = k z^2 (1/m).
-    encoder_noise_deg : std (degrees) of a constant offset per joint encoder: the robot then
-        reports joint angles and flange poses that are slightly off, as a real arm does.
-    mount_error : (mm, deg) between the nominal camera mount and the true one, in seeded
-        random directions; ``truth`` holds both.
-    lighting : preset name ("default", "dim", "side", "overhead") or a ``camera.Lighting``.
-    stereo_baseline : metres; adds a right camera at +baseline along the left camera's x.
-    tool : "suction", "gripper", "pointer", None, or "default" (none for calibration, suction
-        for chess).
-    target : calibration target on the table: "chessboard" (9x7 squares of 39 mm),
-        "charuco", "circles" or "aruco".
-    chess_position : "start", "random" (seeded, 12 pieces) or a dict square -> (kind, colour).
-    safety : a ``robots.safety.Safety`` to use instead of the arm's default limits.
-    overview_camera : chess scene, eye-in-hand only: also a fixed RGB-D camera
-        (``cell.cameras["overview"]``, same intrinsics and noise) on the far side of the board,
-        looking down at it, for the coarse stage of the staged approach-to-grasp. It sits
-        exactly where ``truth.base_T_overview_cam`` says (its calibration is not the point).
-    flange_target : calibration scene: False leaves the flange bare (no marker or board on
-        it), so with ``tool=None`` the camera sees the arm's ISO 9409-1 flange face; with a
-        fixed camera the arm then starts with the face turned to the camera.
-    depth_model : None (exact depth, plus ``depth_noise``), "d435" or a dict of fields or a
-        ``sim_backends.depth_noise.RealSenseDepthModel``: every camera's depth as a RealSense
-        D4xx streams it (z**2 noise, edge and grazing dropouts, range, 1 mm steps), seeded.
-        Not together with ``depth_noise``.
-    rectangle_mark : True lays a dark 100 mm x 100 mm square (3 mm thick) on the table beside
-        the board, at a seeded position and yaw (``truth.base_T_rectangle``).
-    """
+
+def build_workcell(d: layout.WorkcellDescription) -> SimWorkcell:
+    """Build the workcell ``d`` describes in a new headless PyBullet world (DIRECT mode)."""
     from sim_backends import arms as arms_mod
     from sim_backends import tools as tools_mod
 
-    d = describe_workcell(
-        arm=arm, mount=mount, scene=scene, seed=seed, width=width, height=height,
-        intrinsics=intrinsics, distortion=distortion, pixel_noise=pixel_noise,
-        depth_noise=depth_noise, encoder_noise_deg=encoder_noise_deg, mount_error=mount_error,
-        lighting=lighting, stereo_baseline=stereo_baseline, tool=tool, target=target,
-        chess_position=chess_position, safety=safety, overview_camera=overview_camera,
-        flange_target=flange_target, depth_model=depth_model, rectangle_mark=rectangle_mark)
-    tool, intrinsics, light, depth_model = d.tool, d.intrinsics, d.lighting, d.depth_model
-    mount_mm, mount_deg = d.mount_mm, d.mount_deg
+    arm, mount, scene, intrinsics, reach = d.arm, d.mount, d.scene, d.intrinsics, d.reach
     s = d.streams
     rng_scene, rng_mount, rng_enc, rng_cam = s.scene, s.mount, s.enc, s.cam
     rng_right, rng_chess, rng_overview, rng_mark = s.right, s.chess, s.overview, s.mark
-    reach = ARM_REACH[arm]
     client = p.connect(p.DIRECT)
     try:
         p.setGravity(0, 0, -9.81, physicsClientId=client)
@@ -227,28 +168,27 @@ def create_workcell(
 
         board = world_T_board = chess = None
         if scene == "calibration":
-            board, world_T_board = _add_table_target(client, target, reach, rng_scene)
+            board, world_T_board = _add_table_target(client, d.target, reach, rng_scene)
             world_T_world = world_T_board
         else:
-            if chess_position == "start":
+            if d.chess_position == "start":
                 position = None  # ChessSet's default: the starting position
-            elif chess_position == "random":
+            elif d.chess_position == "random":
                 position = scn.random_position(rng_chess)
             else:
-                position = chess_position
+                position = d.chess_position
             chess = _add_chess_set(client, reach, rng_scene, position)
             world_T_world = chess.world_T_chess
         world_T_rectangle = None
-        if rectangle_mark:
+        if d.rectangle_mark:
             world_T_rectangle = _add_rectangle_mark(client, reach, rng_mark, board,
                                                     world_T_board, chess)
 
         # The tool first: "no tool" hides the Panda's built-in hand, which the flange target
         # below must then not make room for.
-        robot_tool = tools_mod.make_tool(tool, client, sim_arm)
-        want_flange_target = flange_target
+        robot_tool = tools_mod.make_tool(d.tool, client, sim_arm)
         flange_target = flange_T_marker = None
-        if scene == "calibration" and want_flange_target:
+        if scene == "calibration" and d.flange_target:
             flange_target, flange_T_marker = _target_on_flange(mount, sim_arm, reach)
             body = scn.add_target(client, flange_target,
                                   compose(sim_arm.world_T_flange(), flange_T_marker),
@@ -256,11 +196,12 @@ def create_workcell(
             sim_arm.attach(body, flange_T_marker)  # carried kinematically, exactly
 
         # ----- cameras: the true mount is the nominal one times the mounting error
-        cam_kw = {"pixel_noise": pixel_noise, "depth_noise": depth_noise,
-                  "depth_model": depth_model, "lighting": light,
+        cam_kw = {"pixel_noise": d.pixel_noise, "depth_noise": d.depth_noise,
+                  "depth_model": d.depth_model, "lighting": d.lighting,
                   "clock": lambda: float(sim_arm.motion_time)}
-        error = _random_pose_error(rng_mount, mount_mm, mount_deg)
-        cam_T_right = None if stereo_baseline is None else make_pose(t=[stereo_baseline, 0, 0])
+        error = _random_pose_error(rng_mount, d.mount_mm, d.mount_deg)
+        cam_T_right = (None if d.stereo_baseline is None
+                       else make_pose(t=[d.stereo_baseline, 0, 0]))
         if mount == "eye_in_hand":
             nominal_mount = nominal_flange_T_cam(arm)
             flange_T_cam = compose(nominal_mount, error)
@@ -284,7 +225,7 @@ def create_workcell(
         if cam_T_right is not None:  # the right camera of the pair, +baseline along left x
             cameras["right"] = make_camera("right", compose(left, cam_T_right), rng_right)
         world_T_overview = None
-        if overview_camera:
+        if d.overview_camera:
             world_T_overview = layout.overview_camera_pose(chess.world_T_chess, chess.square)
             cameras["overview"] = SimCamera(client, intrinsics, world_T_cam=world_T_overview,
                                             name="overview", rng=rng_overview, **cam_kw)
@@ -296,7 +237,7 @@ def create_workcell(
         # Stepping sags the arm a little against its motors; the kinematic state is the truth.
         sim_arm.set_joint_positions(sim_arm.joint_positions())
 
-        robot = tools_mod.SimRobot(sim_arm, tool=robot_tool, safety=safety)
+        robot = tools_mod.SimRobot(sim_arm, tool=robot_tool, safety=d.safety)
         truth = SimTruth(
             mount=mount,
             base_T_cam=base_T_cam,
