@@ -49,6 +49,7 @@ from autograder.pipeline.worker import (
     TemplateUnavailable,
     Worker,
     WorkerFailure,
+    WorkerSetup,
 )
 
 __all__ = ["Template", "TemplateUnavailable", "ForkedProcess", "imported_modules",
@@ -122,7 +123,8 @@ class Template:
         started = time.monotonic()
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
-            self.worker = Worker(cells, limits, cpu_s=cpu_s, control_fd=theirs.fileno())
+            self.worker = Worker(cells, limits,
+                                 WorkerSetup(cpu_s=cpu_s, control_fd=theirs.fileno()))
         except (WorkerFailure, GraderError) as exc:
             ours.close()
             raise TemplateUnavailable(f"the template did not load: {exc}") from None

@@ -57,7 +57,7 @@ from autograder.pipeline import worker
 from autograder.pipeline.cells import cell_source, extract_code
 from autograder.pipeline.execute import NotebookRunner
 from autograder.pipeline.problems import problem_rng
-from autograder.pipeline.worker import GraderError, Limits
+from autograder.pipeline.worker import GraderError, Limits, WorkerSetup
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
@@ -348,7 +348,8 @@ class SandboxedReference:
         self.tripped: set[str] = set()
         # A day of CPU: the worker answers thousands of problems, and this is the author's
         # code. Each call's tripwire still sees the spec's forbidden routines.
-        self.runner = NotebookRunner(self.cells, limits, cpu_s=86400, batch_calls=True)
+        self.runner = NotebookRunner(self.cells, limits, setup=WorkerSetup(cpu_s=86400),
+                                     batch_calls=True)
         self.runner.loaded()
         self.load_errors = [f"cell {r.get('index')}: {r.get('error')}"
                             for r in self.runner.load_report if not r.get("ok")]

@@ -18,7 +18,13 @@ from autograder.outcomes import Failed
 from autograder.pipeline.cells import extract_code, scan_for_tampering
 from autograder.pipeline.execute import NotebookRunner, grade_notebook
 from autograder.pipeline.problems import problem_rng
-from autograder.pipeline.worker import Limits, Worker, WorkerFailure, sandbox_available
+from autograder.pipeline.worker import (
+    Limits,
+    Worker,
+    WorkerFailure,
+    WorkerSetup,
+    sandbox_available,
+)
 from autograder.secret import SECRET_ENV, create_secret, load_secret
 from robots import geometry as geo
 from solutions.registration import fit_rigid
@@ -613,7 +619,8 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
         seen = {}
         for batch in (False, True):
             singles.clear()
-            runner = NotebookRunner(cells, limits, cpu_s=600, batch_calls=batch)
+            runner = NotebookRunner(cells, limits, setup=WorkerSetup(cpu_s=600),
+                                    batch_calls=batch)
             try:
                 outcomes, tripped = runner.run(spec, trials)
             finally:

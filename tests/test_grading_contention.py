@@ -25,7 +25,7 @@ import pytest
 
 from autograder import sandbox
 from autograder.pipeline.pipeline import grade_course
-from autograder.pipeline.worker import GraderError, Limits, Worker
+from autograder.pipeline.worker import GraderError, Limits, Worker, WorkerSetup
 from autograder.template import Template
 
 pytestmark = [pytest.mark.slow,
@@ -123,8 +123,8 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
             with _busy(core, HOGS):
                 # a sleeping cell and a sleeping call are not runnable: their time-outs
                 # stay the student's, however busy the core
-                with Worker([BURN, "time.sleep(100)"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "time.sleep(100)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
                     slept = w.call("sleeper", (), 1)
                     assert slept.error.startswith("timed out") and slept.seconds >= 2.0
@@ -134,27 +134,27 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
                     assert not w.alive
                 # the same for a cell while loading
                 with pytest.raises(GraderError, match="cell 1 was stopped"):
-                    Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
-                                   template=template)
+                    Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                   template=template))
             # Beside two busy processes it needs 2.4 s of wall clock for its 0.8 s: the
             # time it waited for the core is added back to its 2 s (up to three times
             # that), so it is graded, not retried nor timed out
             with _busy(core, 2):
-                with Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["ok"], w.load_report
                     outcome = w.call("slow", (), 1)
                     assert outcome.value == 1 and outcome.seconds > 2.0, outcome
                 # A cell that loops for ever is its own time-out, never the grader's failure,
                 # even when the cgroup's count read a moment after its CPU timer fired falls
                 # a hair short of the second
-                with Worker([BURN, "while True:\n    pass"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "while True:\n    pass"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
             # Its own eight busy processes leave its cell a ninth of what it gets: the
             # submission used its CPU, so the time-out is its own, not a retry.
-            with Worker([BURN, CROWD], CROWD_LIMITS, cgroup=cgroup,
-                                template=template) as w:
+            with Worker([BURN, CROWD], CROWD_LIMITS, WorkerSetup(cgroup=cgroup,
+                                template=template)) as w:
                 assert w.load_report[1]["error"] == "timed out", w.load_report
         finally:
             if template is not None:
@@ -249,7 +249,7 @@ def test_time_limits_count_cpu_seconds_so_a_busy_machine_grades_the_same():
     cells = [BURN, "burn(1.5)", "while True:\n    pass", "time.sleep(1000)", INVERT_POSE]
     with _one_core() as core, _busy(core, 1):
         started = time.monotonic()
-        with Worker(cells, limits, cpu_s=60) as worker:
+        with Worker(cells, limits, WorkerSetup(cpu_s=60)) as worker:
             report = {r["index"]: r for r in worker.load_report}
             result = worker.call("invert_pose", (np.eye(4),), 2)
         elapsed = time.monotonic() - started

@@ -26,7 +26,7 @@ import pytest
 
 from autograder import sandbox, scratch
 from autograder.inside import syscalls
-from autograder.pipeline.worker import Limits, Worker
+from autograder.pipeline.worker import Limits, Worker, WorkerSetup
 from autograder.template import Template
 
 LIMITS = Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30)
@@ -100,7 +100,7 @@ def test_a_cold_worker_reaches_no_keyring(instructor_keys):
 def test_a_template_fork_reaches_no_keyring(instructor_keys):
     made = Template([PROBE], LIMITS, cpu_s=60)
     try:
-        seen = _probe_twice(lambda cells: Worker(cells, LIMITS, template=made))
+        seen = _probe_twice(lambda cells: Worker(cells, LIMITS, WorkerSetup(template=made)))
     finally:
         made.close()
     assert seen == [NOTHING, NOTHING]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from autograder import forbidden, sandbox
-from autograder.pipeline.worker import Limits, Worker, WorkerFailure
+from autograder.pipeline.worker import Limits, Worker, WorkerFailure, WorkerSetup
 
 LIMITS = Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30, memory_mb=1024,
                         max_processes=24, scratch_mb=32, reply_kb=256)
@@ -148,7 +148,7 @@ def test_memory_and_process_limits_hold_for_the_whole_submission():
     cgroup = sandbox.Cgroup(LIMITS.memory_mb, LIMITS.max_processes)
     try:
         with Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
-                            cgroup=cgroup) as w:
+                            WorkerSetup(cgroup=cgroup)) as w:
             try:
                 alive = w.call("fork_hogs", (), 50).value
             except WorkerFailure:
@@ -157,7 +157,7 @@ def test_memory_and_process_limits_hold_for_the_whole_submission():
             assert cgroup.oom_kills() >= 1
         cgroup.kill_all()
         with Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
-                            cgroup=cgroup) as w:
+                            WorkerSetup(cgroup=cgroup)) as w:
             made = w.call("fork_bomb", (), 8).value
             assert made is not None and made < LIMITS.max_processes
         assert cgroup.kill_all() >= 0 and not cgroup.pids(), "no process left behind"
@@ -241,7 +241,7 @@ def test_a_forbidden_routine_answers_no_graded_call_however_it_is_reached():
     inverse = np.linalg.inv(T)
     rotation = __import__("cv2").Rodrigues(np.array([0.1, 0.2, 0.3]))[0]
     invert, rodrigues = ("robots.geometry.invert",), ("cv2.Rodrigues",)
-    with Worker([UNSEEN], LIMITS, forbidden=invert + rodrigues) as w:
+    with Worker([UNSEEN], LIMITS, WorkerSetup(forbidden=invert + rodrigues)) as w:
         assert w.load_report[0]["ok"] is True, w.load_report
         for name, args, names, right in [("by_thread", (T,), invert, inverse),
                                          ("by_saved", (T,), invert, inverse),

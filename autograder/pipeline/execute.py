@@ -21,6 +21,7 @@ again in a fresh sandbox when the grader fails; its value per student is an
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import sys
@@ -58,6 +59,7 @@ from autograder.pipeline.worker import (
     TemplateUnavailable,
     Worker,
     WorkerFailure,
+    WorkerSetup,
     not_loaded,
 )
 from autograder.template import Template, imported_modules, leading_cells
@@ -102,21 +104,14 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
     routines = sorted({name for spec in specs for name in spec.forbidden})
 
     caps = sandbox.capabilities()
-    cgroup = None
-    if caps.bwrap and caps.cgroup:
-        try:
-            cgroup = sandbox.Cgroup(limits.memory_mb, limits.max_processes)
-        except (OSError, RuntimeError) as exc:
-            # The run's header promised a cgroup: this row says it did not get one.
-            run.sandbox_flags.append(Flag("sandbox", "no_cgroup"))
-            run.notes.append(f"no cgroup for this submission ({exc}): per-process limits "
-                             "only")
+    cgroup = _cgroup(caps, limits, run)
     if template is not None and not template.matches(cells):
         run.notes.append("started cold: the notebook's first cells are not the released "
                          "notebook's read-only ones")
         template = None
-    worker = NotebookRunner(cells, limits, run, tests, cgroup, template, routines,
-                            limits.worker_cpu_s(specs), run_tests)
+    setup = WorkerSetup(cgroup=cgroup, cpu_s=limits.worker_cpu_s(specs), template=template,
+                        forbidden=tuple(routines))
+    worker = NotebookRunner(cells, limits, run, setup, tests, run_tests)
     deadline = started + limits.deadline_s
     profile = run.profile
     try:
@@ -146,18 +141,38 @@ def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits
     finally:
         worker.close()
         if cgroup is not None:
-            profile["peak_mb"] = cgroup.peak_memory_mb()
-            if cgroup.oom_kills():
-                text = (f"the memory limit ({limits.memory_mb} MB for all the submission's "
-                        f"processes) stopped it {cgroup.oom_kills()} time(s)")
-                run.notes.append(Note(text, for_student=text))
-            cgroup.remove()
+            _remove_cgroup(cgroup, limits, run)
     if not caps.bwrap:
         run.sandbox_flags.append(Flag("sandbox", "rlimits_only"))
     elif not caps.syscall_filter:   # a machine the keyring filter does not know
         run.sandbox_flags.append(Flag("sandbox", "no_keyring_filter"))
     run.seconds = time.monotonic() - started
     return run
+
+
+def _cgroup(caps: sandbox.Capabilities, limits: Limits, run: Execution):
+    """The submission's own cgroup (memory and processes of ``limits``), or None: none on
+    this machine, or none could be made (``run`` says so)."""
+    if not (caps.bwrap and caps.cgroup):
+        return None
+    try:
+        return sandbox.Cgroup(limits.memory_mb, limits.max_processes)
+    except (OSError, RuntimeError) as exc:
+        # The run's header promised a cgroup: this row says it did not get one.
+        run.sandbox_flags.append(Flag("sandbox", "no_cgroup"))
+        run.notes.append(f"no cgroup for this submission ({exc}): per-process limits only")
+        return None
+
+
+def _remove_cgroup(cgroup: sandbox.Cgroup, limits: Limits, run: Execution) -> None:
+    """Note the cgroup's peak memory (MB) in ``run.profile`` and each time the memory limit
+    stopped the code, then remove it."""
+    run.profile["peak_mb"] = cgroup.peak_memory_mb()
+    if cgroup.oom_kills():
+        text = (f"the memory limit ({limits.memory_mb} MB for all the submission's "
+                f"processes) stopped it {cgroup.oom_kills()} time(s)")
+        run.notes.append(Note(text, for_student=text))
+    cgroup.remove()
 
 
 class NotebookRunner:
@@ -178,19 +193,20 @@ class NotebookRunner:
     function that keeps no state between calls :meth:`run` returns the same either way."""
 
     def __init__(self, cells, limits: Limits, execution: Execution | None = None,
-                 tests: set[int] = frozenset(), cgroup=None, template=None, routines=(),
-                 cpu_s: int | None = None, run_tests: bool = False, batch_calls: bool = False):
+                 setup: WorkerSetup = WorkerSetup(), tests: set[int] = frozenset(),
+                 run_tests: bool = False, batch_calls: bool = False):
         run = execution if execution is not None else Execution(student_id="", assignment="")
+        cpu_s = setup.cpu_s
         if cpu_s is None:
             cpu_s = limits.worker_cpu_s(specs_of(run.assignment))
         self.cells, self.limits, self.execution, self.tests = cells, limits, run, set(tests)
-        self.cgroup, self.template, self.routines, self.cpu_s = cgroup, template, routines, cpu_s
-        self.run_tests, self.batch_calls = run_tests, batch_calls
-        self.worker: Worker | None = None
-        self.skip: set[int] = set()
         # over every restart, not since the start: a worker that dies late must still be
         # able to reload
         self.budget = LoadBudget.of(limits)
+        self.setup = dataclasses.replace(setup, cpu_s=cpu_s, budget=self.budget)
+        self.run_tests, self.batch_calls = run_tests, batch_calls
+        self.worker: Worker | None = None
+        self.skip: set[int] = set()
         self.starts = 0
         self.noted_load = False
 
@@ -201,20 +217,19 @@ class NotebookRunner:
             self.worker.close()
         self.starts += 1
         run, profile = self.execution, self.execution.profile
-        start = dict(cells=self.cells, limits=self.limits, skip=self.skip, run=run,
-                     budget=self.budget, cgroup=self.cgroup, cpu_s=self.cpu_s,
-                     first=self.starts == 1, forbidden=self.routines)
+        setup = dataclasses.replace(self.setup, first=self.starts == 1)
         try:
-            self.worker = _start_worker(**start, template=self.template)
+            self.worker = _start_worker(self.cells, self.limits, run, self.skip, setup)
         except TemplateUnavailable as exc:
             run.notes.append(f"started without the template ({exc})")
-            self.template = None
-            self.worker = _start_worker(**start)
+            self.setup = dataclasses.replace(self.setup, template=None)
+            self.worker = _start_worker(self.cells, self.limits, run, self.skip,
+                                        dataclasses.replace(setup, template=None))
         worker = self.worker
         profile["start_s"] += worker.start_s
         profile["cells_s"] += worker.cells_s
         if worker.shared:
-            profile["shared_s"] = self.template.shared_s
+            profile["shared_s"] = self.setup.template.shared_s
         if not self.noted_load:   # a restart repeats the same load
             _note_load(run, worker.load_report, self.tests)
             self.noted_load = True
@@ -322,20 +337,19 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
     return runs
 
 
-def _start_worker(cells, limits: Limits, skip: set[int], run: Execution,
-                  budget: LoadBudget, cgroup: sandbox.Cgroup | None, cpu_s: int,
-                  first: bool, template=None, forbidden=()) -> Worker:
-    """A loaded worker (a fork of ``template`` when given); cells that hang or time out are
-    skipped on every later restart. ``first``: no worker of this submission has started
-    yet (see :class:`GraderError`)."""
+def _start_worker(cells, limits: Limits, run: Execution, skip: set[int],
+                  setup: WorkerSetup) -> Worker:
+    """A loaded worker as ``setup`` says (a fork of its ``template`` when given), without
+    the cells in ``skip``; cells that hang or time out are added to ``skip``, so every later
+    restart skips them too. ``setup.first``: no worker of this submission has started yet
+    (see :class:`GraderError`)."""
     while True:
-        if budget.exhausted:
+        if setup.budget.exhausted:
             raise not_loaded(limits)
         try:
-            worker = Worker(cells, limits, skip, cgroup, cpu_s, budget, first=first,
-                            template=template, forbidden=forbidden)
+            worker = Worker(cells, limits, dataclasses.replace(setup, skip=frozenset(skip)))
         except CellHang as exc:
-            first = False
+            setup = dataclasses.replace(setup, first=False)
             skip.add(exc.index)
             run.notes.append(cell_error_note(f"{exc} (skipped from then on)"))
             continue

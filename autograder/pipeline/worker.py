@@ -231,11 +231,31 @@ def _reported_failure(reply: dict, where: str) -> Failure:
     return Failure(kind, exception=exception, where=where)
 
 
+@dataclass(frozen=True)
+class WorkerSetup:
+    """How one :class:`Worker` starts, besides its cells and limits (each field as the class
+    says): the cell indices to ``skip``, its ``cgroup``, its lifetime ``cpu_s`` limit (None:
+    600 s for a worker on its own; a :class:`NotebookRunner` computes one from the specs),
+    the load ``budget`` (None: a fresh one of the limits), whether it is the submission's
+    ``first`` worker, the ``template`` to fork from, the ``control_fd`` that makes it a
+    template, and the ``forbidden`` routines."""
+
+    skip: frozenset[int] = frozenset()
+    cgroup: sandbox.Cgroup | None = None
+    cpu_s: int | None = None
+    # shared, not copied: every (re)start of one submission's worker spends the same budget
+    budget: LoadBudget | None = None
+    first: bool = True
+    template: object = None      # an autograder.template.Template
+    control_fd: int | None = None
+    forbidden: tuple[str, ...] = ()
+
+
 class Worker:
     """A student-code worker process, spoken to over two private pipes.
 
-    Loads the notebook one cell at a time, skipping the indices in ``skip`` and charging
-    each cell to ``budget``; a cell that hangs past its wall-clock backstop raises
+    ``setup`` (a :class:`WorkerSetup`) says how it starts. Loads the notebook one cell at a
+    time, skipping the indices in ``skip`` and charging each cell to ``budget``; a cell that hangs past its wall-clock backstop raises
     :class:`CellHang` so the caller can restart without it. ``load_report`` lists what each
     cell did. ``cpu_s`` is the worker's lifetime CPU limit (RLIMIT_CPU).
 
@@ -251,13 +271,11 @@ class Worker:
     of the cells it ran itself.
     """
 
-    def __init__(self, cells: list[str], limits: Limits, skip: set[int] = frozenset(),
-                 cgroup: sandbox.Cgroup | None = None, cpu_s: int = 600,
-                 budget: LoadBudget | None = None, first: bool = True,
-                 template=None, control_fd: int | None = None, forbidden=()):
+    def __init__(self, cells: list[str], limits: Limits, setup: WorkerSetup = WorkerSetup()):
         self.limits = limits
+        cgroup, template = setup.cgroup, setup.template
         self._cgroup, self._student = cgroup, None
-        budget = budget or LoadBudget.of(limits)
+        budget = setup.budget or LoadBudget.of(limits)
         started = time.monotonic()
         self.workdir = str(sandbox.private_folder("cobotlab-worker-"))
         self._stderr = open(os.path.join(self.workdir, ".worker-stderr"), "w+b")
@@ -274,9 +292,11 @@ class Worker:
                 raise
             self.shared = len(template.cells)
         else:
-            self._spawn(limits, cgroup, cpu_s, control_fd)
+            self._spawn(limits, cgroup, 600 if setup.cpu_s is None else setup.cpu_s,
+                        setup.control_fd)
         try:
-            self._load(cells, skip, budget, template, first, started, forbidden)
+            self._load(cells, setup.skip, budget, template, setup.first, started,
+                       setup.forbidden)
         except BaseException:
             # Whatever stopped the load (a cell that hung, a reply the grader refused, an
             # interrupt), no process or scratch folder of this worker outlives it.
