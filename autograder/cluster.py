@@ -1,7 +1,7 @@
 """Grade on a Dask cluster: ``cobotlab grade COURSE LAB --cluster ADDRESS``.
 
-The execute stage of :func:`autograder.pipeline.pipeline.grade_course` (running untrusted code) moves to
-the workers of a Dask distributed cluster, the engine JupyterHub-on-Kubernetes deployments
+The execute stage of :func:`autograder.pipeline.pipeline.grade_course` (running untrusted
+code) moves to the workers of a Dask distributed cluster, the engine JupyterHub-on-Kubernetes deployments
 run beside the hub (dask-gateway); every other stage stays in this trusted process, which
 draws the problems and scores. No scheduler or RPC layer of our own: Dask schedules, retries
 and moves the data.
@@ -145,8 +145,8 @@ class ClusterGrader:
     """Grades submissions on the Dask cluster behind ``client`` (see the module docstring).
 
     :meth:`execute_notebook` has the signature of
-    :func:`autograder.pipeline.execute.execute_notebook`, so :func:`autograder.pipeline.pipeline.grade_course`
-    calls it in place of a local sandbox.
+    :func:`autograder.pipeline.execute.execute_notebook`, so
+    :func:`autograder.pipeline.pipeline.grade_course` calls it in place of a local sandbox.
     ``owned``: a cluster this object started (a dask-gateway cluster), shut down by
     :meth:`close`.
     """

@@ -1,7 +1,7 @@
 """The options of one grade run, as one frozen value that every stage reads and none changes.
 
-``cobotlab grade``'s flags and :func:`autograder.pipeline.pipeline.grade_course`'s keywords land here
-once; a stage takes the :class:`GradeOptions` (not a dozen loose arguments), so what a run
+``cobotlab grade``'s flags and :func:`autograder.pipeline.pipeline.grade_course`'s keywords
+land here once; a stage takes the :class:`GradeOptions` (not a dozen loose arguments), so what a run
 was asked to do is written in one place and cannot drift between stages.
 """
 

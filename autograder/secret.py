@@ -1,7 +1,7 @@
 """The course's grading secret: where it is kept and how it is read.
 
-Every student's hidden problems are drawn from it (:func:`autograder.pipeline.problems.problem_rng`),
-so it never leaves the instructor's machine: not into a sandbox, a cluster's worker or a shard
+Every student's hidden problems are drawn from it
+(:func:`autograder.pipeline.problems.problem_rng`), so it never leaves the instructor's machine: not into a sandbox, a cluster's worker or a shard
 job. ``$COBOTLAB_GRADING_SECRET`` wins; otherwise ``<course>/.cobotlab/secret`` is read through
 :mod:`autograder.safe_files` (a regular file, no link followed).
 """

@@ -34,7 +34,7 @@ from pathlib import Path
 from autograder import executions, freeze, gradebook, record, safe_files
 from autograder.feedback_release import write_exchange_files
 from autograder.freeze import freeze_course
-from autograder.pipeline.begin import GradeRun, _private_dir, course_and_secret
+from autograder.pipeline.begin import GradeRun, course_and_secret, private_dir
 from autograder.pipeline.draw import draw
 from autograder.pipeline.execute import Executed, submission_digest
 from autograder.pipeline.pipeline import grade_course
@@ -187,7 +187,7 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
             raise ValueError(f"the shard {shard} holds no execution of {assignment} of a "
                              "submission of this course: run the job first (cobotlab grade "
                              "JOB ASSIGNMENT --students @FILE)")
-        private = _private_dir(root)
+        private = private_dir(root)
         for sid, data in clean.items():
             record.write_file(private, kept_path(assignment, sid), data)
         rows = grade_course(root, assignment, students=[*clean, *zero], rescore=True,

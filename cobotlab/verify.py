@@ -334,8 +334,8 @@ def reference_notebook(source: Path) -> dict:
 
 class SandboxedReference:
     """The reference notebook loaded once in the grader's bubblewrap worker, called through
-    the grader's own :class:`autograder.pipeline.execute.NotebookRunner`; a worker that dies (a limit,
-    a crash) is started again for the next problem."""
+    the grader's own :class:`autograder.pipeline.execute.NotebookRunner`; a worker that dies
+    (a limit, a crash) is started again for the next problem."""
 
     def __init__(self, source: Path, limits: Limits):
         import nbformat

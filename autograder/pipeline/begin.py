@@ -112,7 +112,7 @@ def begin(course_dir, assignment: str, options: GradeOptions, cluster) -> GradeR
     problems = "job" if not secret else "rescore" if rescore else "fresh" if fresh else (
         "replay" if nonce else "fixed")
     nonce = secrets.token_hex(16) if fresh else nonce
-    private = _private_dir(root)
+    private = private_dir(root)
     started = time.monotonic()
     # a cluster whose workers would grade differently (lab version) is refused here
     cluster_note = cluster.check(assignment) if cluster is not None else None
@@ -133,7 +133,9 @@ def begin(course_dir, assignment: str, options: GradeOptions, cluster) -> GradeR
     return run
 
 
-def _private_dir(root: Path) -> Path:
+def private_dir(root: Path) -> Path:
+    """The course's private folder (``.cobotlab/``, mode 0700), made if missing; ValueError
+    when it is a link or not a folder."""
     private = root / PRIVATE_DIR
     private.mkdir(mode=0o700, exist_ok=True)
     if not stat.S_ISDIR(os.lstat(private).st_mode):

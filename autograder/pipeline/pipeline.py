@@ -38,20 +38,20 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
     2. **freeze**: every submission is copied, as data (regular files only, capped), into
        grader-private storage before any student code runs (:mod:`autograder.freeze`);
     3. **draw**: every submission's hidden problems, from the secret, in this process,
-       all of them before any code runs (:func:`autograder.pipeline.problems.draw_all`); only their
-       inputs go to a sandbox or a cluster's worker;
-    4. **execute**: per student, one sandboxed worker runs the notebook once and calls the
-       graded functions on the problems' inputs (:func:`autograder.pipeline.execute.execute_notebook`),
-       an :class:`~autograder.pipeline.execution.Execution`: what each call came to, nothing scored; it
-       sees neither the course, the secret nor the answer key. With ``run_nbgrader``,
+       all of them before any code runs (:mod:`autograder.pipeline.draw`); only their inputs
+       go to a sandbox or a cluster's worker;
+    4. **execute** (:mod:`autograder.pipeline.execute`): per student, one sandboxed worker
+       runs the notebook once and calls the graded functions on the problems' inputs, an
+       :class:`~autograder.pipeline.execution.Execution`: what each call came to, nothing
+       scored; it sees neither the course, the secret nor the answer key. With ``run_nbgrader``,
        nbgrader's own autograde converter (sanitize, restore the locked and test cells,
        score, late penalty) runs here on a throwaway course and takes its cell outcomes from
        that same run (:func:`autograder.scratch.autograde_in_worker`), so the cross-check
        costs no second execution; an assignment of several notebooks gets nbgrader's own
        kernel, sandboxed;
-    5. **score**: a pure function of the problems and the execution
-       (:func:`autograder.pipeline.score.score_execution`): no I/O, no student code;
-    6. **record**, from this trusted process: validated numbers into ``gradebook.db``
+    5. **score** (:mod:`autograder.pipeline.score`): a pure function of the problems and
+       the execution: no I/O, no student code;
+    6. **record** (:mod:`autograder.pipeline.record`), from this trusted process: validated numbers into ``gradebook.db``
        (backed up first, integrity-checked after, restored if damaged), then ``grades.csv``,
        the feedback pages, the executions (kept for ``rescore``) and the run log, written
        atomically without following links.

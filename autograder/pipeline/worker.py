@@ -109,8 +109,8 @@ class WorkerFailure(Exception):
 class GraderError(RuntimeError):
     """The grader could not grade: its sandbox did not start, before any student code ran,
     or the machine starved a cell or call (:meth:`Worker._judge`). Never the submission's
-    fault: :func:`autograder.pipeline.pipeline.grade_course` retries it in a fresh sandbox and, if it
-    persists, records no score."""
+    fault: :func:`autograder.pipeline.pipeline.grade_course` retries it in a fresh sandbox
+    and, if it persists, records no score."""
 
 
 class TemplateUnavailable(RuntimeError):
@@ -255,8 +255,9 @@ class Worker:
     """A student-code worker process, spoken to over two private pipes.
 
     ``setup`` (a :class:`WorkerSetup`) says how it starts. Loads the notebook one cell at a
-    time, skipping the indices in ``skip`` and charging each cell to ``budget``; a cell that hangs past its wall-clock backstop raises
-    :class:`CellHang` so the caller can restart without it. ``load_report`` lists what each
+    time, skipping the indices in ``skip`` and charging each cell to ``budget``; a cell
+    that hangs past its wall-clock backstop raises :class:`CellHang` so the caller can
+    restart without it. ``load_report`` lists what each
     cell did. ``cpu_s`` is the worker's lifetime CPU limit (RLIMIT_CPU).
 
     With ``template`` (an :class:`autograder.template.Template` whose shared cells begin
