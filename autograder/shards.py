@@ -168,7 +168,7 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     root, secret = course_and_secret(home, assignment)
     gradebook.require_assignment(root, assignment)
     run = GradeRun(root, root / PRIVATE_DIR, assignment, secret, None, "merge",
-                          Limits(), [], time.monotonic())
+                   Limits(), [], time.monotonic())
     notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
         frozen = freeze_course(root, assignment, Path(store), freeze.Caps())
@@ -191,7 +191,7 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
         for sid, data in clean.items():
             record.write_file(private, kept_path(assignment, sid), data)
         rows = grade_course(root, assignment, students=[*clean, *zero], rescore=True,
-                                   quiet=True)
+                            quiet=True)
         for sub in frozen:
             if sub.student_id in clean:
                 _copy_autograded(root, shard, assignment, sub, notes)

@@ -14,7 +14,7 @@ DOC = (ROOT / "docs" / "architecture.md").read_text()
 # the modules the doc names functions of as `module.name`: autograder's own, then the line's
 MODULES = ("course", "executions", "checks", "freeze", "shards", "secret", "pipeline", "begin",
            "draw", "problems", "cells", "worker", "execution", "execute", "score", "record",
-           "rescore")
+           "rescore", "nbgrader_results")
 
 
 def _resolve(dotted: str):

@@ -30,6 +30,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from autograder import (
     checks,
@@ -63,6 +64,9 @@ from autograder.pipeline.worker import (
     not_loaded,
 )
 from autograder.template import Template, imported_modules, leading_cells
+
+if TYPE_CHECKING:   # made after this stage, from its values
+    from autograder.pipeline.nbgrader_results import NbgraderCells
 
 
 def execute_notebook(notebook_paths, problems: Problems, limits: Limits = Limits(),
@@ -397,6 +401,8 @@ class Executed:
     grader_errors: list[str] = field(default_factory=list)
     submission: str = ""
     problems: Problems | None = None
+    # nbgrader's own cell results, for score's cross-check (autograder.pipeline.nbgrader_results)
+    nbgrader_cells: NbgraderCells | None = None
 
 
 def execute(run: GradeRun, frozen, problems: DrawnProblems, store: Path,

@@ -13,6 +13,7 @@ from autograder.grade_options import GradeOptions
 from autograder.pipeline.begin import GradeRun, begin, run_options
 from autograder.pipeline.draw import draw
 from autograder.pipeline.execute import Executed, execute
+from autograder.pipeline.nbgrader_results import with_nbgrader_cells
 from autograder.pipeline.record import (
     end_run,
     grade_row,
@@ -116,6 +117,7 @@ def grade_course(course_dir, assignment: str, workers: int = 1, *,
             executed = execute(run, frozen, problems, Path(store), progress, cluster)
     if run.problems == "job":   # a shard job: home scores what it kept (autograder.shards)
         return _end_job(run, frozen, executed)
+    executed = with_nbgrader_cells(run, frozen, executed)
     grades = [score_submission(run, sub, executed[sub.student_id]) for sub in frozen]
     rows, grades = record_grades(run, frozen, executed, grades)
     if run.problems != "rescore":   # a rescore's executions are those it read

@@ -33,11 +33,10 @@ from autograder.feedback_release import (
 )
 from autograder.freeze import printable
 from autograder.grade_options import GradeOptions
-from autograder.nbgrader_cells import cell_role
-from autograder.outcomes import Flag, about_function
+from autograder.outcomes import about_function
 from autograder.pipeline.begin import GradeRun
-from autograder.pipeline.cells import HIDDEN_MARK
 from autograder.pipeline.execute import Executed
+from autograder.pipeline.nbgrader_results import LEDGER, cell_to_function, load_ledger, source_cells
 from autograder.pipeline.score import SubmissionGrade
 from autograder.record import read_private
 
@@ -48,43 +47,13 @@ GRADE_COLUMNS = ["assignment", "duedate", "timestamp", "student_id", "last_name"
 GRADES_CSV = "grades.csv"
 
 
-# nbgrader's own value of each cell cobotlab overwrote, so the cross-check still has it on
-# the next run: {assignment: {student: {"timestamp", "cells": {grade_id: [ours, nbgrader's]}}}}
-_LEDGER = "nbgrader_cells.json"
-
-
-def _source_cells(root: Path, assignment: str):
-    """(:class:`~autograder.nbgrader_cells.CellRole`, source) of every cell of the source
-    notebooks."""
-    for path in sorted((root / "source" / assignment).glob("*.ipynb")):
-        for cell in json.loads(path.read_text()).get("cells", []):
-            yield cell_role(cell), "".join(cell.get("source", ""))
-
-
-def _cell_to_function(root: Path, assignment: str) -> dict[str, str]:
-    """grade_id of each hidden-test cell in the source notebooks -> graded function name.
-
-    The labs name a function's test cell ``test_<function>``; a cell named otherwise goes to
-    the last graded function it calls.
-    """
-    names = [s.name for s in checks.SPECS.get(assignment, ())]
-    mapping = {}
-    for role, source in _source_cells(root, assignment):
-        grade_id = role.grade_id
-        if not (role.grade and HIDDEN_MARK in source):
-            continue
-        called = [n for n in names if re.search(rf"\b{re.escape(n)}\s*\(", source)]
-        by_name = [n for n in names if grade_id == f"test_{n}"]
-        if by_name or called:
-            mapping[grade_id] = (by_name or called)[-1]
-    return mapping
 
 
 def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
     """graded function name -> grade_id of the solution cell that defines it (where
     formgrader shows a comment box)."""
     mapping = {}
-    for role, source in _source_cells(root, assignment):
+    for role, source in source_cells(root, assignment):
         grade_id = role.grade_id
         if not role.solution:
             continue
@@ -93,23 +62,6 @@ def _solution_cells(root: Path, assignment: str) -> dict[str, str]:
                     rf"^def {re.escape(spec.name)}\s*\(", source, re.MULTILINE)):
                 mapping[spec.name] = grade_id
     return mapping
-
-
-def _cross_check(grade: SubmissionGrade, nb: dict, cell_map: dict[str, str]) -> None:
-    """Flag functions nbgrader's kernel passed but the independent grader failed."""
-    if not nb.get("cells"):
-        grade.flags.append(Flag("nbgrader_no_result"))
-        return
-    by_function = {f.name: f for f in grade.functions}
-    for grade_id, function in cell_map.items():
-        if grade_id not in nb["cells"]:
-            grade.flags.append(Flag("nbgrader_missing_cell", function, function=function))
-            continue
-        score, max_score = nb["cells"][grade_id]
-        ours = by_function.get(function)
-        if ours is not None and max_score > 0 and score >= max_score and ours.fraction < 0.5:
-            grade.flags.append(Flag("nbgrader_passed_but_grader_failed", function,
-                                    function=function))
 
 
 def record_nbgrader(root: Path, assignment: str, sub: freeze.Frozen,
@@ -133,8 +85,9 @@ def write_autograded(root: Path, assignment: str, sub: freeze.Frozen,
 def record_grades(run: GradeRun, frozen, executed: dict[str, Executed],
             scored) -> tuple[list[dict], list[SubmissionGrade]]:
     """(the grades.csv rows, the grades as recorded): ``scored`` written into the course.
-    What recording adds (nbgrader's cross-check flags, a restored gradebook's flag, notes
-    of what could not be written) goes on copies; ``scored`` is read, never changed."""
+    What recording adds (a restored gradebook's flag, notes of what could not be written)
+    goes on copies; ``scored`` is read, never changed. nbgrader's own cell results, for the
+    comments and the ledger, are those each ``Executed`` carries."""
     root, assignment, private, run_notes = run.root, run.assignment, run.private, run.notes
     run_nbgrader = run.options.run_nbgrader
     grades = [dataclasses.replace(g, flags=list(g.flags), notes=list(g.notes)) for g in scored]
@@ -145,23 +98,16 @@ def record_grades(run: GradeRun, frozen, executed: dict[str, Executed],
     if ungraded:
         run_notes.append(f"not graded, the grader failed on every attempt (no score recorded; "
                          f"the next run grades them again): {', '.join(ungraded)}")
-    nb_runs = _record_nbgrader_runs(run, frozen, executed, grades)
+    _record_nbgrader_runs(run, frozen, executed, grades)
     damaged = _check_gradebook(root, private, run_notes)
 
     # A submission the grader could not grade gets nothing in the gradebook, not a zero.
     accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted and g.graded]
-    ledger = _load_ledger(private)
-    nb_own = {} if damaged else _nbgrader_own(
-        gradebook.results(root, assignment, [g.student_id for g, _ in accepted]),
-        ledger.get(assignment, {}), {sub.student_id: sub.timestamp for _, sub in accepted},
-        set(nb_runs))
-    cell_map = _cell_to_function(root, assignment)
-    for grade, sub in accepted:
-        if sub.notebooks:
-            _cross_check(grade, nb_own.get(grade.student_id, {}), cell_map)
     if not damaged:
-        _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
-                         run_notes)
+        nb_own = {sid: d.nbgrader_cells.scores for sid, d in executed.items()
+                  if d.nbgrader_cells is not None}
+        _record_cobotlab(root, private, assignment, accepted, nb_own,
+                         cell_to_function(root, assignment), load_ledger(private), run_notes)
         _withdraw_ungraded(root, assignment, grades, frozen, run_notes)
         damaged = _check_gradebook(root, private, run_notes)
     # names, timestamps and late penalties as the gradebook has them now, our scores in it
@@ -264,38 +210,6 @@ def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | N
     return damaged
 
 
-def _load_ledger(private: Path) -> dict:
-    data = read_private(private, _LEDGER)
-    try:
-        ledger = json.loads(data) if data is not None else {}
-    except (ValueError, UnicodeDecodeError):
-        ledger = {}
-    return ledger if isinstance(ledger, dict) else {}
-
-
-def _nbgrader_own(nb_results: dict, ledger: dict, timestamps: dict, just_run: set) -> dict:
-    """nbgrader's own cell results: the gradebook's, except in cells that still hold the
-    score cobotlab wrote there for the same submission, where it is the value cobotlab
-    replaced (a cell nbgrader never graded is left out)."""
-    for sid, entry in nb_results.items():
-        mine = ledger.get(sid)
-        if sid in just_run or not isinstance(mine, dict) or \
-                mine.get("timestamp") != timestamps.get(sid):
-            continue  # nbgrader's fresh result, or nothing of ours in the gradebook
-        wrote = mine.get("cells") if isinstance(mine.get("cells"), dict) else {}
-        cells = {}
-        for grade_id, (score, max_score) in entry.get("cells", {}).items():
-            ours = wrote.get(grade_id)
-            if isinstance(ours, list) and len(ours) == 2 and isinstance(ours[0], (int, float)) \
-                    and abs(score - ours[0]) < 1e-6:
-                if not isinstance(ours[1], (int, float)):
-                    continue
-                score = float(ours[1])
-            cells[grade_id] = (score, max_score)
-        entry["cells"] = cells
-    return nb_results
-
-
 def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
                      run_notes) -> None:
     """Each function's score into its autograder cell(s) of gradebook.db, the findings
@@ -312,7 +226,7 @@ def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledg
         by_function = {f.name: f for f in grade.functions}
         fractions = {gid: by_function[name].fraction for gid, name in cell_map.items()
                      if name in by_function}
-        theirs = nb_own.get(grade.student_id, {}).get("cells", {})
+        theirs = nb_own.get(grade.student_id, {})
         comments = {solution_of[f.name]: _comment(grade, f, i == 0, [
             theirs[g] for g, name in cell_map.items() if name == f.name and g in theirs])
             for i, f in enumerate(grade.functions) if f.name in solution_of}
@@ -327,7 +241,7 @@ def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledg
         mine[grade.student_id] = {"timestamp": sub.timestamp, "cells": {
             gid: [score, theirs[gid][0] if gid in theirs else None]
             for gid, (_, score) in written.items()}}
-    record.write_file(private, _LEDGER, json.dumps(ledger).encode("utf-8"))
+    record.write_file(private, LEDGER, json.dumps(ledger).encode("utf-8"))
 
 
 def _comment(grade: SubmissionGrade, f: checks.FunctionResult, first: bool,

@@ -23,6 +23,7 @@ from autograder.pipeline.problems import Problems, specs_of
 if TYPE_CHECKING:   # the stages before; importing them would go round in a circle
     from autograder.pipeline.begin import GradeRun
     from autograder.pipeline.execute import Executed
+    from autograder.pipeline.nbgrader_results import NbgraderCells
 
 
 @dataclass
@@ -111,7 +112,8 @@ def _kernel_verdict(name: str, specs: dict, banned: dict, problems: Problems,
 
 def score_submission(run: GradeRun, sub: freeze.Frozen, done: Executed) -> SubmissionGrade:
     """The grade of one submission from its execution (:func:`score_execution`),
-    with the freeze's flags and notes first and nbgrader's and the time-outs' after; a
+    with the freeze's flags and notes first and nbgrader's, the time-outs' and the
+    cross-check's with nbgrader's own cell results (``done.nbgrader_cells``) after; a
     refused submission, or one without a notebook, scores zero; one the grader failed on
     every time is not graded."""
     if not sub.accepted or not sub.notebooks:
@@ -130,7 +132,28 @@ def score_submission(run: GradeRun, sub: freeze.Frozen, done: Executed) -> Submi
             grade.notes += done.nbgrader.notes
             grade.flags += done.nbgrader.flags
         grade.flags += _timeout_flags(grade)
+        if sub.notebooks and done.nbgrader_cells is not None:
+            grade.flags += _cross_check(grade, done.nbgrader_cells)
     return grade
+
+
+def _cross_check(grade: SubmissionGrade, nb: NbgraderCells) -> list[Flag]:
+    """The flags of functions nbgrader's kernel passed but the independent grader failed,
+    of its hidden-test cells missing, or of no nbgrader result at all."""
+    if not nb.scores:
+        return [Flag("nbgrader_no_result")]
+    flags = []
+    by_function = {f.name: f for f in grade.functions}
+    for grade_id, function in nb.functions.items():
+        if grade_id not in nb.scores:
+            flags.append(Flag("nbgrader_missing_cell", function, function=function))
+            continue
+        score, max_score = nb.scores[grade_id]
+        ours = by_function.get(function)
+        if ours is not None and max_score > 0 and score >= max_score and ours.fraction < 0.5:
+            flags.append(Flag("nbgrader_passed_but_grader_failed", function,
+                              function=function))
+    return flags
 
 
 def _ungraded(sub: freeze.Frozen, assignment: str, errors: list[str]):
