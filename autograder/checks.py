@@ -14,7 +14,7 @@ multiple of a per-problem tolerance:
 
 The same code scores three ways: :func:`check` on public seeds in the student's notebook
 (prints the score and why), :func:`hidden_test` inside nbgrader's kernel (only a cross-check:
-that kernel runs student code and can be tampered with), and :mod:`autograder.grading`, which
+that kernel runs student code and can be tampered with), and :mod:`autograder.pipeline.score`, which
 scores outputs from an isolated worker against truth it never lets out of its own process.
 
 What a student's copy holds is the public half: the scoring of every graded function

@@ -1,7 +1,7 @@
 """Grade on a Dask cluster: ``cobotlab grade COURSE LAB --cluster ADDRESS``.
 
-The execute stage of :func:`autograder.course.grade_course` (running untrusted code) moves to
-the workers of a Dask distributed cluster, the engine JupyterHub-on-Kubernetes deployments
+The execute stage of :func:`autograder.pipeline.pipeline.grade_course` (running untrusted
+code) moves to the workers of a Dask distributed cluster, the engine JupyterHub-on-Kubernetes deployments
 run beside the hub (dask-gateway); every other stage stays in this trusted process, which
 draws the problems and scores. No scheduler or RPC layer of our own: Dask schedules, retries
 and moves the data.
@@ -9,8 +9,8 @@ and moves the data.
 - **One task per frozen submission.** The task carries the frozen notebook's bytes (never a
   path on this machine), the assignment, the student id, the problems' inputs and the
   limits (:func:`task_payload`); on its worker it runs
-  :func:`autograder.grading.execute_notebook`, the same bubblewrap sandbox as a local run,
-  and returns the :class:`~autograder.grading.Execution` as one JSON text
+  :func:`autograder.pipeline.execute.execute_notebook`, the same bubblewrap sandbox as a local run,
+  and returns the :class:`~autograder.pipeline.execution.Execution` as one JSON text
   (:mod:`autograder.executions`).
 - **The cluster never holds the secret.** Problems are drawn here; a task carries only the
   inputs of its own student's problems (a closed loop also what its loop flies by), never a
@@ -19,7 +19,7 @@ and moves the data.
 - **The trusted side validates, then scores.** :func:`autograder.executions.from_wire`
   rebuilds the execution only from a reply whose functions are this lab's, in order, with
   bounded counts, finite times, capped strings and values that pass the wire's checks; the
-  score is computed here from it (:func:`autograder.grading.score_execution`). A reply that
+  score is computed here from it (:func:`autograder.pipeline.score.score_execution`). A reply that
   fails is the grader's failure (retried, then no score), never a student's grade.
 - **Authenticated only.** A ``tls://`` scheduler with Dask's TLS security (mutual: the
   scheduler accepts only clients and workers whose certificate the course's CA signed), or a
@@ -45,8 +45,12 @@ import uuid
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from autograder import checks, executions, grading, registry, sandbox
+from autograder import checks, executions, registry, sandbox
 from autograder.freeze import printable
+from autograder.pipeline.execute import execute_notebook
+from autograder.pipeline.execution import Execution
+from autograder.pipeline.problems import Problems
+from autograder.pipeline.worker import GraderError, Limits
 
 __all__ = ["ClusterGrader", "connect", "execute_task", "spec_digest", "task_payload"]
 
@@ -86,10 +90,10 @@ def _worker_reply(payload: dict) -> dict:
             path = Path(folder) / name
             path.write_bytes(data)
             paths.append(path)
-        limits = grading.Limits(**payload["limits"])
+        limits = Limits(**payload["limits"])
         problems = executions.problems_from_wire(payload["problems"], payload["assignment"],
                                                  payload["student_id"])
-        execution = grading.execute_notebook(paths, problems, limits,
+        execution = execute_notebook(paths, problems, limits,
                                              run_tests=payload["run_tests"])
     finally:
         shutil.rmtree(folder, ignore_errors=True)
@@ -124,8 +128,8 @@ def probe_task(assignment: str) -> str:
     return json.dumps({"specs": specs, "sandbox": sandbox.mode(), "version": package})
 
 
-def task_payload(notebooks: list[tuple[str, bytes]], problems: grading.Problems,
-                 limits: grading.Limits, run_tests: bool) -> dict:
+def task_payload(notebooks: list[tuple[str, bytes]], problems: Problems,
+                 limits: Limits, run_tests: bool) -> dict:
     """What one task carries: the frozen notebooks' bytes, the problems' inputs (never
     their tolerances, nor the truth of a function graded in one call), the limits."""
     return {"assignment": problems.assignment, "student_id": problems.student_id,
@@ -141,8 +145,8 @@ class ClusterGrader:
     """Grades submissions on the Dask cluster behind ``client`` (see the module docstring).
 
     :meth:`execute_notebook` has the signature of
-    :func:`autograder.grading.execute_notebook`, so :func:`autograder.course.grade_course`
-    calls it in place of a local sandbox.
+    :func:`autograder.pipeline.execute.execute_notebook`, so
+    :func:`autograder.pipeline.pipeline.grade_course` calls it in place of a local sandbox.
     ``owned``: a cluster this object started (a dask-gateway cluster), shut down by
     :meth:`close`.
     """
@@ -152,7 +156,7 @@ class ClusterGrader:
         self.wait_workers_s = wait_workers_s
         self._lock = threading.Lock()
         self._live: set = set()
-        self._recorded: dict[tuple, grading.Execution] = {}
+        self._recorded: dict[tuple, Execution] = {}
         self._run = uuid.uuid4().hex[:8]
 
     # -- before grading
@@ -191,10 +195,10 @@ class ClusterGrader:
 
     # -- running
 
-    def execute_notebook(self, notebook_paths, problems: grading.Problems,
-                         limits: grading.Limits = grading.Limits(),
-                         run_tests: bool = False) -> grading.Execution:
-        """Run one submission on a worker (:func:`autograder.grading.execute_notebook`
+    def execute_notebook(self, notebook_paths, problems: Problems,
+                         limits: Limits = Limits(),
+                         run_tests: bool = False) -> Execution:
+        """Run one submission on a worker (:func:`autograder.pipeline.execute.execute_notebook`
         there); a failure raises (the caller's retry, then no score). The task carries the
         problems' inputs, never the secret: this process scores what comes back."""
         paths = [notebook_paths] if isinstance(notebook_paths, (str, Path)) else \
@@ -203,28 +207,28 @@ class ClusterGrader:
         for path in paths:
             data = Path(path).read_bytes()   # frozen (or nbgrader's sanitized) copy
             if len(data) > MAX_NOTEBOOK_BYTES:
-                raise grading.GraderError(f"{Path(path).name} is too large to ship")
+                raise GraderError(f"{Path(path).name} is too large to ship")
             notebooks.append((Path(path).name, data))
         payload = task_payload(notebooks, problems, limits, run_tests)
         assignment, student_id = problems.assignment, problems.student_id
         key = f"cobotlab-grade-{self._run}-{assignment}-{student_id}-{uuid.uuid4().hex[:8]}"
         text = self._wait(self.client.submit(execute_task, payload, key=key, pure=False))
         if not isinstance(text, str) or len(text) > MAX_REPLY_BYTES:
-            raise grading.GraderError("the worker's reply is not text or is too large")
+            raise GraderError("the worker's reply is not text or is too large")
         try:
             reply = json.loads(text)
         except ValueError:
-            raise grading.GraderError("the worker's reply is not JSON") from None
+            raise GraderError("the worker's reply is not JSON") from None
         if not isinstance(reply, dict) or reply.get("ok") is not True:
             error = reply.get("error") if isinstance(reply, dict) else None
-            raise grading.GraderError(f"on the cluster: {printable(error or 'no reply', 500)}")
+            raise GraderError(f"on the cluster: {printable(error or 'no reply', 500)}")
         if reply.get("specs") != spec_digest(assignment):
-            raise grading.GraderError(f"the worker has another version of {assignment}")
+            raise GraderError(f"the worker has another version of {assignment}")
         try:
             execution = executions.from_wire(reply.get("execution"), assignment, student_id,
                                              {name for name, _ in notebooks})
         except executions.ExecutionRefused as exc:
-            raise grading.GraderError(f"the worker's reply was refused: {exc}") from None
+            raise GraderError(f"the worker's reply was refused: {exc}") from None
         with self._lock:   # idempotent by student: the first validated reply stands
             return self._recorded.setdefault((assignment, student_id, run_tests), execution)
 
@@ -242,7 +246,7 @@ class ClusterGrader:
                 except TimeoutError:
                     continue
                 except Exception as exc:  # noqa: BLE001 - lost workers, cancelled, ...
-                    raise grading.GraderError(
+                    raise GraderError(
                         f"the cluster did not grade it: {type(exc).__name__}: "
                         f"{printable(exc, 300)}") from None
         finally:

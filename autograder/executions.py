@@ -1,4 +1,4 @@
-"""An :class:`~autograder.grading.Execution` as data: one wire form for the cluster's replies
+"""An :class:`~autograder.pipeline.execution.Execution` as data: one wire form for the cluster's replies
 and for the executions a grade run keeps (``cobotlab grade --rescore``).
 
 The form is :mod:`autograder.inside.wire`'s JSON (arrays as raw little-endian bytes: a value read
@@ -26,9 +26,11 @@ import math
 
 from autograder import checks
 from autograder.freeze import printable
-from autograder.grading import CellOrigin, CellRun, Execution, FunctionRun, Problems
 from autograder.inside import wire
 from autograder.outcomes import Cause, Failed, Failure, Note, Place, TrialOutcome, student_words
+from autograder.pipeline.cells import CellOrigin
+from autograder.pipeline.execution import CellRun, Execution, FunctionRun
+from autograder.pipeline.problems import KernelTrials, Problems
 
 __all__ = ["FORMAT", "ExecutionRefused", "file_key", "to_wire", "from_wire", "problems_to_wire",
            "problems_from_wire", "inputs_digest"]
@@ -283,7 +285,6 @@ def problems_to_wire(problems: Problems) -> dict:
 
 def problems_from_wire(data, assignment: str, student_id: str) -> Problems:
     """Problems rebuilt from their inputs (no tolerances: nothing is scored with them)."""
-    from autograder.grading import KernelTrials
 
     data = _mapping(data, "the problems")
     if data.get("assignment") != assignment or data.get("student_id") != student_id:

@@ -1,7 +1,7 @@
 """The student's feedback page for one graded submission (``feedback_cobotlab/.../feedback.html``).
 
-Written from the trusted side after grading (:func:`autograder.course.grade_course`), from the
-numbers in a :class:`~autograder.grading.SubmissionGrade` only: per function its points and
+Written from the trusted side after grading (:func:`autograder.pipeline.pipeline.grade_course`), from the
+numbers in a :class:`~autograder.pipeline.score.SubmissionGrade` only: per function its points and
 a coloured verdict, per check how many problems were within tolerance and the worst error
 against that tolerance in its unit, and each distinct error once with the number of problems
 it happened on. Cells are numbered as the student sees them (``In [n]`` after Restart and
@@ -22,9 +22,10 @@ from collections import Counter
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.errors import ErrorGroup
 from autograder.freeze import printable
-from autograder.grading import CellOrigin, SubmissionGrade
 from autograder.outcomes import Failed, Place, student_words
 from autograder.page_policy import POLICY_META
+from autograder.pipeline.cells import CellOrigin
+from autograder.pipeline.score import SubmissionGrade
 
 __all__ = ["feedback_html", "feedback_section", "function_verdict", "error_lines"]
 

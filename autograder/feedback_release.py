@@ -57,7 +57,7 @@ def write_exchange_files(root: Path, assignment: str, sub: freeze.Frozen) -> Non
 
 def write_section(root: Path, assignment: str, grade, timestamp: str) -> Path:
     """cobotlab's feedback of one graded submission (a
-    :class:`autograder.grading.SubmissionGrade`) as the section nbgrader's feedback page
+    :class:`autograder.pipeline.score.SubmissionGrade`) as the section nbgrader's feedback page
     gets, with the ``timestamp`` of the submission it grades."""
     from autograder import feedback  # the grader's modules: not for nbgrader_hooks' import
 

@@ -302,3 +302,22 @@ def _timestamp(folder: Path) -> str:
         return ""
     return text if len(text) <= 64 and printable(text) == text else ""
 
+
+def freeze_course(root: Path, assignment: str, store: Path, caps: Caps,
+                  students=None) -> list[Frozen]:
+    submitted = root / "submitted"
+    expected = {p.name for p in (root / "source" / assignment).glob("*.ipynb")}
+    (store / "submissions").mkdir(mode=0o700)
+    frozen = (freeze_submissions(submitted, assignment, expected, store / "submissions",
+                                 caps) if os.path.lexists(submitted) else [])
+    if not frozen:
+        raise ValueError(f"no submissions for {assignment!r} in {submitted}; collect them "
+                         "first (nbgrader collect / zip_collect) or check the assignment name")
+    if students is not None:
+        wanted = list(dict.fromkeys(students))
+        missing = sorted(set(wanted) - {f.student_id for f in frozen})
+        if missing:
+            raise ValueError(f"no submission of {assignment!r} by {', '.join(missing)} in "
+                             f"{submitted}; check the --students list")
+        frozen = [f for f in frozen if f.student_id in set(wanted)]
+    return frozen

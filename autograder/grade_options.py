@@ -1,7 +1,7 @@
 """The options of one grade run, as one frozen value that every stage reads and none changes.
 
-``cobotlab grade``'s flags and :func:`autograder.course.grade_course`'s keywords land here
-once; a stage takes the :class:`GradeOptions` (not a dozen loose arguments), so what a run
+``cobotlab grade``'s flags and :func:`autograder.pipeline.pipeline.grade_course`'s keywords
+land here once; a stage takes the :class:`GradeOptions` (not a dozen loose arguments), so what a run
 was asked to do is written in one place and cannot drift between stages.
 """
 
@@ -9,12 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from autograder import freeze, grading
+from autograder import freeze
+from autograder.pipeline.worker import Limits
 
 
 @dataclass(frozen=True)
 class GradeOptions:
-    """What one grade run was asked to do (see :func:`autograder.course.grade_course` for
+    """What one grade run was asked to do (see :func:`autograder.pipeline.pipeline.grade_course` for
     each field's meaning). Times are seconds of wall clock; ``students`` None: everyone."""
 
     workers: int = 1
@@ -22,7 +23,7 @@ class GradeOptions:
     nbgrader_kernel: bool = False
     nbgrader_cell_timeout_s: int | None = None
     nbgrader_timeout_s: float = 300
-    limits: grading.Limits = grading.Limits()
+    limits: Limits = Limits()
     caps: freeze.Caps = freeze.Caps()
     fresh: bool = False
     nonce: str | None = None

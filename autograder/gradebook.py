@@ -296,12 +296,26 @@ def write_nbgrader_cells(root: Path, assignment: str, student: str, timestamp: s
                 cell = by_key.get((notebook.name, grade.name))
                 value = cell.score if cell is not None and notebook.name in notebooks_present \
                     else 0.0
-                grade.auto_score = min(max(value, 0.0), float(grade.max_score or 0.0))
+                grade.auto_score = clamped(value, grade.max_score)
                 grade.needs_manual_grade = grade.manual_score is not None
                 total += grade.auto_score
             notebook.late_submission_penalty = _late_penalty(
                 root, student, total, float(submission.total_seconds_late or 0.0)) or None
         gb.db.commit()
+
+
+def clamped(points: float, max_score) -> float:
+    """``points`` as the gradebook holds a cell's score: within 0..``max_score``."""
+    return min(max(points, 0.0), float(max_score or 0.0))
+
+
+def nbgrader_cell_results(cells, notebooks_present: set[str]) -> dict[str, tuple[float, float]]:
+    """{grade id: (points, max points)} of one student's validated cell scores
+    (:class:`CellScore`) as :func:`write_nbgrader_cells` puts them in the gradebook and
+    :func:`results` reads them back: clamped to 0..the cell's points, 0 when its notebook
+    (``notebooks_present``: names without ``.ipynb``) is missing."""
+    return {c.cell: (clamped(c.score if c.notebook in notebooks_present else 0.0, c.max_score),
+                     float(c.max_score or 0.0)) for c in cells}
 
 
 def write_cobotlab(root: Path, assignment: str, student: str, timestamp: str,

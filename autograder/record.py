@@ -25,6 +25,7 @@ from pathlib import Path
 
 from autograder import safe_files
 from autograder.freeze import printable
+from autograder.safe_files import Refused, Why, move_aside, read_file
 
 __all__ = ["write_file", "remove_file", "write_csv", "update_csv", "drop_csv_rows", "csv_cell",
            "RUN_MARKER"]
@@ -167,3 +168,18 @@ def drop_csv_rows(root: Path, relative: str, columns: list[str], key: tuple[str,
             del kept[k]
         write_csv(root, relative, columns, [kept[k] for k in sorted(kept)])
     return len(gone)
+
+
+PRIVATE_CAP = 1 << 30   # a private file read back whole (runs.jsonl grows by a line a run)
+
+
+def read_private(private: Path, name: str) -> bytes | None:
+    """The bytes of ``private/name`` (``private`` itself no link either), or None: missing,
+    or not a regular file (a link is not followed; the next write replaces it). One too
+    big or unreadable is moved aside to ``<name>.unreadable-<time>``, not lost."""
+    try:
+        return read_file(private, name, PRIVATE_CAP)
+    except Refused as exc:
+        if exc.why in (Why.TOO_BIG, Why.UNREADABLE) and exc.where == name:
+            move_aside(private, name, f".unreadable-{int(time.time())}")
+        return None

@@ -37,7 +37,7 @@ from autograder import safe_files, sandbox
 from autograder.feedback import student_location
 from autograder.freeze import Frozen, printable
 from autograder.gradebook import CellScore, read_scratch_scores, set_duedate
-from autograder.grading import HIDDEN_MARK, hidden_tests_called
+from autograder.pipeline.cells import HIDDEN_MARK, hidden_tests_called
 
 __all__ = ["ScratchResult", "make_template", "autograde_one",
            "autograde_in_worker", "put_interpreter_on_path", "speed_up_new_gradebooks"]
@@ -354,8 +354,8 @@ def autograde_in_worker(frozen: Frozen, assignment: str, root: Path, template_db
     submission's notebook is only read, as JSON, by nbgrader and by the grader.
 
     ``run_tests(paths)`` must return ``(execution, verdicts)``: the
-    :class:`autograder.grading.Execution` of a run with ``run_tests=True`` and the verdict of
-    each ``hidden_test(f)`` (:func:`autograder.grading.kernel_verdicts`). Returns
+    :class:`autograder.pipeline.execution.Execution` of a run with ``run_tests=True`` and the verdict of
+    each ``hidden_test(f)`` (:func:`autograder.pipeline.score.kernel_verdicts`). Returns
     ``(ScratchResult, execution)``; ``execution`` is None when nbgrader refused the notebook
     before running it (a broken or mangled notebook): nbgrader scores it 0 then, and the
     caller runs the raw submission itself.

@@ -25,12 +25,14 @@ import json
 import os
 from pathlib import Path
 
-from autograder import executions, grading, safe_files
+from autograder import executions, safe_files
 from autograder.freeze import printable
+from autograder.pipeline.problems import KernelTrials, Problems
+from autograder.secret import PRIVATE_DIR, SECRET_ENV, SECRET_FILE
 
 __all__ = ["JOB_DIR", "FORMAT", "bundle_path", "is_job", "refuse_secret", "BundledProblems"]
 
-JOB_DIR = "job"   # below the course's private folder (grading.PRIVATE_DIR)
+JOB_DIR = "job"   # below the course's private folder (PRIVATE_DIR)
 FORMAT = 1
 _CAP_BYTES = 256 * 2**20   # one student's problems' inputs (a lab of images is large)
 
@@ -43,19 +45,19 @@ def bundle_path(assignment: str, student_id: str) -> str:
 def is_job(root: Path, assignment: str) -> bool:
     """Whether the course at ``root`` is a shard job's copy for ``assignment`` (it holds
     problems written by :func:`autograder.shards.write_job`)."""
-    return os.path.lexists(Path(root) / grading.PRIVATE_DIR / JOB_DIR / assignment)
+    return os.path.lexists(Path(root) / PRIVATE_DIR / JOB_DIR / assignment)
 
 
 def refuse_secret(root: Path) -> None:
     """ValueError when a grading secret is within the job's reach: a job needs none, and
     one on a job node is one an escaped sandbox could read."""
-    where = [f"${grading.SECRET_ENV}"] if os.environ.get(grading.SECRET_ENV, "").strip() \
+    where = [f"${SECRET_ENV}"] if os.environ.get(SECRET_ENV, "").strip() \
         else []
-    if os.path.lexists(Path(root) / grading.PRIVATE_DIR / grading.SECRET_FILE):
-        where.append(str(Path(root) / grading.PRIVATE_DIR / grading.SECRET_FILE))
+    if os.path.lexists(Path(root) / PRIVATE_DIR / SECRET_FILE):
+        where.append(str(Path(root) / PRIVATE_DIR / SECRET_FILE))
     if where:
         raise ValueError(
-            f"this course is a shard job's copy (it holds {grading.PRIVATE_DIR}/{JOB_DIR}/), "
+            f"this course is a shard job's copy (it holds {PRIVATE_DIR}/{JOB_DIR}/), "
             f"and a grading secret is within its reach ({' and '.join(where)}): a shard job "
             "needs none and must not hold one. Remove it from the job and run again; the "
             "home course scores what the job returns (`cobotlab merge`)")
@@ -64,23 +66,23 @@ def refuse_secret(root: Path) -> None:
 class BundledProblems:
     """In the job: each student's problems as home wrote them (inputs only, no truth to
     score with, no tolerance), which the draw stage reads, every student's before any code
-    runs, into a :class:`autograder.grading.DrawnProblems` as it would have drawn them."""
+    runs, into a :class:`autograder.pipeline.problems.DrawnProblems` as it would have drawn them."""
 
     def __init__(self, root: Path, assignment: str):
         self.root, self.assignment = Path(root), assignment
-        self.kernel = grading.KernelTrials(assignment)
+        self.kernel = KernelTrials(assignment)
 
     def missing(self, student_ids) -> list[str]:
         """The students of ``student_ids`` whose problems home did not write."""
-        folder = self.root / grading.PRIVATE_DIR
+        folder = self.root / PRIVATE_DIR
         return [sid for sid in student_ids
                 if not os.path.lexists(folder / bundle_path(self.assignment, sid))]
 
-    def of(self, student_id: str) -> grading.Problems:
+    def of(self, student_id: str) -> Problems:
         """The student's problems' inputs; ValueError when they are missing or malformed."""
         try:
             data = json.loads(safe_files.read_file(
-                self.root / grading.PRIVATE_DIR, bundle_path(self.assignment, student_id),
+                self.root / PRIVATE_DIR, bundle_path(self.assignment, student_id),
                 _CAP_BYTES))
         except (ValueError, UnicodeDecodeError) as exc:   # safe_files.Refused too
             raise ValueError(f"the problems home wrote for {printable(student_id, 80)}: "

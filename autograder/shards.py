@@ -31,8 +31,17 @@ import tempfile
 import time
 from pathlib import Path
 
-from autograder import course, executions, freeze, gradebook, grading, record, safe_files
+from autograder import executions, freeze, gradebook, record, safe_files
 from autograder.feedback_release import write_exchange_files
+from autograder.freeze import freeze_course
+from autograder.pipeline.begin import GradeRun, course_and_secret, private_dir
+from autograder.pipeline.draw import draw
+from autograder.pipeline.execute import Executed, submission_digest
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import KernelTrials, draw_problems
+from autograder.pipeline.rescore import kept_bytes, kept_path, use_kept
+from autograder.pipeline.worker import Limits
+from autograder.secret import PRIVATE_DIR, SECRET_FILE
 from autograder.shard_job import FORMAT, bundle_path
 
 __all__ = ["write_job", "merge_shard"]
@@ -63,7 +72,7 @@ def write_job(home, assignment: str, job, students=None) -> list[str]:
     home, job = Path(home).resolve(), Path(job).resolve()
     if home == job:
         raise ValueError("the job folder is the course itself: pass the job's copy of it")
-    root, secret = course._course_and_secret(home, assignment)
+    root, secret = course_and_secret(home, assignment)
     students = list(dict.fromkeys(_submitted_ids(root, assignment) if students is None
                                   else students))
     if not students:
@@ -73,16 +82,16 @@ def write_job(home, assignment: str, job, students=None) -> list[str]:
         problem = freeze.student_id_problem(sid)
         if problem:
             raise ValueError(f"students: {freeze.printable(sid, 80)!r} is {problem}")
-    held = job / grading.PRIVATE_DIR / grading.SECRET_FILE
+    held = job / PRIVATE_DIR / SECRET_FILE
     if os.path.lexists(held):   # the job's copy must not carry the secret out
         raise ValueError(f"the job's copy holds the grading secret ({held}): delete it; a "
                          "shard job needs none")
-    kernel = grading.KernelTrials(assignment)
+    kernel = KernelTrials(assignment)
     for sid in students:
-        problems = grading.draw_problems(assignment, sid, secret, None, kernel)
+        problems = draw_problems(assignment, sid, secret, None, kernel)
         data = {"format": FORMAT, "assignment": assignment, "student_id": sid,
                 "nonce": None, "problems": executions.problems_to_wire(problems)}
-        record.write_file(job / grading.PRIVATE_DIR, bundle_path(assignment, sid),
+        record.write_file(job / PRIVATE_DIR, bundle_path(assignment, sid),
                           json.dumps(data).encode("utf-8"))
     return students
 
@@ -114,16 +123,16 @@ def _copy_autograded(home: Path, shard: Path, assignment: str, sub: freeze.Froze
         write_exchange_files(home, assignment, sub)
 
 
-def _returned(run: course.GradeRun, problems, shard: Path, frozen) -> tuple[dict, list, list]:
+def _returned(run: GradeRun, problems, shard: Path, frozen) -> tuple[dict, list, list]:
     """({student: the kept form, rebuilt here, of the job's execution}, [student: why
     refused], [students the job has problems of but no execution]) of HOME's submissions
     whose student the job was given problems of or kept an execution of."""
-    private, assignment = shard / grading.PRIVATE_DIR, run.assignment
+    private, assignment = shard / PRIVATE_DIR, run.assignment
     clean, refused, missing = {}, [], []
     for sub in frozen:
         sid = sub.student_id
         try:
-            data = safe_files.read_file(private, course.kept_path(assignment, sid), _CAP_BYTES)
+            data = safe_files.read_file(private, kept_path(assignment, sid), _CAP_BYTES)
         except safe_files.Refused as exc:
             if exc.why is not safe_files.Why.MISSING:
                 refused.append(f"{freeze.printable(sid, 80)} ({freeze.printable(exc, 200)})")
@@ -134,12 +143,12 @@ def _returned(run: course.GradeRun, problems, shard: Path, frozen) -> tuple[dict
             refused.append(f"{freeze.printable(sid, 80)} (an execution of a submission HOME "
                            "refused or holds no notebook of)")
             continue
-        done = course.Executed(submission=course._submission_digest(sub))
-        why = course.use_kept(run, problems, sub, done, data, from_job=True)
+        done = Executed(submission=submission_digest(sub))
+        why = use_kept(run, problems, sub, done, data, from_job=True)
         if why:
             refused.append(f"{freeze.printable(sid, 80)} ({why})")
         else:
-            clean[sid] = course.kept_bytes(run, done)
+            clean[sid] = kept_bytes(run, done)
     return clean, refused, missing
 
 
@@ -156,14 +165,14 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
     home, shard = Path(course_dir).resolve(), Path(shard_dir).resolve()
     if home == shard:
         raise ValueError("the shard is the course itself: pass the job's copy of the course")
-    root, secret = course._course_and_secret(home, assignment)
+    root, secret = course_and_secret(home, assignment)
     gradebook.require_assignment(root, assignment)
-    run = course.GradeRun(root, root / grading.PRIVATE_DIR, assignment, secret, None, "merge",
-                          grading.Limits(), [], time.monotonic())
+    run = GradeRun(root, root / PRIVATE_DIR, assignment, secret, None, "merge",
+                   Limits(), [], time.monotonic())
     notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="cobotlab-frozen-") as store:
-        frozen = course._freeze(root, assignment, Path(store), freeze.Caps())
-        problems = course._problems(run, frozen)
+        frozen = freeze_course(root, assignment, Path(store), freeze.Caps())
+        problems = draw(run, frozen)
         clean, refused, missing = _returned(run, problems, shard, frozen)
         if refused:
             raise ValueError(
@@ -178,11 +187,11 @@ def merge_shard(course_dir, assignment: str, shard_dir, quiet: bool = False) -> 
             raise ValueError(f"the shard {shard} holds no execution of {assignment} of a "
                              "submission of this course: run the job first (cobotlab grade "
                              "JOB ASSIGNMENT --students @FILE)")
-        private = course._private_dir(root)
+        private = private_dir(root)
         for sid, data in clean.items():
-            record.write_file(private, course.kept_path(assignment, sid), data)
-        rows = course.grade_course(root, assignment, students=[*clean, *zero], rescore=True,
-                                   quiet=True)
+            record.write_file(private, kept_path(assignment, sid), data)
+        rows = grade_course(root, assignment, students=[*clean, *zero], rescore=True,
+                            quiet=True)
         for sub in frozen:
             if sub.student_id in clean:
                 _copy_autograded(root, shard, assignment, sub, notes)
@@ -221,7 +230,7 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.assignment}: the problems of {len(written)} student(s) written into "
-          f"{Path(args.job).resolve() / grading.PRIVATE_DIR / 'job'}")
+          f"{Path(args.job).resolve() / PRIVATE_DIR / 'job'}")
     return 0
 
 

@@ -1,6 +1,6 @@
 """A lab's grading template: what every submission's worker would load first, loaded once.
 
-A cold worker (:class:`autograder.grading.Worker`) starts the interpreter in a new sandbox,
+A cold worker (:class:`autograder.pipeline.worker.Worker`) starts the interpreter in a new sandbox,
 imports the lab's libraries and runs the notebook from its first cell. The first cells of
 a lab are the instructor's, read-only and the same for every student (the imports, the
 simulated workcell, the photographs of lab 1's first part): in a class of a hundred they
@@ -40,9 +40,17 @@ import threading
 import time
 from pathlib import Path
 
-from autograder import grading, sandbox
-from autograder.grading import TemplateUnavailable
+from autograder import sandbox
 from autograder.nbgrader_cells import cell_role
+from autograder.pipeline.cells import extract_code
+from autograder.pipeline.worker import (
+    GraderError,
+    Limits,
+    TemplateUnavailable,
+    Worker,
+    WorkerFailure,
+    WorkerSetup,
+)
 
 __all__ = ["Template", "TemplateUnavailable", "ForkedProcess", "imported_modules",
            "leading_cells"]
@@ -57,7 +65,7 @@ def _locked_code(cell: dict) -> bool:
 
 def imported_modules(notebook: Path) -> list[str]:
     """The absolute module names ``notebook``'s code cells import, in order, once each."""
-    cells, _ = grading.extract_code([notebook])
+    cells, _ = extract_code([notebook])
     names: list[str] = []
     for source in cells:
         try:
@@ -77,7 +85,7 @@ def imported_modules(notebook: Path) -> list[str]:
 
 def leading_cells(notebook: Path) -> list[str]:
     """The code of ``notebook``'s leading read-only, ungraded code cells (markdown cells
-    between them allowed), as :func:`autograder.grading.extract_code` gives it."""
+    between them allowed), as :func:`autograder.pipeline.cells.extract_code` gives it."""
     nb = json.loads(Path(notebook).read_text(encoding="utf-8"))
     lead = []
     for cell in nb.get("cells", []):
@@ -91,7 +99,7 @@ def leading_cells(notebook: Path) -> list[str]:
     with tempfile.TemporaryDirectory(prefix="cobotlab-template-") as tmp:
         path = Path(tmp) / Path(notebook).name
         path.write_text(json.dumps(dict(nb, cells=lead)), encoding="utf-8")
-        cells, _ = grading.extract_code([path])
+        cells, _ = extract_code([path])
     return cells
 
 
@@ -105,7 +113,7 @@ class Template:
     :class:`TemplateUnavailable` when the worker or one of the cells fails to load.
     """
 
-    def __init__(self, cells: list[str], limits: grading.Limits, cpu_s: int,
+    def __init__(self, cells: list[str], limits: Limits, cpu_s: int,
                  preload: list[str] = ()):
         if not sandbox.capabilities().bwrap:
             raise TemplateUnavailable("no bubblewrap here: a fork could not get a sandbox "
@@ -115,8 +123,9 @@ class Template:
         started = time.monotonic()
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
-            self.worker = grading.Worker(cells, limits, cpu_s=cpu_s, control_fd=theirs.fileno())
-        except (grading.WorkerFailure, grading.GraderError) as exc:
+            self.worker = Worker(cells, limits,
+                                 WorkerSetup(cpu_s=cpu_s, control_fd=theirs.fileno()))
+        except (WorkerFailure, GraderError) as exc:
             ours.close()
             raise TemplateUnavailable(f"the template did not load: {exc}") from None
         finally:

@@ -48,7 +48,7 @@ nbgrader's converter (its own share, from .cobotlab/last_run.log), recording and
 (the completion gap less those), and the total (the median gap); then the template's shared
 leading cells and its one-off build (one template per worker thread), paid once, not per
 submission. The phases come from ``SubmissionGrade.profile``, captured by wrapping
-``autograder.grading.score_execution``. Each is a median on its own, so they need not add up
+``autograder.pipeline.score.score_execution``. Each is a median on its own, so they need not add up
 to the total's median.
 
 After each cobotlab run the scores are checked and a line starting ``!!! WARNING`` says
@@ -82,8 +82,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import grading_class  # noqa: E402
 
-from autograder import checks, grading  # noqa: E402
-from autograder.course import grade_course, init_course  # noqa: E402
+from autograder import checks  # noqa: E402
+from autograder.course import init_course  # noqa: E402
+from autograder.pipeline import execute as execute_stage  # noqa: E402
+from autograder.pipeline import score as score_stage  # noqa: E402
+from autograder.pipeline.pipeline import grade_course  # noqa: E402
+from autograder.pipeline.score import SubmissionGrade  # noqa: E402
 
 MIN_STUDENTS = 30
 TARGET_RATIO, TARGET_RATIO_UPPER, TARGET_SPEEDUP = 0.30, 0.35, 1.80
@@ -171,12 +175,13 @@ def _profile(grade) -> dict:
 def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
     """`grade_course` with nbgrader's cross-check: wall s, completion gaps s (and whose),
     CPU s, the rows, each submission's SubmissionGrade (captured by wrapping
-    ``autograder.grading.score_execution``, which course.py looks up at call time), nbgrader's
+    ``autograder.pipeline.score.score_execution``, which the score stage looks up at call time), nbgrader's
     own share per student and the run's log."""
     marks: list[tuple[float, str]] = []
     captured: dict[str, object] = {}
     templates: dict[int, object] = {}
-    original_execute, original_score = grading.execute_notebook, grading.score_execution
+    original_execute = execute_stage.execute_notebook
+    original_score = score_stage.score_execution
 
     def execute(*args, **kwargs):
         template = kwargs.get("template")
@@ -186,11 +191,11 @@ def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
 
     def score(*args, **kwargs):
         grade = original_score(*args, **kwargs)
-        if isinstance(grade, grading.SubmissionGrade):
+        if isinstance(grade, SubmissionGrade):
             captured[grade.student_id] = grade   # one scoring per submission
         return grade
 
-    grading.execute_notebook, grading.score_execution = execute, score
+    execute_stage.execute_notebook, score_stage.score_execution = execute, score
     started = time.time()
     try:
         with _CpuMeter() as meter:
@@ -199,7 +204,8 @@ def time_pipeline(course: Path, lab: str, workers: int, template: bool) -> dict:
                                 progress=lambda done, total, sid: marks.append(
                                     (time.time(), sid)) if done else None)
     finally:
-        grading.execute_notebook, grading.score_execution = original_execute, original_score
+        execute_stage.execute_notebook = original_execute
+        score_stage.score_execution = original_score
     wall, cpu = time.time() - started, meter.cpu_s
     log = (course / ".cobotlab" / "last_run.log").read_text()
     own = {}

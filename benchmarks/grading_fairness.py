@@ -1,7 +1,7 @@
 """Fairness of the hidden grade: correct code never loses credit, classic mistakes always do.
 
 Monte Carlo over hidden draws, exactly as the grader draws them: for each student id, the
-problems of one graded function are ``checks.make_trials(spec, grading.problem_rng(...))``.
+problems of one graded function are ``checks.make_trials(spec, problem_rng(...))``.
 On the same problems it scores, side by side,
 
 * the reference solutions (the notebook's SOLUTION regions and the ``solutions/`` package),
@@ -23,7 +23,7 @@ The Monte Carlo itself is :mod:`autograder.fairness` (draws, scoring, margins, i
 calls are in-process (``fairness.in_process``, the grader's own scoring): the sandbox
 changes where code runs, not what it scores. ``--sandboxed`` shows it: the notebook's
 reference also runs as the grader runs a submission, in the sandboxed worker through
-:class:`autograder.grading.NotebookRunner` (the one call loop of the grader and of
+:class:`autograder.pipeline.execute.NotebookRunner` (the one call loop of the grader and of
 ``cobotlab labs verify``), as a variant of its own on the same draws.
 
     .venv/bin/python benchmarks/grading_fairness.py --quick              # ~2 min, 300 draws
@@ -64,8 +64,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import course_kit as kit  # noqa: E402
 
-from autograder import checks, fairness, grading  # noqa: E402
+from autograder import checks, fairness  # noqa: E402
 from autograder.fairness import clopper_pearson  # noqa: E402
+from autograder.pipeline.problems import problem_rng as grader_rng  # noqa: E402
+from autograder.pipeline.worker import Limits  # noqa: E402
 from autograder.specs.lab1_flange import _kabsch  # noqa: E402
 from autograder.specs.lab5_depth import _kasa  # noqa: E402
 from robots import geometry as geo  # noqa: E402
@@ -612,10 +614,10 @@ def variants(assignment: str) -> dict[str, list[Variant]]:
 
 def problem_rng(assignment: str, student: str, function: str) -> np.random.Generator:
     """The grader's own generator for one student's problems of one function."""
-    params = inspect.signature(grading.problem_rng).parameters
+    params = inspect.signature(grader_rng).parameters
     if "nonce" in params:  # a per-run nonce (older API): one fixed nonce for the whole run
-        return grading.problem_rng(SECRET, "fairness", assignment, student, function)
-    return grading.problem_rng(SECRET, assignment, student, function)
+        return grader_rng(SECRET, "fairness", assignment, student, function)
+    return grader_rng(SECRET, assignment, student, function)
 
 
 def run_function(job) -> dict:
@@ -641,7 +643,7 @@ def run_function(job) -> dict:
             from cobotlab.verify import SandboxedReference
 
             reference = SandboxedReference(find_lab(assignment).notebook
-                                           or kit.source_notebook(assignment), grading.Limits())
+                                           or kit.source_notebook(assignment), Limits())
             stack.callback(reference.close)
             callers[SANDBOXED] = reference
             correct.add(SANDBOXED)
@@ -722,7 +724,7 @@ def write_markdown(store: dict) -> None:
         "",
         "Written by `benchmarks/grading_fairness.py` (do not edit by hand). Each function's "
         "hidden problems are drawn as the grader draws them (`checks.make_trials` with "
-        "`grading.problem_rng` over distinct student ids) and every variant is scored on the "
+        "`problem_rng` over distinct student ids) and every variant is scored on the "
         "same problems by the grader's own scoring, in process.",
         "",
         "* **lost credit**: draws (one student's hidden problem set) scoring below full "
@@ -774,7 +776,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--sandboxed", action="store_true",
                         help="also run the notebook's reference in the grader's sandboxed "
-                             "worker (autograder.grading.NotebookRunner), a variant of its own")
+                             "worker (autograder.pipeline.execute.NotebookRunner), a variant of its own")
     args = parser.parse_args(argv)
     draws = 300 if args.quick else args.draws
     labs = [x for x in args.labs.split(",") if x] or list(LABS)

@@ -23,7 +23,7 @@ compares OUT with an earlier OUT (``BASE/manifest.json``): one line per file tha
 is missing, a unified diff of the first lines that differ, and exit status 1 if anything
 does. This is the gate of a refactoring that must keep every grade: record BASE on the
 old version, OUT on the new one. ``--cell-timeout-s`` grades with another per-cell limit
-than :class:`autograder.grading.Limits`' default, to compare with a version whose default
+than :class:`autograder.pipeline.worker.Limits`' default, to compare with a version whose default
 differed (issue 39 raised it from 10 s to 20 s: ``--cell-timeout-s 10`` compares with f7588bf).
 """
 
@@ -43,8 +43,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import grading_class  # noqa: E402
 
-from autograder import checks, gradebook, grading  # noqa: E402
-from autograder.course import grade_course, init_course  # noqa: E402
+from autograder import checks, gradebook  # noqa: E402
+from autograder.course import init_course  # noqa: E402
+from autograder.pipeline.pipeline import grade_course  # noqa: E402
+from autograder.pipeline.worker import Limits  # noqa: E402
+from autograder.secret import SECRET_ENV  # noqa: E402
 
 SECRET = "cobotlab-grading-gate-fixed-secret-0001"
 COURSES = Path("/tmp/cobotlab-gate")
@@ -57,7 +60,7 @@ def gradebook_dump(course: Path, lab: str) -> dict:
 
 
 def record_lab(lab: str, out: Path, students: int, seed: int, workers: int,
-               limits: grading.Limits = grading.Limits()) -> dict:
+               limits: Limits = Limits()) -> dict:
     """Grade the class of ``lab`` and copy what the run wrote into ``out``; per file its hash."""
     course = COURSES / lab
     shutil.rmtree(course, ignore_errors=True)
@@ -114,11 +117,11 @@ def main() -> int:
                         help="an earlier OUT to compare this run with")
     parser.add_argument("--cell-timeout-s", type=float, default=None, metavar="S",
                         help="per-cell CPU limit while the notebook loads "
-                             f"(default: {grading.Limits().cell_timeout_s:g} s)")
+                             f"(default: {Limits().cell_timeout_s:g} s)")
     args = parser.parse_args()
-    limits = (grading.Limits() if args.cell_timeout_s is None
-              else grading.Limits(cell_timeout_s=args.cell_timeout_s))
-    os.environ[grading.SECRET_ENV] = SECRET
+    limits = (Limits() if args.cell_timeout_s is None
+              else Limits(cell_timeout_s=args.cell_timeout_s))
+    os.environ[SECRET_ENV] = SECRET
     args.out.mkdir(parents=True, exist_ok=True)
     manifest_path = args.out / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}

@@ -31,7 +31,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 from handeye_accuracy import paired_ratio  # noqa: E402
 from handeye_real import bootstrap_stats  # noqa: E402
 
-from autograder import checks, fairness, grading  # noqa: E402
+from autograder import checks, fairness  # noqa: E402
+from autograder.pipeline.problems import problem_rng  # noqa: E402
+from autograder.pipeline.worker import Limits  # noqa: E402
 from autograder.registry import find_lab  # noqa: E402
 from cobotlab.verify import SandboxedReference  # noqa: E402
 
@@ -53,7 +55,7 @@ def measure(lab: str, draws: int) -> list[dict]:
     import course_kit as kit
 
     notebook = find_lab(lab).notebook or kit.source_notebook(lab)
-    reference = SandboxedReference(notebook, grading.Limits())
+    reference = SandboxedReference(notebook, Limits())
     rows = []
     try:
         for spec in checks.SPECS[lab]:
@@ -62,7 +64,7 @@ def measure(lab: str, draws: int) -> list[dict]:
             seconds = {False: [], True: []}
             same = True
             for k in range(draws):
-                rng = grading.problem_rng(SECRET, None, lab, fairness.student_id(k), spec.name)
+                rng = problem_rng(SECRET, None, lab, fairness.student_id(k), spec.name)
                 trials = checks.make_trials(spec, rng)
                 outcomes = {}
                 for batch in ((False, True) if k % 2 == 0 else (True, False)):

@@ -15,8 +15,8 @@ JavaScript), its figures as PNG files and its numbers as CSV files beside it:
   names and formatting are normalised (:func:`normalised_functions`).
 
 The per-check numbers come from scoring again, in this process, the executions the last
-grade run kept (:func:`autograder.course.kept_submissions` and
-:func:`autograder.grading.score_execution`, as ``grade --rescore`` does): no student code
+grade run kept (:func:`autograder.pipeline.rescore.kept_submissions` and
+:func:`autograder.pipeline.score.score_execution`, as ``grade --rescore`` does): no student code
 runs.
 """
 
@@ -38,10 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, gradebook, grading
-from autograder.course import kept_submissions
+from autograder import checks, gradebook
 from autograder.freeze import printable
 from autograder.page_policy import POLICY_META
+from autograder.pipeline.rescore import kept_submissions
+from autograder.pipeline.score import score_execution
 from cobotlab.report import _figure, _save, _table
 
 # --------------------------------------------------------------------------- the code compared
@@ -226,7 +227,7 @@ def class_numbers(course_dir, assignment: str) -> ClassNumbers:
         if sub.execution is None:
             n.not_rescored[sid] = sub.why or "no execution kept"
             continue
-        grade = grading.score_execution(sub.problems, sub.execution)
+        grade = score_execution(sub.problems, sub.execution)
         n.rescored.append(sid)
         runs = {r.name: r for r in sub.execution.functions}
         for f in grade.functions:

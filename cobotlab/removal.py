@@ -33,7 +33,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from autograder import gradebook, grading, record, registry
+from autograder import gradebook, record, registry
+from autograder.secret import PRIVATE_DIR
 
 __all__ = ["Removal", "plan_removal", "carry_out", "run_remove"]
 
@@ -136,7 +137,7 @@ def plan_removal(name: str, course_dir=None) -> Removal:
     paths = [root / "source" / name, root / "release" / name]
     for top in _PER_STUDENT:
         paths += [student / name for student in _real_dirs(root / top)]
-    paths.append(root / grading.PRIVATE_DIR / "executions" / name)
+    paths.append(root / PRIVATE_DIR / "executions" / name)
     paths.append(root / registry.PRIVATE_DIR.parent / "verified" / f"{name}.json")
     if lab is not None and not lab.builtin:
         own = [lab.folder, lab.spec_file, registry.verification_path(name)]
@@ -180,7 +181,7 @@ def _gradebook_counts(root: Path, name: str) -> tuple[int, int] | None:
 def _grade_rows(root: Path, name: str) -> list[dict]:
     import csv
 
-    from autograder.course import GRADES_CSV
+    from autograder.pipeline.record import GRADES_CSV
 
     try:
         with open(root / GRADES_CSV, newline="", encoding="utf-8") as f:
@@ -213,11 +214,11 @@ def _add_removed(root: Path, name: str) -> None:
 
 def carry_out(removal: Removal) -> list[str]:
     """Remove what ``removal`` lists; return what was done, one line each."""
-    from autograder.course import GRADE_COLUMNS, GRADES_CSV
+    from autograder.pipeline.record import GRADE_COLUMNS, GRADES_CSV
 
     root, name, done = removal.course, removal.name, []
     if removal.gradebook is not None:
-        private = root / grading.PRIVATE_DIR
+        private = root / PRIVATE_DIR
         private.mkdir(mode=0o700, exist_ok=True)
         copy = gradebook.backup(root, private)
         gradebook.remove_assignment(root, name)

@@ -50,9 +50,14 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, fairness, grading, registry
+from autograder import checks, fairness, registry
 from autograder.inside import wire
 from autograder.nbgrader_cells import cell_role, nbgrader_metadata
+from autograder.pipeline import worker
+from autograder.pipeline.cells import cell_source, extract_code
+from autograder.pipeline.execute import NotebookRunner
+from autograder.pipeline.problems import problem_rng
+from autograder.pipeline.worker import GraderError, Limits, WorkerSetup
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
@@ -117,7 +122,7 @@ def _solution_defs(cells: list[dict]) -> dict[str, list[ast.FunctionDef]]:
         if cell.get("cell_type") != "code" or not cell_role(cell).solution:
             continue
         try:
-            tree = ast.parse(grading.cell_source(cell))
+            tree = ast.parse(cell_source(cell))
         except SyntaxError:
             continue
         for node in tree.body:
@@ -136,7 +141,7 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
     findings: list[Finding] = []
     notebook = lab.notebook
     cells = _cells(notebook)
-    if not any(SOLUTION_BEGIN in grading.cell_source(c) for c in cells):
+    if not any(SOLUTION_BEGIN in cell_source(c) for c in cells):
         findings.append(Finding("solution region", f"{notebook}: no cell holds a "
                                 f"{SOLUTION_BEGIN} ... {SOLUTION_END} region; put the "
                                 "reference code of each graded function between them, in a "
@@ -178,7 +183,7 @@ def _static(lab: registry.Lab, specs: tuple[FunctionSpec, ...]) -> list[Finding]
                                     f"test_{name}; add one holding check({name}), the sanity "
                                     "asserts and the hidden-test region", name))
             continue
-        if f"check({name}" not in grading.cell_source(test):
+        if f"check({name}" not in cell_source(test):
             findings.append(Finding("test cell", f"{notebook}: cell test_{name} does not call "
                                     f"check({name}); students see their score there", name))
         points = nbgrader_metadata(test).get("points")
@@ -280,7 +285,7 @@ def _draw(lab: str, spec: FunctionSpec, rng, where: str
 
 def _generator(lab: str, spec: FunctionSpec) -> list[Finding]:
     """The generator follows its rng: same stream, same problems; another, others."""
-    streams = [grading.problem_rng(SECRET, None, lab, sid, spec.name)
+    streams = [problem_rng(SECRET, None, lab, sid, spec.name)
                for sid in ("verify-a", "verify-a", "verify-b")]
     drawn = []
     for rng, where in zip(streams, ("a first draw", "the same draw again", "a second draw")):
@@ -317,7 +322,7 @@ def reference_notebook(source: Path) -> dict:
     from cobotlab.labs import release_notebook
 
     released = release_notebook(source)
-    solutions = {cell_role(c).grade_id: grading.cell_source(c) for c in _cells(source)
+    solutions = {cell_role(c).grade_id: cell_source(c) for c in _cells(source)
                  if cell_role(c).solution}
     for cell in released.cells:
         grade_id = cell_role(cell).grade_id
@@ -329,21 +334,22 @@ def reference_notebook(source: Path) -> dict:
 
 class SandboxedReference:
     """The reference notebook loaded once in the grader's bubblewrap worker, called through
-    the grader's own :class:`autograder.grading.NotebookRunner`; a worker that dies (a limit,
-    a crash) is started again for the next problem."""
+    the grader's own :class:`autograder.pipeline.execute.NotebookRunner`; a worker that dies
+    (a limit, a crash) is started again for the next problem."""
 
-    def __init__(self, source: Path, limits: grading.Limits):
+    def __init__(self, source: Path, limits: Limits):
         import nbformat
 
         self.limits = limits
         self._folder = tempfile.TemporaryDirectory(prefix="cobotlab-verify-")
         path = Path(self._folder.name) / source.name
         nbformat.write(reference_notebook(source), path)
-        self.cells, _ = grading.extract_code(path)
+        self.cells, _ = extract_code(path)
         self.tripped: set[str] = set()
         # A day of CPU: the worker answers thousands of problems, and this is the author's
         # code. Each call's tripwire still sees the spec's forbidden routines.
-        self.runner = grading.NotebookRunner(self.cells, limits, cpu_s=86400, batch_calls=True)
+        self.runner = NotebookRunner(self.cells, limits, setup=WorkerSetup(cpu_s=86400),
+                                     batch_calls=True)
         self.runner.loaded()
         self.load_errors = [f"cell {r.get('index')}: {r.get('error')}"
                             for r in self.runner.load_report if not r.get("ok")]
@@ -361,7 +367,7 @@ class SandboxedReference:
         """The reference's outcomes on ``trials`` (one round trip where it can be)."""
         try:
             outcomes, tripped = self.runner.run(spec, trials)
-        except grading.GraderError:   # a busy machine starved it: not the reference's loss
+        except GraderError:   # a busy machine starved it: not the reference's loss
             self.runner.close()
             if retries:
                 return self.many(spec, trials, retries - 1)
@@ -403,7 +409,7 @@ def _lab_from_path(path: str) -> str:
 
 
 def verify_lab(name: str, draws: int | None = None, progress: bool = True,
-               limits: grading.Limits | None = None) -> Report:
+               limits: Limits | None = None) -> Report:
     """Verify lab ``name`` (static checks, then ``draws`` hidden draws per function: default
     the smallest number that bounds a 0-loss rate below 1e-3). Never raises for a broken lab:
     every problem is a :class:`Finding` of the report."""
@@ -430,7 +436,7 @@ def verify_lab(name: str, draws: int | None = None, progress: bool = True,
         report.findings += found
         if found:
             broken.add(spec.name)
-    if not grading.sandbox_available():
+    if not worker.sandbox_available():   # a module attribute: tests stand one in
         report.findings.append(Finding("sandbox", "bubblewrap is not available here, and "
                                        "verify runs the reference where the grader runs "
                                        "student code: install it (sudo apt-get install "
@@ -440,7 +446,7 @@ def verify_lab(name: str, draws: int | None = None, progress: bool = True,
     if any(f.check in ("solution region", "release") for f in report.findings):
         report.seconds = time.monotonic() - started
         return report   # no reference to run
-    reference = SandboxedReference(lab.notebook, limits or grading.Limits())
+    reference = SandboxedReference(lab.notebook, limits or Limits())
     try:
         if reference.load_errors:
             report.findings.append(Finding("reference", f"{lab.notebook}: the reference "
@@ -472,7 +478,7 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     seen_practice: list[str] = []
 
     def rng_of(student: str):
-        return grading.problem_rng(SECRET, None, lab, student, spec.name)
+        return problem_rng(SECRET, None, lab, student, spec.name)
 
     class Watched:
         """The reference, watched for a hidden problem that is a practice problem."""
@@ -766,7 +772,7 @@ def worst_cell(lab: str, spec: FunctionSpec, student: str, problem: int,
     hidden problems of ``spec`` (as verify drew them), calls the notebook's function on it and
     prints the measured errors, the tolerances and the score. It holds the hidden truth:
     for the author's notebook, never a released one."""
-    trials = checks.make_trials(spec, grading.problem_rng(SECRET, None, lab, student,
+    trials = checks.make_trials(spec, problem_rng(SECRET, None, lab, student,
                                                           spec.name))
     trial = trials[problem]
     call = f"spec.drive({spec.name}, trial)" if spec.drive is not None else \
@@ -778,7 +784,7 @@ def worst_cell(lab: str, spec: FunctionSpec, student: str, problem: int,
         "# It holds the hidden truth: keep it in the author's notebook, never in a release.",
         "import numpy as np",
         "",
-        "from autograder import checks",
+        "from autograder import checks"
         "",
         f"spec = checks.spec_for({spec.name!r}, assignment={lab!r})",
         "trial = checks.Trial(",

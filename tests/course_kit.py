@@ -24,8 +24,11 @@ import nbformat
 from jupyter_client.manager import KernelManager
 from nbclient import NotebookClient
 
-from autograder import grading, registry
-from autograder.course import LABS_DIR, grade_course, init_course, run_nbgrader_autograde
+from autograder import registry
+from autograder.course import LABS_DIR, init_course, run_nbgrader_autograde
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import Limits
+from autograder.secret import PRIVATE_DIR, SECRET_ENV, load_secret
 
 
 def cmdline(pid: int) -> str:
@@ -46,7 +49,7 @@ def source_notebook(assignment: str) -> Path:
 def nbgrader(course: Path, *args: str, home: Path | None = None) -> subprocess.CompletedProcess:
     """Run nbgrader in ``course`` without the grading secret in its environment (and with
     ``home`` as HOME: a student's own ~/.jupyter config and nbgrader cache)."""
-    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    env = {k: v for k, v in os.environ.items() if k != SECRET_ENV}
     env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
     if home is not None:   # Jupyter's config and data folders follow HOME, as on a hub
         env = {k: v for k, v in env.items() if not k.startswith("JUPYTER")}
@@ -220,14 +223,14 @@ def assert_release_clean(course: Path, assignment: str, n_functions: int,
     ``solution_lines`` (lines only a solution would contain) and one stub per graded
     function; no released file holds the secret or the private folder."""
     text = (course / "release" / assignment / f"{assignment}.ipynb").read_text()
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for needle in (*RELEASE_MARKERS, *solution_lines, secret):
         assert needle not in text, needle
     assert text.count("raise NotImplementedError()") == n_functions
     released_files = [p for p in (course / "release").rglob("*") if p.is_file()]
     for path in released_files:
         assert secret not in path.read_text(errors="ignore"), path
-    assert not any(grading.PRIVATE_DIR in p.parts for p in released_files)
+    assert not any(PRIVATE_DIR in p.parts for p in released_files)
 
 
 def output_text(nb, sep: str = "") -> str:
@@ -447,7 +450,7 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     if wedges:   # 4 s a cell and 60 s in all: the wedged run is killed, the grade must hold
         run_nbgrader_autograde(course, lab, wedges, timeout_s=60, cell_timeout_s=4)
     # sleepers are cut at 2x their limit: the attack is tested here, not the clock
-    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
+    limits = Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
                             wall_factor=2)
     # Graded twice: each worker forked from a template (the default) and each a new
     # interpreter; the template must change no score and no flag. Twice: the reference and
@@ -479,7 +482,7 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
         flags = row["flags"].split(";")
         for wanted in case["flags"]:
             assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html"),
                  *(course / "feedback_cobotlab").rglob("*.json")]:   # nbgrader's section too
         assert secret not in path.read_text(), path

@@ -22,8 +22,9 @@ import re
 import course_kit as kit
 import pytest
 
-from autograder import grading
-from autograder.course import grade_course
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import Limits
+from autograder.secret import load_secret
 
 pytestmark = pytest.mark.slow
 
@@ -50,7 +51,7 @@ LAB_SLICE = ("forbidden_alias", "forge_protocol", "huge_values", "import_solutio
 # 130 s with 3 s / 2 s limits); no score here depends on them, every one must be the
 # blank's zero.
 # Sleepers are cut at 2x their limit: the attack is tested here, not the clock.
-LIMITS = grading.Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
+LIMITS = Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
                         wall_factor=2)
 
 
@@ -109,6 +110,6 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
         flags = row["flags"].split(";")
         for wanted in _scan_flags(case):
             assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         assert secret not in path.read_text(), path

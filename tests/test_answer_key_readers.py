@@ -17,7 +17,9 @@ import nbformat
 import numpy as np
 import pytest
 
-from autograder import checks, grading, sandbox
+from autograder import checks, sandbox
+from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.worker import Limits
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -27,7 +29,7 @@ pytestmark = [pytest.mark.slow,
 READERS = {"reader_source_notebook": "invert_pose", "reader_answer_key": "fit_rigid",
            "reader_specs": "interaction_matrix"}
 SECRET = "s" * 32
-LIMITS = grading.Limits(cell_timeout_s=20, load_timeout_s=120)
+LIMITS = Limits(cell_timeout_s=20, load_timeout_s=120)
 
 
 def _case(name):
@@ -68,7 +70,7 @@ def test_the_reader_scores_the_blank_and_is_flagged_in_the_worker(tmp_path, name
         # graded once more with nothing forbidden, and runs.
         path = submission(tmp_path, ["import numpy as np", case["replace"][function]],
                           "static", lab)
-        ruled = grading.grade_notebook([path], lab, "static", SECRET, None, LIMITS)
+        ruled = grade_notebook([path], lab, "static", SECRET, None, LIMITS)
         by_name = {f.name: f for f in ruled.functions}
         assert by_name[function].points == 0.0 and by_name[function].forbidden, \
             by_name[function].summary()
@@ -78,7 +80,7 @@ def test_the_reader_scores_the_blank_and_is_flagged_in_the_worker(tmp_path, name
     blank = [f"def {function}(*args):\n    raise NotImplementedError()"]
     for who, cells in (("blank", blank), (name, [case["replace"][function]])):
         path = submission(tmp_path, ["import numpy as np", *cells], who, lab)
-        graded[who] = grading.grade_notebook([path], lab, who, SECRET, None, LIMITS)
+        graded[who] = grade_notebook([path], lab, who, SECRET, None, LIMITS)
     reader, blank = graded[name], graded["blank"]
     by_name = {f.name: f for f in reader.functions}
     assert by_name[function].points == 0.0, by_name[function].summary()

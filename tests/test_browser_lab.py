@@ -32,8 +32,8 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from autograder import grading
 from autograder.course import LABS_DIR
+from autograder.secret import SECRET_ENV
 
 pytestmark = pytest.mark.slow
 
@@ -137,7 +137,7 @@ class LabServer:
 
         # The kernel is this venv's Python. The grading secret stays out of a student's kernel,
         # and MPLBACKEND out of it too, so figures render inline as they do for students.
-        env = {k: v for k, v in os.environ.items() if k not in (grading.SECRET_ENV, "MPLBACKEND")}
+        env = {k: v for k, v in os.environ.items() if k not in (SECRET_ENV, "MPLBACKEND")}
         env.update(
             PATH=os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", ""),
             JUPYTER_TOKEN=self.token,

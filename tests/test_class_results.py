@@ -21,7 +21,7 @@ import pytest
 from test_browser_lab import browser  # noqa: F401 - the Chromium fixture, shared
 
 from autograder import gradebook, registry
-from autograder.course import grade_course
+from autograder.pipeline.pipeline import grade_course
 from cobotlab.class_report import canonical, normalised_functions, notebook_functions, similar_pairs
 from cobotlab.cli import main
 

@@ -24,9 +24,16 @@ import course_kit as kit
 import pytest
 from nbgrader.api import Gradebook
 
-from autograder import checks, cluster, executions, grading, registry, sandbox
-from autograder.course import grade_course
+from autograder import checks, cluster, executions, registry, sandbox
+from autograder.inside import wire
 from autograder.outcomes import Place
+from autograder.pipeline.cells import CellOrigin
+from autograder.pipeline.execution import CellRun, Execution, FunctionRun
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import draw_problems
+from autograder.pipeline.score import score_execution
+from autograder.pipeline.worker import Limits
+from autograder.secret import SECRET_ENV, load_secret
 from cobotlab.cli import main
 
 # Found, not imported: importing distributed here cost every test worker 1.4 s of CPU while
@@ -93,25 +100,25 @@ def test_ctrl_c_cancels_the_task_within_seconds():
 SECRET = "cluster-test-secret-" + "0" * 24
 
 
-def _execution() -> grading.Execution:
+def _execution() -> Execution:
     """A real execution: the reference of lab 0 run in this process on one student's
     problems (the cluster's reply carries exactly this)."""
-    problems = grading.draw_problems(ASSIGNMENT, "ada", SECRET, None)
-    ex = grading.Execution("ada", ASSIGNMENT, suspicious=["suspicious_x"], notes=["n"])
+    problems = draw_problems(ASSIGNMENT, "ada", SECRET, None)
+    ex = Execution("ada", ASSIGNMENT, suspicious=["suspicious_x"], notes=["n"])
     for spec in checks.SPECS[ASSIGNMENT]:
         answer = spec.code_mistakes[0].func if spec.name == "compose_chain" else None
         outcomes = []
         for trial in problems.trials[spec.name]:
             value = trial.truth if answer is None else answer(*trial.args)
             outcomes.append(checks.TrialOutcome(value=value, seconds=0.01, cpu_seconds=0.01))
-        ex.functions.append(grading.FunctionRun(spec.name, outcomes))
+        ex.functions.append(FunctionRun(spec.name, outcomes))
     ex.functions[0].outcomes[0] = checks.TrialOutcome(
         error="timed out (cell 1, line 2)", failure=checks.Failure(
             checks.Failed.TIMED_OUT, place=Place(1, 2)))
-    ex.cell_origins = [grading.CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
-    ex.cell_runs = [grading.CellRun(ex.cell_origins[0], "", "", "printed", "")]
+    ex.cell_origins = [CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
+    ex.cell_runs = [CellRun(ex.cell_origins[0], "", "", "printed", "")]
     ex.kernel_tests = ["invert_pose"]
-    ex.kernel_runs = {"invert_pose": grading.FunctionRun("invert_pose", [
+    ex.kernel_runs = {"invert_pose": FunctionRun("invert_pose", [
         checks.TrialOutcome(value=t.truth) for t in problems.kernel_trials("invert_pose")])}
     return ex
 
@@ -124,8 +131,8 @@ def _decode(data):
 def test_an_execution_round_trips_and_scores_the_same():
     ex = _execution()
     back = _decode(executions.to_wire(ex))
-    problems = grading.draw_problems(ASSIGNMENT, "ada", SECRET, None)
-    before, after = grading.score_execution(problems, ex), grading.score_execution(problems,
+    problems = draw_problems(ASSIGNMENT, "ada", SECRET, None)
+    before, after = score_execution(problems, ex), score_execution(problems,
                                                                                   back)
     assert after.functions == before.functions and after.flags == before.flags
     assert after.score == before.score and 0 < before.score < before.max_score
@@ -146,13 +153,13 @@ def _keys(data) -> set[str]:
 def test_a_task_carries_no_secret_tolerance_or_one_call_truth():
     """The cluster never holds the secret: a task is the notebook and the inputs."""
     for lab in ("lab0_frames", "lab3_servoing"):
-        problems = grading.draw_problems(lab, "ada", SECRET, None)
+        problems = draw_problems(lab, "ada", SECRET, None)
         payload = cluster.task_payload([("x.ipynb", b"{}")], problems, LIMITS, False)
         text = json.dumps(payload, default=str)
         assert SECRET not in text and not _keys(payload) & {"tol", "secret", "nonce"}
         wired = payload["problems"]["trials"]
         for spec in checks.SPECS[lab]:
-            rows = [grading.wire.decode(r) for r in wired[spec.name]]
+            rows = [wire.decode(r) for r in wired[spec.name]]
             assert all(set(r) == {"args", "truth"} for r in rows)
             if spec.drive is None:   # a closed loop flies by its truth; nothing else gets one
                 assert all(r["truth"] is None for r in rows), spec.name
@@ -242,7 +249,7 @@ def _cobotlab_cells(course) -> dict:
 
 
 # sleepers are cut at 2x their limit, as in the corpus batches: the cluster is tested here
-LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60, wall_factor=2)
+LIMITS = Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60, wall_factor=2)
 COLUMNS = ("student_id", "raw_score", "score", "max_score")
 
 
@@ -266,7 +273,7 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
     for course in (local, remote):
         _submit_class(course)
     # the workers hold no secret: the tasks carry the problems' inputs
-    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    monkeypatch.delenv(SECRET_ENV, raising=False)
 
     local_rows = grade_course(local, ASSIGNMENT, workers=2, limits=LIMITS, quiet=True,
                               run_nbgrader=True)
@@ -344,7 +351,7 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
         assert (remote / "feedback_cobotlab" / student / ASSIGNMENT / "feedback.html").is_file()
     run = json.loads((remote / ".cobotlab" / "runs.jsonl").read_text().splitlines()[-1])
     assert any("graded on the Dask cluster" in n for n in run["notes"])
-    assert not any(grading.load_secret(remote) in n for n in run["notes"])
+    assert not any(load_secret(remote) in n for n in run["notes"])
 
 
 

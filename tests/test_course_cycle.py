@@ -18,8 +18,8 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import grading
-from autograder.course import grade_course
+from autograder.pipeline.pipeline import grade_course
+from autograder.secret import SECRET_ENV, load_secret
 
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
@@ -103,7 +103,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     # -t for the translation is one of the spec's code mistakes: the page names it
     assert "classic mistake: its translation is -t, not -R^T t" in feedback
     assert " mm" in feedback and " deg" in feedback
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in (course / "feedback_cobotlab").rglob("*.html"):
         text = path.read_text()
         assert "hidden_test" not in text and "HIDDEN" not in text and secret not in text
@@ -147,7 +147,7 @@ def test_feedback_reaches_the_student_through_the_exchange(released, tmp_path):
     _nbgrader(course, "collect", ASSIGNMENT, home=instructor)
     [sid] = [p.name for p in (course / "submitted").iterdir()]
 
-    env = {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    env = {k: v for k, v in os.environ.items() if k != SECRET_ENV}
     env["HOME"] = str(instructor)
     done = subprocess.run([sys.executable, "-m", "cobotlab.cli", "grade", str(course),
                            ASSIGNMENT, "--no-template"], env=env, capture_output=True,
@@ -170,5 +170,5 @@ def test_feedback_reaches_the_student_through_the_exchange(released, tmp_path):
     # nothing the student must not see: flags, the cross-check, hidden tests, secrets
     submission_secret = (course / "submitted" / sid / ASSIGNMENT / "submission_secret.txt")
     for needle in ("suspicious_", "Flags", "nbgrader's own", "cross-check", "BEGIN HIDDEN",
-                   "hidden_test(", grading.load_secret(course), submission_secret.read_text()):
+                   "hidden_test(", load_secret(course), submission_secret.read_text()):
         assert needle not in text and needle not in raw, needle

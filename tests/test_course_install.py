@@ -241,9 +241,9 @@ PROBE = textwrap.dedent('''
 
 RUN_IN_WORKER = textwrap.dedent('''
     import json, sys
-    from autograder import grading
+    from autograder.pipeline.worker import Limits, Worker
     args = json.loads(sys.argv[1])
-    with grading.Worker([sys.argv[2]], grading.Limits(call_timeout_s=120)) as worker:
+    with Worker([sys.argv[2]], Limits(call_timeout_s=120)) as worker:
         outcome = worker.call("probe", tuple(args), 120)
     print(json.dumps({"value": outcome.value, "error": outcome.error}))
 ''')

@@ -32,7 +32,8 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import exchange, grading
+from autograder import exchange
+from autograder.secret import SECRET_ENV, load_secret
 
 ASSIGNMENT = "lab0_frames"
 STAFF, TEACHER, ANA, BEN = "exch_staff", "exch_teach", "exch_ana", "exch_ben"
@@ -209,7 +210,7 @@ def machine():
 
 
 def _no_secret() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if k != grading.SECRET_ENV}
+    return {k: v for k, v in os.environ.items() if k != SECRET_ENV}
 
 
 def _answer(m: Machine, student: str, functions: dict[str, str]) -> None:
@@ -316,7 +317,7 @@ def test_two_students_and_an_instructor_through_nbgrader(machine, term):
         [page] = (m.home(student) / "work" / ASSIGNMENT / "feedback").glob(
             f"*/{ASSIGNMENT}.html")
         assert f"Score: {score} / 10<" in page.read_text()
-        assert grading.load_secret(m.course) not in page.read_text()
+        assert load_secret(m.course) not in page.read_text()
     # the modes the set-up and the classes left
     info = os.stat(_submission(m, ANA))
     assert info.st_uid == pwd.getpwnam(ANA).pw_uid and info.st_gid == grp.getgrnam(STAFF).gr_gid

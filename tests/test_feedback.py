@@ -12,15 +12,19 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import checks, grading
+from autograder import checks
 from autograder.checks import CheckResult, FunctionResult
 from autograder.errors import ProblemError
 from autograder.feedback import error_lines, feedback_html, function_verdict
-from autograder.grading import CellOrigin, SubmissionGrade
 from autograder.outcomes import Cause, Failed, Failure, Place, raised
+from autograder.pipeline.cells import CellOrigin, extract_code
+from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.execution import cell_error_note
+from autograder.pipeline.score import SubmissionGrade
+from autograder.pipeline.worker import Limits
 
 SECRET = "feedback-secret-" + "x" * 24
-LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
+LIMITS = Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
 LAB0 = Path(__file__).resolve().parent.parent / "labs" / "lab0_frames" / "lab0_frames.ipynb"
 
 
@@ -70,9 +74,9 @@ def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees
 
 def test_notebook_notes_are_deduplicated_with_a_count():
     notes = ["notebook loaded: 9 code cells, 3 raised"] + \
-        [grading.cell_error_note("NotImplementedError", "cell 3, line 4")] * 3 + \
-        [grading.cell_error_note("cell 5: timed out after 22 s (skipped from then on)"),
-         grading.cell_error_note("KeyError: 'x'", ""),
+        [cell_error_note("NotImplementedError", "cell 3, line 4")] * 3 + \
+        [cell_error_note("cell 5: timed out after 22 s (skipped from then on)"),
+         cell_error_note("KeyError: 'x'", ""),
          "nbgrader's scratch gradebook is unreadable (hidden_test cells)"]
     page = feedback_html(_grade(notes=notes, origins=_origins(1, 2, 3, 5, 6, 8)))
     assert page.count("NotImplementedError") == 1
@@ -142,8 +146,8 @@ def test_student_text_is_escaped_and_capped():
                        errors=[f"on a random problem: {hostile}"], n_problems=6, n_failed=6,
                        problem_errors=tuple(ProblemError("random", f"{i} {hostile}")
                                             for i in range(20)))
-    notes = [grading.cell_error_note(hostile, "cell 0, line 1"),
-             grading.cell_error_note("\x1b[31m</code>")]
+    notes = [cell_error_note(hostile, "cell 0, line 1"),
+             cell_error_note("\x1b[31m</code>")]
     grade = SubmissionGrade("<b>bob</b>", "lab0_frames", [f], [], notes)
     page = feedback_html(grade)
     assert "<script" not in page and "&lt;script&gt;" in page
@@ -163,11 +167,11 @@ def test_extract_code_maps_each_kept_cell_to_the_students_numbering(tmp_path):
           "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
     path = tmp_path / "nb.ipynb"
     path.write_text(json.dumps(nb))
-    code, origins, notes = grading.extract_code(path, with_origins=True)
+    code, origins, notes = extract_code(path, with_origins=True)
     assert code == ["import numpy as np", "def f():\n    pass"] and notes == []
     # In [1] imports, empty cell not counted, In [2] the cell magic, In [3] the hidden test
     assert origins == [CellOrigin("nb.ipynb", 2, 1), CellOrigin("nb.ipynb", 7, 4)]
-    assert grading.extract_code(path) == (code, notes)
+    assert extract_code(path) == (code, notes)
 
 
 def test_score_function_counts_failed_problems_and_each_error():
@@ -215,7 +219,7 @@ def _student_lab0(tmp_path) -> tuple[Path, int, int]:
 
 def test_page_of_a_real_graded_lab0_notebook(tmp_path):
     path, chain_prompt, rotvec_prompt = _student_lab0(tmp_path)
-    grade = grading.grade_notebook([path], "lab0_frames", "alice", SECRET, "nonce", LIMITS)
+    grade = grade_notebook([path], "lab0_frames", "alice", SECRET, "nonce", LIMITS)
     by_name = {f.name: f for f in grade.functions}
     assert grade.score == 1.5, grade  # the rotation half of invert_pose
     assert [function_verdict(by_name[n]) for n in ("invert_pose", "compose_chain",
@@ -249,8 +253,8 @@ def test_page_of_a_real_hang_a_forbidden_routine_and_a_hostile_message(tmp_path)
                     for c in cells], "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
     path = tmp_path / "lab0_frames.ipynb"
     path.write_text(json.dumps(nb))
-    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=30)
-    grade = grading.grade_notebook([path], "lab0_frames", "bob", SECRET, None, limits)
+    limits = Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=30)
+    grade = grade_notebook([path], "lab0_frames", "bob", SECRET, None, limits)
     assert grade.score == 0.0
     assert [function_verdict(f) for f in grade.functions] == ["timed_out", "failed", "forbidden"]
     page = feedback_html(grade)

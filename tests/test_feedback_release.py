@@ -19,13 +19,14 @@ import pytest
 from nbformat.v4 import new_code_cell, new_notebook
 from traitlets.config import Config
 
-from autograder import feedback_release, freeze, grading
+from autograder import feedback_release, freeze
 from autograder.checks import CheckResult, FunctionResult
 from autograder.course import _CONFIG
 from autograder.errors import ProblemError
 from autograder.feedback import feedback_html, feedback_section
-from autograder.grading import SubmissionGrade
 from autograder.nbgrader_hooks import AddCobotlabFeedback
+from autograder.pipeline.execution import cell_error_note
+from autograder.pipeline.score import SubmissionGrade
 
 LAB = "lab0_frames"
 SECRET = "ab" * 64   # what nbgrader's submit writes: token_hex(64)
@@ -116,7 +117,7 @@ def test_a_class_partly_outside_the_exchange_is_named_with_the_way_out(tmp_path)
 
 def test_the_section_is_the_students_page_without_instructor_notes_scoped():
     grade = _grade(flags=["suspicious_secret_probe"], notes=[
-        grading.cell_error_note("NameError: name 'x' is not defined", "cell 0, line 1"),
+        cell_error_note("NameError: name 'x' is not defined", "cell 0, line 1"),
         "graded after 1 grader error(s), each retried in a fresh sandbox: WorkerFailure: "
         "the memory limit of the template",
         "no cgroup for this submission (unreadable cgroup.procs): per-process limits only",

@@ -18,8 +18,13 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import checks, executions, gradebook, grading, record, sandbox
-from autograder.course import GRADE_COLUMNS, GRADES_CSV, grade_course, grade_row, kept_path
+from autograder import checks, executions, gradebook, record, sandbox
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import draw_problems
+from autograder.pipeline.record import GRADE_COLUMNS, GRADES_CSV, grade_row
+from autograder.pipeline.rescore import kept_path
+from autograder.pipeline.score import score_execution
+from autograder.secret import SECRET_ENV, load_secret
 from autograder.shards import merge_shard, write_job
 from cobotlab.cli import _student_ids
 
@@ -155,7 +160,7 @@ def _outcomes(kept: dict, name: str) -> list[dict]:
 
 def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tmp_path,
                                                                    monkeypatch):
-    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    monkeypatch.delenv(SECRET_ENV, raising=False)
     home = kit.fresh_course(released, tmp_path / "home")
     job = kit.fresh_course(released, tmp_path / "job")  # a cluster job's copy of the course
     for course in (home, job):
@@ -171,12 +176,12 @@ def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tm
                              text=True, timeout=120, check=False)
     assert written.returncode == 0 and "of 2 student(s) written" in written.stdout, written
     bundle = "".join(p.read_text() for p in (job / ".cobotlab" / "job").rglob("*.json"))
-    assert grading.load_secret(home) not in bundle and '"tol"' not in bundle
+    assert load_secret(home) not in bundle and '"tol"' not in bundle
 
-    monkeypatch.setenv(grading.SECRET_ENV, grading.load_secret(home))
+    monkeypatch.setenv(SECRET_ENV, load_secret(home))
     with pytest.raises(ValueError, match="needs none and must not hold one"):
         grade_course(job, ASSIGNMENT, quiet=True, students=["ada"])
-    monkeypatch.delenv(grading.SECRET_ENV)
+    monkeypatch.delenv(SECRET_ENV)
     with pytest.raises(ValueError, match="holds no problems of .* for bo"):
         grade_course(job, ASSIGNMENT, quiet=True, students=["ada", "bo"])
     calls = []
@@ -225,8 +230,8 @@ def test_a_shard_job_executes_without_the_secret_and_home_scores_it(released, tm
             a for a in ada["execution"]["functions"] if a["name"] == f["name"])
         for f in kept["execution"]["functions"]]))
     forged = json.loads(_kept(job, "cy").read_text())
-    expected = grading.score_execution(
-        grading.draw_problems(ASSIGNMENT, "cy", grading.load_secret(home), None),
+    expected = score_execution(
+        draw_problems(ASSIGNMENT, "cy", load_secret(home), None),
         executions.from_wire(forged["execution"], ASSIGNMENT, "cy")).score
     merged = merge_shard(home, ASSIGNMENT, job, quiet=True)
     assert {r["student_id"]: float(r["raw_score"]) for r in merged}["cy"] == expected

@@ -7,9 +7,9 @@ import dataclasses
 
 import pytest
 
-from autograder import grading
-from autograder.course import grade_course
 from autograder.grade_options import GradeOptions
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import draw_all, draw_problems
 
 SECRET = "a-secret-of-16-chars-or-more"
 
@@ -37,9 +37,9 @@ def test_grade_course_takes_options_or_keywords_not_both(tmp_path):
 
 
 def test_every_student_is_drawn_at_once_as_draw_problems_draws_them():
-    drawn = grading.draw_all("lab0_frames", SECRET, None, ["ada", "bo", "ada"])
+    drawn = draw_all("lab0_frames", SECRET, None, ["ada", "bo", "ada"])
     for sid in ("ada", "bo"):
-        one = grading.draw_problems("lab0_frames", sid, SECRET, None)
+        one = draw_problems("lab0_frames", sid, SECRET, None)
         mine = drawn.of(sid)
         assert mine.student_id == sid and mine.trials.keys() == one.trials.keys()
         for name in one.trials:

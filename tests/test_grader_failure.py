@@ -14,8 +14,11 @@ import course_kit as kit
 import pytest
 from nbgrader.api import Gradebook, MissingEntry
 
-from autograder import checks, grading, sandbox
-from autograder.course import grade_course
+from autograder import checks, sandbox
+from autograder.pipeline import execute, worker
+from autograder.pipeline.execute import execute_notebook
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import worker_jail
 from cobotlab.cli import NOT_GRADED_EXIT, main
 
 ASSIGNMENT = "lab0_frames"
@@ -41,11 +44,11 @@ class BrokenSandbox:
     ``first_start`` the first worker the run starts, for ``always`` every worker of theirs."""
 
     def __init__(self, monkeypatch, first_start: bool = False, always=()):
-        self.real_jail, self.real_execute = grading.worker_jail, grading.execute_notebook
+        self.real_jail, self.real_execute = worker_jail, execute_notebook
         self.first_start, self.always = first_start, set(always)
         self.lock, self.local, self.broken = threading.Lock(), threading.local(), []
-        monkeypatch.setattr(grading, "worker_jail", self.jail)
-        monkeypatch.setattr(grading, "execute_notebook", self.execute)
+        monkeypatch.setattr(worker, "worker_jail", self.jail)
+        monkeypatch.setattr(execute, "execute_notebook", self.execute)
 
     def execute(self, paths, problems, *args, **kwargs):
         self.local.student = problems.student_id
@@ -147,7 +150,7 @@ def test_a_grader_failure_is_retried_and_never_scores(released, tmp_path, monkey
     assert fault.broken.count("broken") == 2   # two attempts, each in a fresh sandbox
 
     # The next run, with the machine fixed, grades it like the others.
-    monkeypatch.setattr(grading, "worker_jail", fault.real_jail)
+    monkeypatch.setattr(worker, "worker_jail", fault.real_jail)
     rows = {r["student_id"]: r for r in grade_course(
         course, ASSIGNMENT, workers=2, run_nbgrader=True, quiet=True, template=False)}
     assert float(rows["broken"]["score"]) == full, rows["broken"]

@@ -12,14 +12,26 @@ import struct
 import numpy as np
 import pytest
 
-from autograder import checks, grading
+from autograder import checks
 from autograder.inside import wire
 from autograder.outcomes import Failed, Place
+from autograder.pipeline.cells import extract_code, scan_for_tampering
+from autograder.pipeline.execute import NotebookRunner, grade_notebook
+from autograder.pipeline.problems import problem_rng
+from autograder.pipeline.worker import (
+    Limits,
+    Worker,
+    WorkerFailure,
+    WorkerSetup,
+    _reported_failure,
+    sandbox_available,
+)
+from autograder.secret import SECRET_ENV, create_secret, load_secret
 from robots import geometry as geo
 from solutions.registration import fit_rigid
 
 SECRET = "s" * 40
-LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
+LIMITS = Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30)
 
 
 def _notebook(tmp_path, *cells, name="nb.ipynb"):
@@ -139,24 +151,24 @@ def test_check_prints_the_score(capsys):
 
 
 def test_problem_rng_is_per_student_per_run_and_reproducible():
-    a = grading.problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
-    again = grading.problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
+    a = problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
+    again = problem_rng(SECRET, "n1", "lab0_frames", "alice", "invert_pose").random(3)
     assert np.array_equal(a, again)
     for other in [(SECRET, "n1", "lab0_frames", "bob", "invert_pose"),
                   (SECRET, "n2", "lab0_frames", "alice", "invert_pose"),
                   ("t" * 40, "n1", "lab0_frames", "alice", "invert_pose")]:
-        assert not np.array_equal(a, grading.problem_rng(*other).random(3))
+        assert not np.array_equal(a, problem_rng(*other).random(3))
 
 
 def test_secret_from_env_or_course_file(tmp_path, monkeypatch):
-    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    monkeypatch.delenv(SECRET_ENV, raising=False)
     with pytest.raises(ValueError, match="grading secret"):
-        grading.load_secret(tmp_path)
-    path = grading.create_secret(tmp_path)
+        load_secret(tmp_path)
+    path = create_secret(tmp_path)
     assert oct(path.stat().st_mode & 0o777) == "0o600"
-    assert grading.load_secret(tmp_path) == path.read_text().strip()
-    monkeypatch.setenv(grading.SECRET_ENV, "e" * 20)
-    assert grading.load_secret(tmp_path) == "e" * 20
+    assert load_secret(tmp_path) == path.read_text().strip()
+    monkeypatch.setenv(SECRET_ENV, "e" * 20)
+    assert load_secret(tmp_path) == "e" * 20
 
 
 # --------------------------------------------------------------------------- wire format
@@ -185,24 +197,24 @@ def test_wire_round_trip_and_forged_messages(tmp_path):
 def test_extract_code_skips_hidden_tests_and_magics(tmp_path):
     path = _notebook(tmp_path, "%matplotlib inline\nx = 1", "### BEGIN HIDDEN TESTS\nboom",
                      "%%bash\nls", "!pip install x\ny = 2")
-    cells, notes = grading.extract_code(path)
+    cells, notes = extract_code(path)
     assert len(cells) == 2 and "boom" not in "".join(cells) and "pip" not in "".join(cells)
     bad = tmp_path / "bad.ipynb"
     bad.write_text("{not json")
-    cells, notes = grading.extract_code(bad)
+    cells, notes = extract_code(bad)
     assert cells == [] and "unreadable" in notes[0]
 
 
 def test_reference_notebook_full_marks_through_the_worker(tmp_path):
-    grade = grading.grade_notebook(_notebook(tmp_path, REFERENCE), "lab0_frames", "alice",
+    grade = grade_notebook(_notebook(tmp_path, REFERENCE), "lab0_frames", "alice",
                                    SECRET, "n", LIMITS)
     assert grade.score == grade.max_score == 10.0 and grade.flags == []
 
 
 def test_worker_sees_no_secret_no_course_and_cannot_stop_the_grader(tmp_path, monkeypatch):
-    monkeypatch.setenv(grading.SECRET_ENV, SECRET)
+    monkeypatch.setenv(SECRET_ENV, SECRET)
     course = tmp_path / "course"
-    grading.create_secret(course)
+    create_secret(course)
     probe = """
 import os
 def env():
@@ -218,17 +230,17 @@ def kill_parent():
 def hog():
     return len(bytearray(8 * 1024**3))
 """.replace("SECRET_PATH", repr(str(course / ".cobotlab" / "secret")))
-    with grading.Worker([probe], LIMITS) as worker:
+    with Worker([probe], LIMITS) as worker:
         names = worker.call("env", (), 3).value
-        assert grading.SECRET_ENV not in names and "PATH" in names
+        assert SECRET_ENV not in names and "PATH" in names
         assert not worker.call("cwd", (), 3).value.startswith(str(course))
-        if grading.sandbox_available():
+        if sandbox_available():
             # the course is not in the sandbox at all
             assert "FileNotFoundError" in worker.call("secret", (), 3).error
         assert "MemoryError" in worker.call("hog", (), 3).error
         try:
             worker.call("kill_parent", (), 3)
-        except grading.WorkerFailure:
+        except WorkerFailure:
             pass  # it may only kill itself
     assert os.getpid() > 0  # still here
 
@@ -248,7 +260,7 @@ import sys
 def what_was_built():
     return [repr(view), repr(panel), "k3d" in sys.modules, "ipywidgets" in sys.modules]
 """
-    with grading.Worker([cell], LIMITS) as worker:
+    with Worker([cell], LIMITS) as worker:
         shown, panel, k3d_loaded, widgets_loaded = worker.call("what_was_built", (), 3).value
     assert "not drawn while grading" in shown and "not drawn while grading" in panel
     assert not k3d_loaded and not widgets_loaded
@@ -258,17 +270,17 @@ def test_mangled_and_renamed_notebooks_are_graded_by_name(tmp_path):
     other = _notebook(tmp_path, "import numpy as np\ndef invert_pose(T):\n    return np.eye(4)",
                       name="renamed_copy.ipynb")
     main = _notebook(tmp_path, REFERENCE, name="lab0_frames.ipynb")
-    grade = grading.grade_notebook([other, main], "lab0_frames", "bob", SECRET, "n", LIMITS)
+    grade = grade_notebook([other, main], "lab0_frames", "bob", SECRET, "n", LIMITS)
     assert grade.score == 10.0
 
 
 def test_tampering_patterns_are_flagged():
-    flags = grading.scan_for_tampering([
+    flags = scan_for_tampering([
         "get_ipython().set_custom_exc((Exception,), f)", "sys.modules['numpy'] = x",
         "np.allclose = lambda *a: True", "os.environ['X']"])
     assert {"suspicious_exception_handler", "suspicious_sys_modules", "suspicious_numpy_patch",
             "suspicious_secret_probe"} <= set(flags)
-    assert grading.scan_for_tampering(["from autograder.checks import check\nx = np.eye(4)"]) == []
+    assert scan_for_tampering(["from autograder.checks import check\nx = np.eye(4)"]) == []
 
 
 def test_a_name_graded_by_two_labs_resolves_by_folder_or_assignment(tmp_path, monkeypatch):
@@ -296,14 +308,14 @@ def test_forbidden_routines_zero_the_function_that_reaches_them_only(tmp_path):
              # comparing with OpenCV in a cell of its own is fine: no graded function uses it
              "import cv2\ncompare = cv2.calibrateHandEye", "def motions(*a):\n    return 1"]
     nb = _notebook(tmp_path, *cells)
-    grade = grading.grade_notebook(nb, "lab2_handeye", "eve", SECRET, "n", LIMITS)
+    grade = grade_notebook(nb, "lab2_handeye", "eve", SECRET, "n", LIMITS)
     by_name = {f.name: f for f in grade.functions}
     assert by_name["tsai_lenz"].points == 0 and by_name["axes_ls"].points == 0
     assert "cv2.calibrateHandEye" in by_name["tsai_lenz"].errors[0]
     assert "forbidden:cv2.calibrateHandEye" in grade.flags
     assert not any("calibrateHandEye" in e for e in by_name["motions"].errors)
     # and lab 0's reference code is clean of its own rule
-    assert not [f for f in grading.grade_notebook(_notebook(tmp_path, REFERENCE, name="r.ipynb"),
+    assert not [f for f in grade_notebook(_notebook(tmp_path, REFERENCE, name="r.ipynb"),
                                                   "lab0_frames", "a", SECRET, "n", LIMITS).flags
                 if f.startswith("forbidden")]
 
@@ -349,7 +361,7 @@ rectangle_pose = functools.partial(_pnp)
 
 def test_what_is_bound_to_a_graded_name_is_scanned_whatever_the_worker_reports(tmp_path):
     # Before the scan followed assignments to the graded name, this earned 4 of 4 unflagged.
-    grade = grading.grade_notebook(_notebook(tmp_path, SILENCE_TRIPWIRE, LAB5_BOUND),
+    grade = grade_notebook(_notebook(tmp_path, SILENCE_TRIPWIRE, LAB5_BOUND),
                                    "lab5_depth", "eve", SECRET, "n", LIMITS)
     by_name = {f.name: f for f in grade.functions}
     assert by_name["backproject"].points == 0 and by_name["rectangle_pose"].points == 0
@@ -380,7 +392,7 @@ worker.join()
 
 
 def test_the_forbidden_routines_used_outside_the_graded_functions_cost_nothing(tmp_path):
-    grade = grading.grade_notebook(_notebook(tmp_path, REFERENCE, COMPARED), "lab0_frames",
+    grade = grade_notebook(_notebook(tmp_path, REFERENCE, COMPARED), "lab0_frames",
                                    "a", SECRET, "n", LIMITS)
     assert grade.score == 10.0 and not [f for f in grade.flags if f.startswith("forbidden")], \
         (grade.flags, [f.errors[:1] for f in grade.functions])
@@ -391,9 +403,10 @@ def test_without_bubblewrap_the_rlimits_fallback_still_grades_and_says_so(tmp_pa
     import sys
 
     path = _notebook(tmp_path, REFERENCE)
-    script = ("from autograder import grading\n"
-              f"g = grading.grade_notebook({str(path)!r}, 'lab0_frames', 'a', {SECRET!r}, 'n',\n"
-              "    grading.Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30))\n"
+    script = ("from autograder.pipeline.execute import grade_notebook\n"
+              "from autograder.pipeline.worker import Limits\n"
+              f"g = grade_notebook({str(path)!r}, 'lab0_frames', 'a', {SECRET!r}, 'n',\n"
+              "    Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30))\n"
               "print(g.score, g.flags)")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=120, env=dict(os.environ, COBOTLAB_SANDBOX="rlimits"))
@@ -430,8 +443,8 @@ def test_a_worker_that_dies_late_is_reloaded_for_the_next_function(tmp_path):
     slow_invert = REFERENCE.replace("def invert_pose(T):\n",
                                     "def invert_pose(T):\n    burn(0.5)\n")
     dies = "\nimport os\ndef compose_chain(poses):\n    os.kill(os.getpid(), 9)\n"
-    limits = grading.Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=2.5)
-    grade = grading.grade_notebook(_notebook(tmp_path, BURN, "burn(0.5)", slow_invert + dies),
+    limits = Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=2.5)
+    grade = grade_notebook(_notebook(tmp_path, BURN, "burn(0.5)", slow_invert + dies),
                                    "lab0_frames", "carol", SECRET, "n", limits)
     points = {f.name: f.points for f in grade.functions}
     assert points == {"invert_pose": 3.0, "compose_chain": 0.0, "pose_from_rotvec": 4.0}, \
@@ -476,7 +489,7 @@ def test_one_bug_costs_once_in_the_worker_too(tmp_path):
     assert alone["mapping"] > 10 * trial.tol["mapping"]  # without the stand-in it is wrong
     assert checks.evaluate(own["hand_to_eye_from_three_points"],
                            "hand_to_eye_from_three_points").fraction == 1.0  # in check() too
-    grade = grading.grade_notebook(_notebook(tmp_path, *cells), "lab4_stereo", "dan", SECRET,
+    grade = grade_notebook(_notebook(tmp_path, *cells), "lab4_stereo", "dan", SECRET,
                                    "n", LIMITS)
     result = {f.name: f for f in grade.functions}
     assert result["hand_to_eye_from_three_points"].fraction == 1.0, \
@@ -595,10 +608,10 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
     skips and the tripwire's findings are those of one call each, and a batch that meets a
     time-out or a dead worker is made again call by call."""
     spec = checks.SPECS["lab0_frames"][0]
-    limits = grading.Limits(cell_timeout_s=5, call_timeout_s=0.5, load_timeout_s=30)
+    limits = Limits(cell_timeout_s=5, call_timeout_s=0.5, load_timeout_s=30)
     cells = [KEYED, misbehaves]
     singles = []
-    monkeypatch.setattr(grading.Worker, "call", lambda self, *a, _call=grading.Worker.call,
+    monkeypatch.setattr(Worker, "call", lambda self, *a, _call=Worker.call,
                         **k: singles.append(a[0]) or _call(self, *a, **k))
     kinds = set()
     for seed in range(2):
@@ -607,7 +620,8 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
         seen = {}
         for batch in (False, True):
             singles.clear()
-            runner = grading.NotebookRunner(cells, limits, cpu_s=600, batch_calls=batch)
+            runner = NotebookRunner(cells, limits, setup=WorkerSetup(cpu_s=600),
+                                    batch_calls=batch)
             try:
                 outcomes, tripped = runner.run(spec, trials)
             finally:
@@ -638,7 +652,7 @@ def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
     claim that is no place (the worker is untrusted) leaves the failure without one."""
     reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
              "failure": "raised", "exception": "ValueError", "place": claimed}
-    failure = grading._reported_failure(reply, "cell 9, line 9")
+    failure = _reported_failure(reply, "cell 9, line 9")
     assert failure.place == (None if place is None else Place(*place))
     with pytest.raises(ValueError, match="Place.line"):
         Place(3, 0)

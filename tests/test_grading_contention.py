@@ -23,7 +23,9 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import grading, sandbox
+from autograder import sandbox
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import GraderError, Limits, Worker, WorkerSetup
 from autograder.template import Template
 
 pytestmark = [pytest.mark.slow,
@@ -44,7 +46,7 @@ def sleeper():
 """
 # 1 s of CPU a cell or call, 2 s of wall clock: a burn of 0.8 s needs 40 % of a core, and
 # beside HOGS busy processes on its core the worker gets about 1 / (HOGS + 1).
-LIMITS = grading.Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30, wall_factor=2)
+LIMITS = Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30, wall_factor=2)
 HOGS = 8
 
 
@@ -108,7 +110,7 @@ burn(0.8)
 """
 # 6 s of wall clock for its 1 s limit: the submission's own processes use that second even
 # when a few other busy processes (another test file's, a neighbour's) share the core.
-CROWD_LIMITS = grading.Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30,
+CROWD_LIMITS = Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30,
                               wall_factor=6)
 
 
@@ -121,38 +123,38 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
             with _busy(core, HOGS):
                 # a sleeping cell and a sleeping call are not runnable: their time-outs
                 # stay the student's, however busy the core
-                with grading.Worker([BURN, "time.sleep(100)"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "time.sleep(100)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
                     slept = w.call("sleeper", (), 1)
                     assert slept.error.startswith("timed out") and slept.seconds >= 2.0
                     # a call that needs 0.8 s of its 1 s and gets a ninth of a core
-                    with pytest.raises(grading.GraderError, match="waited .* for a CPU"):
+                    with pytest.raises(GraderError, match="waited .* for a CPU"):
                         w.call("slow", (), 1)
                     assert not w.alive
                 # the same for a cell while loading
-                with pytest.raises(grading.GraderError, match="cell 1 was stopped"):
-                    grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
-                                   template=template)
+                with pytest.raises(GraderError, match="cell 1 was stopped"):
+                    Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                   template=template))
             # Beside two busy processes it needs 2.4 s of wall clock for its 0.8 s: the
             # time it waited for the core is added back to its 2 s (up to three times
             # that), so it is graded, not retried nor timed out
             with _busy(core, 2):
-                with grading.Worker([BURN, "burn(0.8)"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["ok"], w.load_report
                     outcome = w.call("slow", (), 1)
                     assert outcome.value == 1 and outcome.seconds > 2.0, outcome
                 # A cell that loops for ever is its own time-out, never the grader's failure,
                 # even when the cgroup's count read a moment after its CPU timer fired falls
                 # a hair short of the second
-                with grading.Worker([BURN, "while True:\n    pass"], LIMITS, cgroup=cgroup,
-                                    template=template) as w:
+                with Worker([BURN, "while True:\n    pass"], LIMITS, WorkerSetup(cgroup=cgroup,
+                                    template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
             # Its own eight busy processes leave its cell a ninth of what it gets: the
             # submission used its CPU, so the time-out is its own, not a retry.
-            with grading.Worker([BURN, CROWD], CROWD_LIMITS, cgroup=cgroup,
-                                template=template) as w:
+            with Worker([BURN, CROWD], CROWD_LIMITS, WorkerSetup(cgroup=cgroup,
+                                template=template)) as w:
                 assert w.load_report[1]["error"] == "timed out", w.load_report
         finally:
             if template is not None:
@@ -203,7 +205,7 @@ def test_a_correct_submission_beside_a_cpu_hog_scores_full_marks(tmp_path):
                extra="import time\n")
     # 4 s of CPU a cell (8 s of wall clock): the sleeper's three test cells and the hog's
     # sleeping cells each wait that long, so the hog's crowd spins that long too.
-    limits = grading.Limits(cell_timeout_s=4, call_timeout_s=2, load_timeout_s=60,
+    limits = Limits(cell_timeout_s=4, call_timeout_s=2, load_timeout_s=60,
                             wall_factor=2)
     with _one_core():
         rows = grading_rows(course, limits)
@@ -221,7 +223,6 @@ def test_a_correct_submission_beside_a_cpu_hog_scores_full_marks(tmp_path):
 
 
 def grading_rows(course, limits) -> dict[str, dict]:
-    from autograder.course import grade_course
 
     return {r["student_id"]: r for r in grade_course(course, LAB, workers=2, limits=limits,
                                                        quiet=True)}
@@ -243,12 +244,12 @@ def test_time_limits_count_cpu_seconds_so_a_busy_machine_grades_the_same():
     that pin to the grader's core, so no two of them crowd that core at once."""
     import time
 
-    limits = grading.Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=30,
+    limits = Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=30,
                             wall_factor=3)
     cells = [BURN, "burn(1.5)", "while True:\n    pass", "time.sleep(1000)", INVERT_POSE]
     with _one_core() as core, _busy(core, 1):
         started = time.monotonic()
-        with grading.Worker(cells, limits, cpu_s=60) as worker:
+        with Worker(cells, limits, WorkerSetup(cpu_s=60)) as worker:
             report = {r["index"]: r for r in worker.load_report}
             result = worker.call("invert_pose", (np.eye(4),), 2)
         elapsed = time.monotonic() - started

@@ -24,6 +24,7 @@ import course_kit as kit
 import pytest
 
 from autograder import gradebook, sandbox
+from autograder.pipeline.pipeline import grade_course
 
 ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
@@ -196,7 +197,6 @@ def test_nbgrader_s_kernel_cannot_swap_its_output_folders_for_links(tmp_path):
     kit.submit(course, ASSIGNMENT, "victim", replace=work)
     attackers = [kit.submit_case(course, ASSIGNMENT, name, cases[name]) for name in KERNEL_LINKS]
 
-    from autograder.course import grade_course
 
     rows = {r["student_id"]: r for r in grade_course(
         course, ASSIGNMENT, workers=2, run_nbgrader=True, nbgrader_kernel=True,

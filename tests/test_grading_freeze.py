@@ -16,6 +16,8 @@ import course_kit as kit
 import pytest
 
 from autograder import freeze, gradebook, record
+from autograder.pipeline.begin import _begin_run
+from autograder.pipeline.pipeline import grade_course
 
 ASSIGNMENT = "lab0_frames"
 NOTEBOOK = f"{ASSIGNMENT}.ipynb"
@@ -162,20 +164,19 @@ def test_a_damaged_gradebook_is_detected_and_restored(tmp_path):
 
 
 def test_a_rerun_after_an_interrupted_run_restores_and_says_so(tmp_path):
-    from autograder import course as course_mod
 
     course, private = tmp_path / "course", tmp_path / "course" / ".cobotlab"
     private.mkdir(parents=True)
     _gradebook(course / "gradebook.db")
-    course_mod._begin_run(course, private)  # a run starts, backs up, then dies half-way
+    _begin_run(course, private)  # a run starts, backs up, then dies half-way
     (course / "gradebook.db").write_bytes(b"\0" * 4096)
     marker = private / record.RUN_MARKER
     marker.write_text(json.dumps({"pid": 2**22 + 12345}))  # a pid that is gone
-    notes = course_mod._begin_run(course, private)
+    notes = _begin_run(course, private)
     assert any("interrupted" in n and "restored" in n for n in notes), notes
     assert gradebook.problem(course / "gradebook.db") is None
     marker.write_text(json.dumps({"pid": os.getpid() + 0}))
-    assert course_mod._begin_run(course, private) == [
+    assert _begin_run(course, private) == [
         "the previous run was interrupted; gradebook.db checked: ok"]
 
 
@@ -191,7 +192,6 @@ ACCEPTED = ("ana", "'=ben")
 
 
 def test_every_refused_folder_gets_a_row_of_its_own_and_accepted_rows_stay(tmp_path, capsys):
-    from autograder.course import grade_course
 
     course = kit.initialized_course(tmp_path)
     for student in ACCEPTED:   # handed in nothing to run: no student code in this test

@@ -24,11 +24,12 @@ import sys
 import course_kit as kit
 import pytest
 
-from autograder import grading, sandbox, scratch
+from autograder import sandbox, scratch
 from autograder.inside import syscalls
+from autograder.pipeline.worker import Limits, Worker, WorkerSetup
 from autograder.template import Template
 
-LIMITS = grading.Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30)
+LIMITS = Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30)
 TOKEN, USER_TOKEN = "cobotlab-instructor-token", "cobotlab-instructor-user-token"   # kit's
 PLANTED = "cobotlab-planted-by-a-submission"
 
@@ -93,13 +94,13 @@ def _probe_twice(start) -> list[dict]:
 
 
 def test_a_cold_worker_reaches_no_keyring(instructor_keys):
-    assert _probe_twice(lambda cells: grading.Worker(cells, LIMITS)) == [NOTHING, NOTHING]
+    assert _probe_twice(lambda cells: Worker(cells, LIMITS)) == [NOTHING, NOTHING]
 
 
 def test_a_template_fork_reaches_no_keyring(instructor_keys):
     made = Template([PROBE], LIMITS, cpu_s=60)
     try:
-        seen = _probe_twice(lambda cells: grading.Worker(cells, LIMITS, template=made))
+        seen = _probe_twice(lambda cells: Worker(cells, LIMITS, WorkerSetup(template=made)))
     finally:
         made.close()
     assert seen == [NOTHING, NOTHING]

@@ -20,13 +20,16 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import grading, record
-from autograder.course import grade_course
+from autograder import record
 from autograder.nbgrader_hooks import strip_hidden
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import problem_rng
+from autograder.pipeline.worker import Limits
+from autograder.secret import PRIVATE_DIR
 
 LAB0, LAB1 = "lab0_frames", "lab1_flange"
 LAB0_FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
-LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=60)
+LIMITS = Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=60)
 
 pytestmark = pytest.mark.slow
 
@@ -71,7 +74,7 @@ def _scores(course: Path, assignment: str = LAB0) -> dict[str, str]:
 
 
 def _runs(course: Path) -> list[dict]:
-    lines = (course / grading.PRIVATE_DIR / "runs.jsonl").read_text().splitlines()
+    lines = (course / PRIVATE_DIR / "runs.jsonl").read_text().splitlines()
     return [json.loads(line) for line in lines]
 
 
@@ -80,7 +83,7 @@ def _runs(course: Path) -> list[dict]:
 
 def test_problems_depend_on_the_names_only_unless_a_nonce_is_given():
     def draw(nonce, student="alice", function="invert_pose"):
-        return grading.problem_rng("s" * 32, nonce, LAB0, student, function).random(4)
+        return problem_rng("s" * 32, nonce, LAB0, student, function).random(4)
 
     assert np.array_equal(draw(None), draw(None)) and np.array_equal(draw(None), draw(""))
     assert not np.array_equal(draw(None), draw(None, student="bob"))

@@ -16,8 +16,12 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import checks, grading, registry, sandbox, scratch, template
-from autograder.course import grade_course, init_course
+from autograder import checks, registry, sandbox, scratch, template
+from autograder.course import init_course
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.problems import draw_problems
+from autograder.pipeline.worker import Worker
+from autograder.secret import load_secret
 from cobotlab.authoring import new_lab
 from cobotlab.cli import main
 
@@ -67,7 +71,7 @@ def _no_student_code(monkeypatch) -> None:
     def refuse(*args, **kwargs):
         raise AssertionError("a rescore started student code")
 
-    monkeypatch.setattr(grading.Worker, "__init__", refuse)
+    monkeypatch.setattr(Worker, "__init__", refuse)
     monkeypatch.setattr(template.Template, "__init__", refuse)
     monkeypatch.setattr(scratch, "autograde_in_worker", refuse)
     monkeypatch.setattr(scratch, "autograde_one", refuse)
@@ -88,7 +92,7 @@ def _expected_points(course, student: str, student_fn) -> float:
     """The points ``student_fn`` earns on ``student``'s problems under the spec as the
     course has it now, scored here (no sandbox) by the grader's scoring function."""
     registry.use_course(course)
-    problems = grading.draw_problems(LAB, student, grading.load_secret(course), None)
+    problems = draw_problems(LAB, student, load_secret(course), None)
     (spec,) = checks.SPECS[LAB]
     trials = problems.trials[spec.name]
     outcomes = [checks.TrialOutcome(value=student_fn(*t.args)) for t in trials]

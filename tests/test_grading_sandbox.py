@@ -13,9 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from autograder import forbidden, grading, sandbox
+from autograder import forbidden, sandbox
+from autograder.pipeline.worker import Limits, Worker, WorkerFailure, WorkerSetup
 
-LIMITS = grading.Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30, memory_mb=1024,
+LIMITS = Limits(cell_timeout_s=8, call_timeout_s=8, load_timeout_s=30, memory_mb=1024,
                         max_processes=24, scratch_mb=32, reply_kb=256)
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -129,7 +130,7 @@ def test_the_worker_sees_and_writes_nothing_of_the_host(tmp_path, listener):
                os.path.expanduser("~/planted"), "/etc/planted", "/usr/planted"]
     secret_places = [str(ROOT / "solutions"), str(ROOT / "autograder" / "specs" / "lab0_frames.py"),
                      str(tmp_path), os.path.expanduser("~/.ssh"), "/work/shared", str(ROOT / "labs")]
-    with grading.Worker([_probe_source(watched, secret_places, listener)], LIMITS) as w:
+    with Worker([_probe_source(watched, secret_places, listener)], LIMITS) as w:
         assert w.call("writable", (), 5).value == []
         assert w.call("exists", (), 5).value == []
         assert w.call("import_solutions", (), 5).value == "ModuleNotFoundError"
@@ -146,17 +147,17 @@ def test_the_worker_sees_and_writes_nothing_of_the_host(tmp_path, listener):
 def test_memory_and_process_limits_hold_for_the_whole_submission():
     cgroup = sandbox.Cgroup(LIMITS.memory_mb, LIMITS.max_processes)
     try:
-        with grading.Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
-                            cgroup=cgroup) as w:
+        with Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
+                            WorkerSetup(cgroup=cgroup)) as w:
             try:
                 alive = w.call("fork_hogs", (), 50).value
-            except grading.WorkerFailure:
+            except WorkerFailure:
                 alive = 0  # the kernel chose the worker itself: just as good
             assert alive is None or alive < 3, "three 450 MB children in a 1024 MB budget"
             assert cgroup.oom_kills() >= 1
         cgroup.kill_all()
-        with grading.Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
-                            cgroup=cgroup) as w:
+        with Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS,
+                            WorkerSetup(cgroup=cgroup)) as w:
             made = w.call("fork_bomb", (), 8).value
             assert made is not None and made < LIMITS.max_processes
         assert cgroup.kill_all() >= 0 and not cgroup.pids(), "no process left behind"
@@ -165,9 +166,9 @@ def test_memory_and_process_limits_hold_for_the_whole_submission():
 
 
 def test_a_reply_flood_is_refused_from_its_header_at_bounded_cost():
-    with grading.Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS) as w:
+    with Worker(["WATCHED = SECRET_PLACES = []\nPORT = 1\n" + PROBES], LIMITS) as w:
         started = time.monotonic()
-        with pytest.raises(grading.WorkerFailure, match="too large"):
+        with pytest.raises(WorkerFailure, match="too large"):
             w.call("flood", (), 5)
         assert time.monotonic() - started < 3.0
 
@@ -175,7 +176,7 @@ def test_a_reply_flood_is_refused_from_its_header_at_bounded_cost():
 def test_the_tripwire_reports_a_forbidden_call_however_it_is_reached(tmp_path):
     code = ("import numpy as np\nfrom robots import geometry\nalias = getattr(geometry, "
             "'inv' + 'ert')\ndef invert_pose(T):\n    return alias(T)\n")
-    with grading.Worker([code], LIMITS) as w:
+    with Worker([code], LIMITS) as w:
         outcome = w.call("invert_pose", (__import__("numpy").eye(4),), 5,
                          ("robots.geometry.invert",))
         assert "ForbiddenCall" in outcome.error and w.tripped == {"robots.geometry.invert"}
@@ -240,7 +241,7 @@ def test_a_forbidden_routine_answers_no_graded_call_however_it_is_reached():
     inverse = np.linalg.inv(T)
     rotation = __import__("cv2").Rodrigues(np.array([0.1, 0.2, 0.3]))[0]
     invert, rodrigues = ("robots.geometry.invert",), ("cv2.Rodrigues",)
-    with grading.Worker([UNSEEN], LIMITS, forbidden=invert + rodrigues) as w:
+    with Worker([UNSEEN], LIMITS, WorkerSetup(forbidden=invert + rodrigues)) as w:
         assert w.load_report[0]["ok"] is True, w.load_report
         for name, args, names, right in [("by_thread", (T,), invert, inverse),
                                          ("by_saved", (T,), invert, inverse),

@@ -14,7 +14,9 @@ import course_kit as kit
 import pytest
 from test_grading_sandbox import LIMITS, PROBES, ROOT, _probe_source
 
-from autograder import grading, sandbox
+from autograder import sandbox
+from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.worker import Limits, Worker, WorkerSetup
 from autograder.template import Template, leading_cells
 
 pytestmark = pytest.mark.skipif(not sandbox.capabilities().bwrap,
@@ -81,7 +83,7 @@ def template():
 
 
 def _observed(template, cells) -> dict:
-    with grading.Worker(cells, LIMITS, template=template) as worker:
+    with Worker(cells, LIMITS, WorkerSetup(template=template)) as worker:
         assert worker.shared == 1 and worker.load_report[0]["ok"] is True
         return worker.call("observe", (), 10).value
 
@@ -94,7 +96,7 @@ def test_nothing_a_submission_does_reaches_the_next(template):
     assert before["threads"] == 1 and before["tasks"] == 1
     assert before["pid"] == 1 and before["reach"] == []   # process 1 of a PID namespace
 
-    with grading.Worker([SHARED, HOSTILE], LIMITS, template=template) as hostile:
+    with Worker([SHARED, HOSTILE], LIMITS, WorkerSetup(template=template)) as hostile:
         assert all(r["ok"] for r in hostile.load_report), hostile.load_report
         assert hostile.call("observe", (), 5).value == "hostile"
         fork = hostile.proc.pid
@@ -117,11 +119,11 @@ def test_a_fork_sees_and_writes_nothing_of_the_host(tmp_path):
     probes = _probe_source(watched, secret_places, 9)
     made = Template([probes], LIMITS, cpu_s=120)
     try:
-        with grading.Worker([probes, "def capabilities():\n    return [l for l in open("
+        with Worker([probes, "def capabilities():\n    return [l for l in open("
                              "'/proc/self/status') if l.startswith(('CapEff', 'CapBnd', "
                              "'NoNewPrivs'))]\ndef new_userns():\n    import ctypes\n    return ctypes."
                              "CDLL(None).unshare(0x10000000)\n"], LIMITS,
-                            template=made) as w:
+                            WorkerSetup(template=made)) as w:
             assert w.call("writable", (), 5).value == []
             assert w.call("exists", (), 5).value == []
             assert w.call("import_solutions", (), 5).value == "ModuleNotFoundError"
@@ -145,7 +147,7 @@ def test_a_fork_is_charged_to_its_own_cgroup():
     try:
         cgroup = sandbox.Cgroup(LIMITS.memory_mb, LIMITS.max_processes)
         try:
-            with grading.Worker([source], LIMITS, cgroup=cgroup, template=made) as w:
+            with Worker([source], LIMITS, WorkerSetup(cgroup=cgroup, template=made)) as w:
                 assert w.proc.pid in cgroup.pids()
                 made_procs = w.call("fork_bomb", (), 8).value
                 assert made_procs is not None and made_procs < LIMITS.max_processes
@@ -171,13 +173,13 @@ def test_a_clean_submission_scores_as_alone_after_a_hostile_one(tmp_path_factory
     assert shared, "lab 0 begins with read-only cells"
 
     def grade(student, template=None):
-        g = grading.grade_notebook(paths[student], LAB, "clean", "a-secret", None,
+        g = grade_notebook(paths[student], LAB, "clean", "a-secret", None,
                                    template=template)
         return [(f.name, f.points, f.n_failed, [(c.name, c.credit, c.n_full, c.worst_error, c.median_error) for c in f.checks])
                 for f in g.functions], g
 
     alone, cold = grade("clean")
-    made = Template(shared, grading.Limits(), cpu_s=300)
+    made = Template(shared, Limits(), cpu_s=300)
     try:
         forked, first = grade("clean", made)
         _, attacked = grade("hostile", made)

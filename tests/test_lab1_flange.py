@@ -15,9 +15,10 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import checks, grading, synthetic
-from autograder.course import grade_course
+from autograder import checks, synthetic
 from autograder.datasets import load_aubo_flange_capture
+from autograder.pipeline.pipeline import grade_course
+from autograder.secret import load_secret
 from robots import geometry as geo
 from solutions import registration as reg
 
@@ -207,7 +208,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     assert all(g["flags"] == "" for g in grades.values()), grades  # the cross-check agrees
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "mapping" in feedback and " mm" in feedback
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         text = path.read_text()
         assert secret not in text and "hidden_test" not in text, path

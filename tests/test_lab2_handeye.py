@@ -13,8 +13,9 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import checks, grading
-from autograder.course import grade_course
+from autograder import checks
+from autograder.pipeline.pipeline import grade_course
+from autograder.secret import load_secret
 from autograder.specs import lab2_handeye as spec
 from robots import geometry as geo
 from solutions import handeye
@@ -194,7 +195,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, solutions, tmp_pa
     assert all(grades[s]["flags"] == "" for s in grades), {s: g["flags"] for s, g in grades.items()}
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "motions" in feedback and " deg" in feedback and " mm" in feedback
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         text = path.read_text()
         assert secret not in text and "hidden_test" not in text, path

@@ -15,8 +15,11 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import checks, grading
-from autograder.course import grade_course
+from autograder import checks
+from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import Limits
+from autograder.secret import load_secret
 from solutions import servoing as S
 
 ASSIGNMENT = "lab3_servoing"
@@ -196,7 +199,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     feedback = (course / "feedback_cobotlab" / "flipped_gain" / ASSIGNMENT /
                 "feedback.html").read_text()
     assert "position" in feedback and " mm" in feedback
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         text = path.read_text()
         assert secret not in text and "hidden_test" not in text, path
@@ -230,12 +233,12 @@ def test_independent_grader_drives_the_law_in_its_worker(tmp_path):
         + "\ncalls = []\ndef ibvs_velocity(s, s_star, Z, gain):\n    calls.append(1)\n"
           "    return _law(s, s_star, Z, gain) if len(calls) % 80 == 1 else np.zeros(6)\n",
     }
-    limits = grading.Limits(call_timeout_s=3, cell_timeout_s=5, load_timeout_s=30)
+    limits = Limits(call_timeout_s=3, cell_timeout_s=5, load_timeout_s=30)
     scores = {}
     for name, law in laws.items():
         path = _notebook(tmp_path, name, base + [law])
         started = __import__("time").monotonic()
-        grade = grading.grade_notebook([path], ASSIGNMENT, name, "s" * 32, "nonce", limits)
+        grade = grade_notebook([path], ASSIGNMENT, name, "s" * 32, "nonce", limits)
         elapsed = __import__("time").monotonic() - started
         scores[name] = {f.name: f for f in grade.functions}
         assert elapsed < 30, (name, elapsed)

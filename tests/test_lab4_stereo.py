@@ -15,8 +15,9 @@ import course_kit as kit
 import numpy as np
 import pytest
 
-from autograder import checks, grading
-from autograder.course import grade_course
+from autograder import checks
+from autograder.pipeline.pipeline import grade_course
+from autograder.secret import load_secret
 from robots import geometry as geo
 from solutions import registration as reg
 
@@ -178,7 +179,7 @@ def test_full_cycle_reference_blank_and_subtly_wrong(released, tmp_path):
     assert grades["ref"]["flags"] == "", grades["ref"]
     # only nbgrader's missing cross-check (not run on them), nothing suspicious
     assert all(not f.startswith("suspicious") for s in grades for f in grades[s]["flags"].split(";"))
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         assert secret not in path.read_text(), path
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()

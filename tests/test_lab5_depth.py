@@ -88,8 +88,8 @@ def _wrong() -> dict[str, str]:
 
 @pytest.mark.slow
 def test_full_cycle_reference_blank_and_classic_mistakes(tmp_path):
-    from autograder import grading
-    from autograder.course import grade_course
+    from autograder.pipeline.pipeline import grade_course
+    from autograder.secret import load_secret
 
     course = kit.released_course(tmp_path, ASSIGNMENT)
     kit.submit(course, ASSIGNMENT, "ref", replace=kit.solution_sources(ASSIGNMENT, FUNCTIONS))
@@ -106,7 +106,7 @@ def test_full_cycle_reference_blank_and_classic_mistakes(tmp_path):
     feedback = (course / "feedback_cobotlab" / "wrong" / ASSIGNMENT / "feedback.html").read_text()
     assert "depth is in sensor units" in feedback
     assert "Kasa" in feedback and "left unrefined" in feedback
-    secret = grading.load_secret(course)
+    secret = load_secret(course)
     for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html")]:
         assert secret not in path.read_text(), path
 

@@ -18,7 +18,8 @@ import course_kit as kit
 import pytest
 
 from autograder import gradebook, registry
-from autograder.course import GRADE_COLUMNS, GRADES_CSV, grade_course
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.record import GRADE_COLUMNS, GRADES_CSV
 from autograder.record import update_csv
 from cobotlab import cli
 from cobotlab.authoring import new_lab

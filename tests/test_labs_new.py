@@ -21,6 +21,8 @@ import pytest
 from nbclient import NotebookClient
 
 from autograder import checks, registry, sandbox
+from autograder.pipeline.pipeline import grade_course
+from autograder.secret import SECRET_ENV
 from cobotlab.authoring import new_lab
 from cobotlab.labs import RELEASE_LEAKS, write_student_labs
 
@@ -285,8 +287,7 @@ def test_a_course_lab_grades_in_a_shard_and_merges_into_the_home_course(tmp_path
     own folders and scores what the job did."""
     import course_kit as kit
 
-    from autograder.course import grade_course, init_course
-    from autograder.grading import SECRET_ENV
+    from autograder.course import init_course
     from autograder.shards import merge_shard, write_job
 
     home = tmp_path / "home" / "course"

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from autograder import grading, registry, sandbox
+from autograder import registry, sandbox
+from autograder.pipeline import worker
 from cobotlab import cli
 from cobotlab.authoring import new_lab
 from cobotlab.verify import verify_lab
@@ -38,7 +39,7 @@ def lab(tmp_path):
 
 @pytest.fixture
 def no_sandbox(monkeypatch):
-    monkeypatch.setattr(grading, "sandbox_available", lambda: False)
+    monkeypatch.setattr(worker, "sandbox_available", lambda: False)
 
 
 def _edit(path: Path, old: str, new: str) -> None:

@@ -15,12 +15,13 @@ from pathlib import Path
 import course_kit as kit
 import pytest
 
-from autograder import grading
-from autograder.course import grade_course
+from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.worker import Limits
+from autograder.secret import PRIVATE_DIR
 
 LAB0 = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
-LIMITS = grading.Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=60)
+LIMITS = Limits(cell_timeout_s=5, call_timeout_s=2, load_timeout_s=60)
 
 pytestmark = pytest.mark.slow
 
@@ -60,7 +61,7 @@ def _cell_scores(course: Path, students) -> dict[str, dict[str, float]]:
 def _nbgrader_own(course: Path) -> dict[str, dict[str, float]]:
     """nbgrader's own cell scores of the last `cobotlab grade` (the gradebook then holds
     cobotlab's; the cross-check keeps nbgrader's in its ledger)."""
-    ledger = json.loads((course / grading.PRIVATE_DIR / "nbgrader_cells.json").read_text())
+    ledger = json.loads((course / PRIVATE_DIR / "nbgrader_cells.json").read_text())
     return {s: {cell: pair[1] for cell, pair in entry["cells"].items()}
             for s, entry in ledger[LAB0].items()}
 
@@ -105,7 +106,7 @@ def test_cell_scores_match_nbgrader_with_its_own_kernel(released, tmp_path):
     blank = _outputs(worker_course, "blank", "test_invert_pose")
     assert blank[-1]["ename"] == "NotImplementedError" and "In [" in blank[-1]["evalue"]
     # one run of the notebook served both: nothing of nbgrader's kernel ran
-    log = (worker_course / grading.PRIVATE_DIR / "last_run.log").read_text()
+    log = (worker_course / PRIVATE_DIR / "last_run.log").read_text()
     assert "its cells run by the grader" in log
 
 

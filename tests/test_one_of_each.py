@@ -11,8 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from autograder import course, gradebook, grading
+from autograder import gradebook
 from autograder.nbgrader_cells import CellRole, cell_role, nbgrader_metadata
+from autograder.pipeline.begin import _course
+from autograder.pipeline.problems import draw_problems, specs_of
+from autograder.pipeline.record import grade_row
 
 ROOT = Path(__file__).resolve().parent.parent
 SOURCES = sorted([*(ROOT / "autograder").rglob("*.py"), *(ROOT / "cobotlab").rglob("*.py")])
@@ -56,7 +59,7 @@ def test_the_no_graded_functions_check_is_made_once():
     found = {(path, fn) for path, fn, node in _nodes()
              if isinstance(node, ast.Constant) and isinstance(node.value, str)
              and "no graded functions are registered" in node.value}
-    assert found == {("autograder/grading.py", "specs_of")}
+    assert found == {("autograder/pipeline/problems.py", "specs_of")}
 
 
 def test_one_reader_of_nbgrader_cell_metadata():
@@ -95,16 +98,16 @@ def test_one_roster_reader():
 def test_the_net_score_is_rounded_and_never_below_zero(raw, penalty, net):
     assert gradebook.net_score(raw, penalty) == net
     nb = {"penalty": penalty or 0.0}
-    assert course.grade_row("lab0_frames", "ana", nb, raw, 10.0, "")["score"] == net
+    assert grade_row("lab0_frames", "ana", nb, raw, 10.0, "")["score"] == net
 
 
 def test_an_unknown_assignment_is_refused_the_same_way_everywhere(tmp_path):
     with pytest.raises(ValueError, match="no graded functions .* 'nope'; known") as one:
-        grading.specs_of("nope")
+        specs_of("nope")
     with pytest.raises(ValueError) as two:
-        course._course(tmp_path, "nope")
+        _course(tmp_path, "nope")
     with pytest.raises(ValueError) as three:
-        grading.draw_problems("nope", "ana", "a-secret-of-16-chars-or-more", None)
+        draw_problems("nope", "ana", "a-secret-of-16-chars-or-more", None)
     assert str(one.value) == str(two.value) == str(three.value)
 
 

@@ -15,6 +15,7 @@ import pytest
 
 from autograder import record, safe_files
 from autograder.safe_files import Refused, Why
+from autograder.secret import SECRET_ENV, load_secret
 
 SECRET = b"the answer key"
 HONEST = b"the student's own"
@@ -192,17 +193,16 @@ def test_update_csv_reads_no_grades_csv_through_a_linked_folder(tree):
 
 @pytest.mark.parametrize("linked", [".cobotlab", ".cobotlab/secret"])
 def test_the_grading_secret_is_read_without_following_a_link(tmp_path, monkeypatch, linked):
-    """grading.load_secret reads `.cobotlab/secret` through safe_files: a link to another
+    """load_secret reads `.cobotlab/secret` through safe_files: a link to another
     file (someone else's secret, or one chosen to be guessed) is refused with the fix."""
-    from autograder import grading
 
-    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    monkeypatch.delenv(SECRET_ENV, raising=False)
     course, elsewhere = tmp_path / "course", tmp_path / "elsewhere"
     for top in (course, elsewhere):
         (top / ".cobotlab").mkdir(parents=True)
     (elsewhere / ".cobotlab" / "secret").write_text("chosen-by-someone-else-0123456789\n")
     (course / ".cobotlab" / "secret").write_text("the-course-s-own-secret-0123456789\n")
-    assert grading.load_secret(course) == "the-course-s-own-secret-0123456789"
+    assert load_secret(course) == "the-course-s-own-secret-0123456789"
 
     target = course / linked
     if target.is_dir():
@@ -211,18 +211,17 @@ def test_the_grading_secret_is_read_without_following_a_link(tmp_path, monkeypat
         target.unlink()
     os.symlink(elsewhere / linked, target)
     with pytest.raises(ValueError, match="grading secret .* is refused: .*symlink.*regular file"):
-        grading.load_secret(course)
-    monkeypatch.setenv(grading.SECRET_ENV, "from-the-environment-0123")   # it wins, as before
-    assert grading.load_secret(course) == "from-the-environment-0123"
+        load_secret(course)
+    monkeypatch.setenv(SECRET_ENV, "from-the-environment-0123")   # it wins, as before
+    assert load_secret(course) == "from-the-environment-0123"
 
 
 def test_a_missing_or_short_secret_names_the_fix(tmp_path, monkeypatch):
-    from autograder import grading
 
-    monkeypatch.delenv(grading.SECRET_ENV, raising=False)
+    monkeypatch.delenv(SECRET_ENV, raising=False)
     with pytest.raises(ValueError, match="no grading secret .* `cobotlab course init DIR`"):
-        grading.load_secret(tmp_path)
+        load_secret(tmp_path)
     (tmp_path / ".cobotlab").mkdir()
     (tmp_path / ".cobotlab" / "secret").write_text("short\n")
     with pytest.raises(ValueError, match="at least 16 characters"):
-        grading.load_secret(tmp_path)
+        load_secret(tmp_path)

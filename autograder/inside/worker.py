@@ -1,6 +1,6 @@
 """The student-code worker: runs one submission's code and calls its functions on request.
 
-Started by :mod:`autograder.grading` as ``python -I -m autograder.inside.worker REQ_FD REPLY_FD
+Started by :mod:`autograder.pipeline.worker` as ``python -I -m autograder.inside.worker REQ_FD REPLY_FD
 MEM_MB CPU_S FILE_MB``, inside the sandbox of :mod:`autograder.sandbox` where it can run
 (no view of the course, the answer key or the specs; ``autograder.checks`` is replaced by a
 stub so the notebook's ``from autograder.checks import check`` still works, and
@@ -86,7 +86,7 @@ class _CappedWriter(io.TextIOBase):
 # The wall clock is the backstop for code that sleeps or blocks, so it counts the time the
 # cell or call could have run: seconds it spent runnable in the run queue, waiting for a CPU
 # that other graders held, are added back, up to this many times the wall-clock limit (past
-# that the grader judges it starved: see autograder.grading.Worker._judge).
+# that the grader judges it starved: see autograder.pipeline.worker.Worker._judge).
 WALL_STRETCH = 3.0
 
 

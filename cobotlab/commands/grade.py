@@ -1,5 +1,5 @@
 """``cobotlab grade``: autograde every submission of an assignment
-(``autograder.course.grade_course``) and write grades.csv."""
+(``autograder.pipeline.pipeline.grade_course``) and write grades.csv."""
 
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def student_ids(spec: str | None) -> list[str] | None:
 
 
 def run(args) -> int:
-    from autograder.course import grade_course
+    from autograder.pipeline.pipeline import grade_course
     from autograder.scratch import put_interpreter_on_path
 
     put_interpreter_on_path()   # nbgrader finds `alembic` without an activated venv

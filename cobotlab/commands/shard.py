@@ -25,9 +25,9 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> None:
-    from autograder import grading
+    from autograder.secret import PRIVATE_DIR
     from autograder.shards import write_job
 
     written = write_job(args.home, args.assignment, args.job, args.students or None)
     print(f"{args.assignment}: the problems of {len(written)} student(s) written into "
-          f"{Path(args.job).resolve() / grading.PRIVATE_DIR / 'job'}")
+          f"{Path(args.job).resolve() / PRIVATE_DIR / 'job'}")

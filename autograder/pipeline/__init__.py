@@ -1,0 +1,1 @@
+"""The grader's line, one module per stage (docs/architecture.md)."""
