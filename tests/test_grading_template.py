@@ -190,3 +190,23 @@ def test_a_clean_submission_scores_as_alone_after_a_hostile_one(tmp_path_factory
     assert alone == forked == after
     assert sum(f[1] for f in alone) == cold.max_score
     assert first.profile["shared_s"] > 0 and cold.profile["shared_s"] == 0
+
+
+# A lab's leading cells open the simulator (MuJoCo renders through EGL on Mesa's software
+# renderer): the template must still be one thread when it forks, or every submission of
+# every lab that opens it grades cold (issue 51: lab 1's class took 77 s instead of 43 s).
+SIMULATOR = ("import robots\n"
+             "cell = robots.connect('sim', arm='ur5e', mount='eye_to_hand', seed=0, "
+             "width=64, height=48)\n"
+             "frame = cell.camera.capture()\n")
+
+
+def test_a_template_that_opened_the_simulator_still_forks():
+    made = Template([SHARED + SIMULATOR], LIMITS, cpu_s=120)
+    try:
+        with Worker([SHARED + SIMULATOR, "def tasks():\n    return len(os.listdir("
+                     "'/proc/self/task'))\n"], LIMITS, WorkerSetup(template=made)) as worker:
+            assert worker.shared == 1 and worker.load_report[0]["ok"] is True
+            assert worker.call("tasks", (), 10).value == 1
+    finally:
+        made.close()

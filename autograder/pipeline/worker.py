@@ -77,11 +77,15 @@ def sandbox_available() -> bool:
 
 
 def _worker_env(home: str) -> dict[str, str]:
-    """A clean environment: nothing of the grader's (no secret), one BLAS and one OpenCV
-    thread (a template forks: a thread pool would not survive the fork)."""
+    """A clean environment: nothing of the grader's (no secret), and a process that stays
+    single-threaded (a template forks: a thread pool would not survive the fork): one BLAS
+    and one OpenCV thread, and Mesa's software renderer, which MuJoCo's EGL rendering of a
+    lab's ``connect("sim")`` cell goes through, rasterising in the calling thread with no
+    shader-cache writer thread (else every lab that opens the simulator grades cold)."""
     return {"PATH": "/usr/bin:/bin", "HOME": home, "LANG": "C.UTF-8", "MPLBACKEND": "Agg",
             "MPLCONFIGDIR": home, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
             "MKL_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1",
+            "LP_NUM_THREADS": "0", "MESA_SHADER_CACHE_DISABLE": "true",
             "PYTHONDONTWRITEBYTECODE": "1", "PYTHONHASHSEED": "0"}
 
 
