@@ -178,6 +178,9 @@ def test_rim_points_find_the_face_whether_or_not_the_housing_ring_survives(ring_
     r = np.hypot(rim_px[:, 0] - 80.3, rim_px[:, 1] - 59.6)
     assert len(rim) > 80
     assert abs(np.median(r) - 18.0) < 0.5, np.median(r)
+    with pytest.raises(ValueError, match="near_m"):
+        lab5.rim_points(face, points, K, np.array([0, 0, 0.5]), np.array([0, 0, -1.0]),
+                        near_m=float("nan"))
 
 
 def test_find_rectangle_corners_on_a_drawn_quadrilateral():

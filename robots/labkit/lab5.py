@@ -162,6 +162,9 @@ def rim_points(face, points, K, centre, normal, max_gap_px: int = 8, near_m: flo
 
     The ray through the rim's pixel, intersected with the plane (``centre``, ``normal``), is
     a rim point. Where no depth is found (the image border, out of range) no point is made."""
+    if not (np.isfinite(near_m) and near_m > 0):
+        raise ValueError(f"near_m must be a distance > 0 (m) behind the face's plane, got "
+                         f"{near_m!r}: about three times the step to the wrist housing, 0.02")
     pts = np.asarray(points, dtype=float)
     start, step, k = _rim_bands(np.asarray(face, dtype=bool), np.all(np.isfinite(pts), axis=2),
                                 max_gap_px)
