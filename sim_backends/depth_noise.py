@@ -164,22 +164,43 @@ class RealSenseDepthModel:
         return edge
 
     def _grazing(self, z, K) -> np.ndarray:
+        # The surface normal from central differences of the back-projected points,
+        # n = d/du x d/dv, against the pixel's ray r: steep where |n.r| / (|n| |r|) is below
+        # cos(max_incidence_deg). A neighbour across an edge gives a wild normal, but those
+        # pixels are edge dropouts already; the border rows and columns (no central
+        # difference) and holes (NaN) never count as steep. Written per component with
+        # in-place arithmetic: the (H, W, 3) arrays and np.cross cost twice the time (lab 5
+        # applies this to every frame), for the same floating-point operations in the same
+        # order, so the same mask bit for bit (tests/test_sim_depth_flange.py).
         H, W = z.shape
-        u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-        rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
-        pts = rays * z[..., None]
-        # Central differences; a neighbour across an edge gives a wild normal, but those
-        # pixels are edge dropouts already.
-        du = np.zeros_like(pts)
-        dv = np.zeros_like(pts)
-        du[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
-        dv[1:-1, :] = pts[2:, :] - pts[:-2, :]
-        n = np.cross(du, dv)
+        steep = np.zeros((H, W), dtype=bool)
+        if H < 3 or W < 3:
+            return steep
+        rx = ((np.arange(W, dtype=float) - K[0, 2]) / K[0, 0])[None, :]
+        ry = ((np.arange(H, dtype=float) - K[1, 2]) / K[1, 1])[:, None]
+        x, y = rx * z, ry * z
+        ax, ay, az = (a[1:-1, 2:] - a[1:-1, :-2] for a in (x, y, z))   # along u
+        bx, by, bz = (a[2:, 1:-1] - a[:-2, 1:-1] for a in (x, y, z))   # along v
+        nx = ay * bz
+        nx -= az * by
+        ny = az * bx
+        ny -= ax * bz
+        nz = ax * by
+        nz -= ay * bx
+        rx, ry = rx[:, 1:-1], ry[1:-1, :]
         with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.abs(np.sum(n * rays, -1)) / (np.linalg.norm(n, axis=-1)
-                                                  * np.linalg.norm(rays, axis=-1))
-        cos_min = math.cos(math.radians(self.max_incidence_deg))
-        steep = cos < cos_min  # NaN (no normal: border, holes) never counts as steep
+            cos = nx * rx
+            cos += ny * ry
+            cos += nz
+            np.abs(cos, out=cos)
+            for n in (nx, ny, nz):
+                n *= n
+            nx += ny
+            nx += nz
+            np.sqrt(nx, out=nx)
+            nx *= np.sqrt((rx * rx + ry * ry) + 1.0)
+            cos /= nx
+        steep[1:-1, 1:-1] = cos < math.cos(math.radians(self.max_incidence_deg))
         return steep
 
 

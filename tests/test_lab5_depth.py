@@ -152,6 +152,37 @@ def test_to_z16_and_rim_points_on_a_drawn_disc():
     assert np.allclose(rim[:, 2], 0.5)
 
 
+def _flange_in_front_of_a_housing(ring_px: float):
+    """Exact depth (m) of a fronto-parallel face (radius 18 px, 0.5 m) in front of a housing
+    ``ring_px`` wider in radius, 6.5 mm behind it, before a wall at 1 m; its K."""
+    vv, uu = np.mgrid[0:120, 0:160]
+    r = np.hypot(uu - 80.3, vv - 59.6)
+    depth = np.where(r < 18.0, 0.5, np.where(r < 18.0 + ring_px, 0.5065, 1.0))
+    return depth, np.array([[300.0, 0, 79.5], [0, 300.0, 59.5], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("ring_px", [2.0, 2.6, 6.0])
+def test_rim_points_find_the_face_whether_or_not_the_housing_ring_survives(ring_px):
+    # Through the real D4xx model: a 6.5 mm step at 0.5 m is no edge to it, the housing's
+    # outer edge is, with 2 pixels lost either side. A 2-pixel ring is lost whole, a
+    # 2.6-pixel one (the MuJoCo UR at 320 x 240) in most places: the band then runs from the
+    # face to the wall, and its middle (what rim_points took before) lay 2 pixels out. A
+    # 6-pixel ring survives.
+    from sim_backends.depth_noise import RealSenseDepthModel
+
+    exact, K = _flange_in_front_of_a_housing(ring_px)
+    depth = RealSenseDepthModel(subpixel=0.0).apply(exact, K, np.random.default_rng(0))
+    points = _namespace()["backproject"](lab5.to_z16(depth, 0.001), K, 0.001)
+    face = np.isfinite(depth) & (depth < 0.503)
+    rim, rim_px = lab5.rim_points(face, points, K, np.array([0, 0, 0.5]), np.array([0, 0, -1.0]))
+    r = np.hypot(rim_px[:, 0] - 80.3, rim_px[:, 1] - 59.6)
+    assert len(rim) > 80
+    assert abs(np.median(r) - 18.0) < 0.5, np.median(r)
+    with pytest.raises(ValueError, match="near_m"):
+        lab5.rim_points(face, points, K, np.array([0, 0, 0.5]), np.array([0, 0, -1.0]),
+                        near_m=float("nan"))
+
+
 def test_find_rectangle_corners_on_a_drawn_quadrilateral():
     rgb = np.full((240, 320, 3), 190, np.uint8)
     quad = np.array([[100.0, 70.0], [210.0, 90.0], [190.0, 180.0], [90.0, 160.0]])

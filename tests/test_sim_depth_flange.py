@@ -301,3 +301,38 @@ def test_rectangle_mark_lies_on_the_table_with_its_true_size(arm, scene):
     ring = cv2.dilate(mark.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
     ring &= ~cv2.dilate(mark.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
     assert np.nanmedian(depth[ring]) == pytest.approx(0.503, abs=3e-4)
+
+
+def _grazing_by_cross_products(z, K, max_incidence_deg):
+    # The mask's definition, written the plain way: the normal n = d/du x d/dv of the
+    # back-projected points by central differences, steep where |n.r| / (|n| |r|) is below
+    # cos(max_incidence_deg) (NaN, no normal, never steep).
+    H, W = z.shape
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    pts = rays * z[..., None]
+    du, dv = np.zeros_like(pts), np.zeros_like(pts)
+    du[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
+    dv[1:-1, :] = pts[2:, :] - pts[:-2, :]
+    n = np.cross(du, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs(np.sum(n * rays, -1)) / (np.linalg.norm(n, axis=-1)
+                                              * np.linalg.norm(rays, axis=-1))
+    return cos < np.cos(np.radians(max_incidence_deg))
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_the_grazing_mask_is_the_cross_product_definition_bit_for_bit(engine):
+    model = RealSenseDepthModel()
+    with connect("sim", engine=engine, arm="ur5e", mount="eye_to_hand", seed=3, tool=None,
+                 flange_target=False, width=160, height=120) as cell:
+        K = cell.camera.intrinsics.K
+        frames = []
+        for q in (None, [0.3, -0.4, 0.5, -0.6, 0.2, 0.4]):
+            if q is not None:
+                cell.robot.move_joints(np.asarray(cell.robot.joint_positions()) + q, speed=1.0)
+            frames.append(cell.camera.render()[1].astype(np.float64))
+    for z in frames:
+        expected = _grazing_by_cross_products(z, K, model.max_incidence_deg)
+        assert expected.any() and not expected.all()
+        np.testing.assert_array_equal(model._grazing(z, K), expected)

@@ -141,24 +141,55 @@ def face_mask(points, region, centre, normal, inlier_m: float) -> np.ndarray:
     return filled.astype(bool) & np.all(np.isfinite(pts), axis=2) | blob.astype(bool)
 
 
-def rim_points(face, points, K, centre, normal, max_gap_px: int = 8):
+def rim_points(face, points, K, centre, normal, max_gap_px: int = 8, near_m: float = 0.02):
     """Points on the face's rim (N, 3), camera frame, m, and their pixels (N, 2).
 
     From each pixel on the face's border, look outwards (right, left, down, up) for the
-    first pixel with depth. If it is off the face (the wrist housing 6.5 mm behind, the arm,
-    the table) within ``max_gap_px`` pixels, the rim runs midway between the two: right
-    between neighbouring pixel centres, or across the middle of the band of holes a depth
-    camera leaves on both sides of a depth edge. The ray through that point, intersected
-    with the fitted plane, is a rim point. Where no depth is found (the image border, out of
-    range) no point is made."""
-    face = np.asarray(face, dtype=bool)
-    valid = np.all(np.isfinite(np.asarray(points, dtype=float)), axis=2)
+    first pixel with depth. If it is off the face within ``max_gap_px`` pixels, the rim lies
+    in the band between the two, and where depends on what that pixel is:
+
+    * within ``near_m`` behind the face's plane (the wrist housing, 6.5 mm behind): the
+      camera lost about as much on either side of that small step, so the rim is the band's
+      middle (right between the two pixels when they are neighbours);
+    * farther (the table, the room): the band holds the face's edge, which is the same
+      small step where the housing's ring shows around the face, and the big edge behind a
+      ring thin enough to be lost whole (its middle would be the housing's outer edge). So
+      the rim is as far out from the face's last pixel as the half-band of the near bands
+      (their median): what the camera loses of the face at a small step, measured in this
+      image. With no near band (the ring lost all round) nothing measures that loss here:
+      the rim is then right after the face's last pixel, as where a D4xx keeps the near
+      side of an edge (its left-right check drops the far side's pixels).
+
+    The ray through the rim's pixel, intersected with the plane (``centre``, ``normal``), is
+    a rim point. Where no depth is found (the image border, out of range) no point is made."""
+    if not (np.isfinite(near_m) and near_m > 0):
+        raise ValueError(f"near_m must be a distance > 0 (m) behind the face's plane, got "
+                         f"{near_m!r}: about three times the step to the wrist housing, 0.02")
+    pts = np.asarray(points, dtype=float)
+    start, step, k = _rim_bands(np.asarray(face, dtype=bool), np.all(np.isfinite(pts), axis=2),
+                                max_gap_px)
+    centre, normal = np.asarray(centre, float), np.asarray(normal, float)
+    towards_camera = -np.sign(centre @ normal) * normal / np.linalg.norm(normal)
+    beyond = pts[start[:, 1] + k * step[:, 1], start[:, 0] + k * step[:, 0]]
+    far = (centre - beyond) @ towards_camera > near_m
+    # Pixels the camera lost on the face's side of a small step, measured at the near bands.
+    face_lost = np.median(k[~far] - 1) / 2.0 if (~far).any() else 0.0
+    offset = np.where(far, np.minimum(0.5 + face_lost, k / 2.0), k / 2.0)
+    uv = start + step * offset[:, None]
+    return _on_plane(uv, K, centre, normal), uv
+
+
+def _rim_bands(face, valid, max_gap_px: int):
+    """The bands between the face and what lies beyond it: for each border pixel of ``face``
+    whose first outward pixel with depth (``valid``), within ``max_gap_px`` along a row or a
+    column, is off the face: (border pixels (N, 2) int, unit steps (N, 2) int, steps to that
+    pixel with depth (N,) int; 1 where the two are neighbours)."""
     H, W = face.shape
     cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
     border = face & ~cv2.erode(face.astype(np.uint8), cross, borderValue=1).astype(bool)
-    uv = []
+    v, u = np.nonzero(border)
+    start, direction, steps = [], [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        v, u = np.nonzero(border)
         step = np.zeros(len(u), dtype=int)          # distance to the first pixel with depth
         alive = np.ones(len(u), dtype=bool)
         for k in range(1, max_gap_px + 1):
@@ -170,13 +201,19 @@ def rim_points(face, points, K, centre, normal, max_gap_px: int = 8):
             alive &= ~hit
         ok = step > 0
         ok[ok] = ~face[v[ok] + step[ok] * dv, u[ok] + step[ok] * du]
-        uv.append(np.column_stack([u[ok] + du * step[ok] / 2.0, v[ok] + dv * step[ok] / 2.0]))
-    uv = np.vstack(uv)
+        start.append(np.column_stack([u[ok], v[ok]]))
+        direction.append(np.tile([du, dv], (int(ok.sum()), 1)))
+        steps.append(step[ok])
+    return np.vstack(start), np.vstack(direction), np.concatenate(steps)
+
+
+def _on_plane(uv, K, centre, normal) -> np.ndarray:
+    """Where the rays through pixels ``uv`` (N, 2) meet the plane (``centre``, ``normal``):
+    (N, 3), camera frame, m."""
     K = np.asarray(K, dtype=float)
     rays = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1],
                             np.ones(len(uv))])
-    centre, normal = np.asarray(centre, float), np.asarray(normal, float)
-    return rays * ((centre @ normal) / (rays @ normal))[:, None], uv
+    return rays * ((centre @ normal) / (rays @ normal))[:, None]
 
 
 @dataclass
