@@ -674,3 +674,5 @@ def test_the_worker_reports_the_place_of_a_cell_it_ran_and_no_other():
         except Exception as exc:  # noqa: BLE001 - the test's own raise
             reply = worker._failure(exc)
         assert reply["place"] == place and reply["where"] == where
+        assert (reply["exception"], reply["message"]) == (
+            ("ValueError", "no") if place else ("KeyError", "'k'"))
