@@ -652,7 +652,7 @@ def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
     claim that is no place (the worker is untrusted) leaves the failure without one."""
     reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
              "failure": "raised", "exception": "ValueError", "place": claimed}
-    failure = _reported_failure(reply, "cell 9, line 9")
+    failure = _reported_failure(reply)
     assert failure.place == (None if place is None else Place(*place))
     with pytest.raises(ValueError, match="Place.line"):
         Place(3, 0)
