@@ -187,10 +187,7 @@ def to_wire(execution: Execution) -> dict:
         "suspicious": list(execution.suspicious), "sandbox_flags": list(execution.sandbox_flags),
         "notes": [[str(n), student_words(n)] for n in execution.notes],
         "cell_origins": [[o.notebook, o.position, o.prompt] for o in execution.cell_origins],
-        "cell_runs": [{"origin": [r.origin.notebook, r.origin.position, r.origin.prompt],
-                       "error": r.error, "where": r.where, "stdout": r.stdout,
-                       "stderr": r.stderr, "timed_out": r.timed_out}
-                      for r in execution.cell_runs],
+        "cell_runs": [_cell_run_to_wire(r) for r in execution.cell_runs],
         "seconds": execution.seconds,
         "profile": {k: v for k, v in execution.profile.items()},
     }
@@ -211,6 +208,33 @@ def _origin(data, notebooks, what: str) -> CellOrigin:
         raise ExecutionRefused(f"{what} does not name a cell of the submission's notebooks")
     return CellOrigin(data[0][:200], _count(data[1], f"{what}.position"),
                       _count(data[2], f"{what}.prompt"))
+
+
+def _cell_run_to_wire(run: CellRun) -> dict:
+    return {"origin": [run.origin.notebook, run.origin.position, run.origin.prompt],
+            "error": run.error, "stdout": run.stdout, "stderr": run.stderr,
+            "timed_out": run.timed_out, "exception": run.exception, "message": run.message,
+            "place": None if run.place is None else run.place.to_wire()}
+
+
+def _cell_run_from_wire(data, notebooks) -> CellRun:
+    """A kept :class:`CellRun`. One kept before cell runs carried their exception typed (a
+    ``where`` in words, no ``exception``) is refused, as a failure without a place is."""
+    data = _mapping(data, "cell_runs")
+    timed_out = data.get("timed_out")
+    if not isinstance(timed_out, bool):
+        raise ExecutionRefused("cell_runs.timed_out is not true or false")
+    if "exception" not in data or "message" not in data:
+        raise ExecutionRefused(
+            "cell_runs has no exception (kept by an older cobotlab, which wrote it as "
+            "words); run the lab's student code again: `cobotlab grade` without --rescore")
+    return CellRun(_origin(data.get("origin"), notebooks, "cell_runs.origin"),
+                   _text(data.get("error"), 400, "cell_runs.error"),
+                   _text(data.get("stdout"), 4096, "cell_runs.stdout"),
+                   _text(data.get("stderr"), 4096, "cell_runs.stderr"), timed_out,
+                   exception=_text(data.get("exception"), 80, "cell_runs.exception"),
+                   message=_text(data.get("message"), 400, "cell_runs.message"),
+                   place=_place(data, "cell_runs"))
 
 
 def from_wire(data, assignment: str, student_id: str, notebooks=None) -> Execution:
@@ -245,17 +269,8 @@ def from_wire(data, assignment: str, student_id: str, notebooks=None) -> Executi
     ex.notes = [_note(n) for n in _items(data.get("notes"), 256, "notes")]
     ex.cell_origins = [_origin(o, notebooks, "cell_origins")
                        for o in _items(data.get("cell_origins"), 20000, "cell_origins")]
-    for run in _items(data.get("cell_runs"), len(ex.cell_origins), "cell_runs"):
-        run = _mapping(run, "cell_runs")
-        timed_out = run.get("timed_out")
-        if not isinstance(timed_out, bool):
-            raise ExecutionRefused("cell_runs.timed_out is not true or false")
-        ex.cell_runs.append(CellRun(
-            _origin(run.get("origin"), notebooks, "cell_runs.origin"),
-            _text(run.get("error"), 400, "cell_runs.error"),
-            _text(run.get("where"), 80, "cell_runs.where"),
-            _text(run.get("stdout"), 4096, "cell_runs.stdout"),
-            _text(run.get("stderr"), 4096, "cell_runs.stderr"), timed_out))
+    ex.cell_runs = [_cell_run_from_wire(run, notebooks)
+                    for run in _items(data.get("cell_runs"), len(ex.cell_origins), "cell_runs")]
     ex.seconds = _number(data.get("seconds"), "seconds")
     profile = _mapping(data.get("profile"), "profile")
     for key in ("start_s", "shared_s", "cells_s", "hidden_s"):

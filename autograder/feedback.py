@@ -83,7 +83,7 @@ def _cell_name(index: int, origins: list[CellOrigin]) -> str:
     return (f"{origin.notebook} " if several else "") + f"cell In [{origin.prompt}]"
 
 
-def _line_name(place: Place, origins: list[CellOrigin]) -> str:
+def line_name(place: Place, origins: list[CellOrigin]) -> str:
     """``place`` as the student names it: "cell In [n], line m" (the notebook first when
     several)."""
     return f"{_cell_name(place.cell, origins)}, line {place.line}"
@@ -138,7 +138,7 @@ def _time_out_line(f: FunctionResult, groups: list[ErrorGroup], origins: list[Ce
                     and g.failure.place is not None), None)
     line = (f"Timed out: {f.name} did not return within its time limit{limit} on "
             f"{timed or 1}{of} problem(s)"
-            + (f" (stopped at {_line_name(stopped, origins)})" if stopped else ""))
+            + (f" (stopped at {line_name(stopped, origins)})" if stopped else ""))
     if skipped:
         line += (f"; the other {skipped} problem(s) were then not run, and count as "
                  "failed. Look for a loop that never ends or work that grows too fast")
@@ -223,7 +223,7 @@ def _function_section(f: FunctionResult, origins: list[CellOrigin]) -> str:
     parts = [f"<section class='function'><h2>{_esc(f.name)}: {f.points:g} / "
              f"{f.max_points:g} <span class='badge {css}'>{label}</span></h2>"]
     if verdict == "not_implemented":
-        where = next((_esc(_line_name(g.failure.place, origins), 120)
+        where = next((_esc(line_name(g.failure.place, origins), 120)
                       for g in f.error_groups if g.failure is not None
                       and _in_one_notebook(g.failure.place, origins)), "")
         parts.append(f"<p>Not implemented yet: <code>{_esc(f.name)}</code> still raises "

@@ -23,19 +23,47 @@ must never pass for cobotlab's.
 
 from __future__ import annotations
 
+import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from autograder import freeze, record
 
-__all__ = ["SECTION", "HOOK", "write_exchange_files", "write_section", "section_path",
-           "config_problem", "unreleasable_note", "INERT"]
+__all__ = ["SECTION", "HOOK", "Comment", "comment_digest", "write_exchange_files",
+           "write_section", "section_path", "config_problem", "unreleasable_note", "INERT"]
 
 SECTION = "nbgrader_section.json"
 HOOK = "autograder.nbgrader_hooks.AddCobotlabFeedback"
 _HIDE = "autograder.nbgrader_hooks.HideHiddenTests"
 # Makes a submission inert before nbgrader renders it as HTML (formgrader, feedback pages).
 INERT = "autograder.sanitize_notebook.InertSubmission"
+
+
+@dataclass(frozen=True)
+class Comment:
+    """cobotlab's auto comment on a solution cell, in two parts: the ``student`` lines
+    (the score, the failed checks), which nbgrader's feedback shows too, and the
+    ``instructor`` lines (nbgrader's cross-check, the flags), which only formgrader shows."""
+
+    student: tuple[str, ...]
+    instructor: tuple[str, ...] = ()
+
+    @property
+    def text(self) -> str:
+        """The comment as the gradebook keeps it and formgrader shows it: every line."""
+        return "\n".join(self.student + self.instructor)
+
+    @property
+    def for_student(self) -> str:
+        """The comment as nbgrader's feedback shows it: the student lines."""
+        return "\n".join(self.student)
+
+
+def comment_digest(text: str) -> str:
+    """A comment's SHA-256 (hex): the section names the comment it stands for by it, so the
+    instructor's lines never reach a file of the student's feedback."""
+    return hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
 
 
 def section_path(student: str, assignment: str) -> str:
@@ -55,14 +83,20 @@ def write_exchange_files(root: Path, assignment: str, sub: freeze.Frozen) -> Non
             record.remove_file(root, relative)
 
 
-def write_section(root: Path, assignment: str, grade, timestamp: str) -> Path:
+def write_section(root: Path, assignment: str, grade, timestamp: str,
+                  comments: dict[str, Comment]) -> Path:
     """cobotlab's feedback of one graded submission (a
     :class:`autograder.pipeline.score.SubmissionGrade`) as the section nbgrader's feedback page
-    gets, with the ``timestamp`` of the submission it grades."""
+    gets, with the ``timestamp`` of the submission it grades. ``comments`` (grade id of a
+    solution cell -> the :class:`Comment` written to the gradebook) go in as ``{grade id:
+    {"digest": comment_digest(text), "student": for_student}}``: nbgrader's feedback shows
+    a cell's comment whose digest matches as its student lines."""
     from autograder import feedback  # the grader's modules: not for nbgrader_hooks' import
 
     document = {"timestamp": timestamp, "score": grade.score, "max_score": grade.max_score,
-                "html": feedback.feedback_section(grade)}
+                "html": feedback.feedback_section(grade),
+                "comments": {gid: {"digest": comment_digest(c.text), "student": c.for_student}
+                             for gid, c in comments.items()}}
     return record.write_file(root, section_path(grade.student_id, assignment),
                              json.dumps(document).encode("utf-8"))
 

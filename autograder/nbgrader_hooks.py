@@ -17,10 +17,10 @@ from pathlib import Path
 
 from nbconvert.preprocessors import Preprocessor
 from nbformat.v4 import new_code_cell, new_output
-from traitlets import Bool, List, Unicode
+from traitlets import Bool, Unicode
 
 from autograder import feedback_release, safe_files
-from autograder.nbgrader_cells import nbgrader_metadata
+from autograder.nbgrader_cells import cell_role, nbgrader_metadata
 
 __all__ = ["HideHiddenTests", "AddCobotlabFeedback"]
 
@@ -43,12 +43,64 @@ def strip_hidden(source: str, begin: str = BEGIN, end: str = END) -> tuple[str, 
     return "\n".join(kept), found
 
 
+_SECTION_BYTES = 4 * 2**20   # a section is tens of kilobytes
+
+
+def read_section(config, resources, log) -> dict | None:
+    """cobotlab's feedback section of the submission nbgrader is rendering (the JSON
+    :func:`autograder.feedback_release.write_section` wrote), or None when there is none or
+    it is not one (a warning in ``log``, when given)."""
+    from nbgrader.coursedir import CourseDirectory
+
+    info = resources.get("nbgrader", {})
+    student, assignment = info.get("student"), info.get("assignment")
+    if not student or not assignment:
+        return None
+    root = Path(CourseDirectory(config=config).root)
+    relative = feedback_release.section_path(student, assignment)
+    try:   # no link followed: nbgrader's kernel ran student code in this course's folders
+        data = safe_files.read_file(root, relative, _SECTION_BYTES)
+    except safe_files.Refused as refused:
+        if log is not None:
+            log.warning("no cobotlab feedback for %s's %s (%s: %s): run `cobotlab grade` "
+                        "first; their page has nbgrader's part only", student, assignment,
+                        root / relative, refused.why.value)
+        return None
+    try:
+        section = json.loads(data.decode("utf-8"))
+    except ValueError:
+        section = None
+    if not isinstance(section, dict) or "html" not in section:
+        if log is not None:
+            log.warning("%s is not cobotlab's feedback section: run `cobotlab grade` again",
+                        root / relative)
+        return None
+    return section
+
+
+def _comment_map(section: dict | None) -> dict[str, tuple[str, str]] | None:
+    """{grade id: (digest, student lines)} of a section's ``comments`` (well-formed entries
+    only), or None without a section or when it has none (an older cobotlab's section)."""
+    comments = section.get("comments") if section is not None else None
+    if not isinstance(comments, dict):
+        return None
+    return {gid: (entry["digest"], entry["student"]) for gid, entry in comments.items()
+            if isinstance(entry, dict) and isinstance(entry.get("digest"), str)
+            and isinstance(entry.get("student"), str)}
+
+
 class HideHiddenTests(Preprocessor):
     """Cut every hidden-test region out of a notebook's cells, and replace the outputs of the
     cells that held one with a one-line note: a failing hidden assert prints its own source
     lines in the traceback, and a passing one may print what it checked. cobotlab's comments
     keep the score and the failed checks; their flags and cross-check lines are cut (the
     instructor reads those in formgrader, before anyone confronts a student with them).
+
+    Which lines a comment keeps is read from cobotlab's section of the submission
+    (``comments``: the digest of each comment cobotlab wrote and its student lines), never
+    from the comment's words: a comment whose digest matches is shown as its student lines,
+    any other (an instructor's, nbgrader's) as it is. Without such a section, the comments
+    of the autograded answers (the cells cobotlab writes them to) are withheld.
 
     Unlike nbgrader's ClearHiddenTests it never raises on a notebook a student edited (a
     stray or unclosed marker), so one submission cannot stop the class's feedback.
@@ -61,18 +113,30 @@ class HideHiddenTests(Preprocessor):
     note = Unicode("(Output of the hidden tests removed: your cobotlab feedback page lists "
                    "what they found.)", help="what replaces the outputs").tag(config=True)
 
-    instructor_only = List(Unicode(), ["Flags", "nbgrader's own"],
-                           help="lines of cobotlab's cell comments that start so are for the "
-                                "instructor (tamper flags, the cross-check): cut from feedback"
-                           ).tag(config=True)
+    def preprocess(self, nb, resources):
+        self._comments = _comment_map(read_section(self.config, resources, None))
+        if self._comments is None:
+            self.log.warning("no cobotlab feedback section of this submission says which lines "
+                             "of its comments are the student's: the comments of its "
+                             "autograded answers are withheld (run `cobotlab grade` first)")
+        return super().preprocess(nb, resources)
+
+    def _shown(self, cell, comment: str) -> str:
+        """What the student's feedback shows of ``comment``, the cell's comment."""
+        comments = getattr(self, "_comments", None)
+        if comments is None:
+            role = cell_role(cell)
+            return "" if role.solution and not role.grade else comment
+        mine = comments.get(cell_role(cell).grade_id)
+        if mine is not None and mine[0] == feedback_release.comment_digest(comment):
+            return mine[1]
+        return comment
 
     def preprocess_cell(self, cell, resources, index):
         meta = nbgrader_metadata(cell)
         comment = meta.get("comment")
-        if isinstance(comment, str) and comment.startswith("cobotlab:"):
-            meta["comment"] = "\n".join(
-                line for line in comment.split("\n")
-                if not line.startswith(tuple(self.instructor_only)))
+        if isinstance(comment, str):
+            meta["comment"] = self._shown(cell, comment)
         source = cell.get("source", "")
         if isinstance(source, list):
             source = "".join(source)
@@ -95,33 +159,18 @@ class AddCobotlabFeedback(Preprocessor):
     nbgrader's log: a report on another submission would be a wrong answer."""
 
     enabled = Bool(True, help="run this preprocessor").tag(config=True)
-    max_bytes = 4 * 2**20   # a section is tens of kilobytes
 
     def preprocess(self, nb, resources):
         from nbgrader.coursedir import CourseDirectory
 
-        info = resources.get("nbgrader", {})
-        student, assignment = info.get("student"), info.get("assignment")
-        if not student or not assignment:
+        section = read_section(self.config, resources, self.log)
+        if section is None:
             return nb, resources
+        html, graded = str(section["html"]), str(section.get("timestamp") or "")
+        info = resources["nbgrader"]
+        student, assignment = info["student"], info["assignment"]
         coursedir = CourseDirectory(config=self.config)
         root = Path(coursedir.root)
-        relative = feedback_release.section_path(student, assignment)
-        path = root / relative
-        try:   # no link followed: nbgrader's kernel ran student code in this course's folders
-            data = safe_files.read_file(root, relative, self.max_bytes)
-        except safe_files.Refused as refused:
-            self.log.warning("no cobotlab feedback for %s's %s (%s: %s): run `cobotlab grade` "
-                             "first; their page has nbgrader's part only", student, assignment,
-                             path, refused.why.value)
-            return nb, resources
-        try:
-            section = json.loads(data.decode("utf-8"))
-            html, graded = str(section["html"]), str(section.get("timestamp") or "")
-        except (ValueError, KeyError, TypeError):
-            self.log.warning("%s is not cobotlab's feedback section: run `cobotlab grade` again",
-                             path)
-            return nb, resources
         stamp = os.path.relpath(Path(coursedir.format_path(
             coursedir.autograded_directory, student, assignment)) / "timestamp.txt", root)
         try:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from autograder import safe_files, sandbox
-from autograder.feedback import student_location
+from autograder.feedback import line_name
 from autograder.freeze import Frozen, printable
 from autograder.gradebook import CellScore, read_scratch_scores, set_duedate
 from autograder.pipeline.cells import HIDDEN_MARK, hidden_tests_called
@@ -505,12 +505,7 @@ def _worker_execute_class():
                 if run.stderr:
                     cell.outputs.append(new_output("stream", name="stderr", text=run.stderr))
                 if run.error:
-                    ename, _, evalue = run.error.partition(": ")
-                    if run.timed_out:
-                        ename, evalue = "CellTimeoutError", "stopped at its time limit"
-                    where = student_location(f" ({run.where})", ran.cell_origins) \
-                        if run.where else ""
-                    cell.outputs.append(_error_output(ename, evalue + where))
+                    cell.outputs.append(_cell_error(run, ran.cell_origins))
                 elif is_grade(cell) and not is_solution(cell) and HIDDEN_MARK in cell.source:
                     for name in hidden_tests_called([cell.source]):
                         verdict = verdicts.get(name, "not scored")
@@ -518,6 +513,15 @@ def _worker_execute_class():
                             cell.outputs.append(_error_output("AssertionError", verdict))
                             break   # the kernel would stop at the first failing assert
             return nb, resources
+
+    def _cell_error(run, origins):
+        """The error output of a cell that failed, as the kernel's would read: the
+        exception's type and value, then the student's line it stopped at."""
+        ename, evalue = run.exception or "Error", run.message
+        if run.timed_out:
+            ename, evalue = "CellTimeoutError", "stopped at its time limit"
+        where = f" ({line_name(run.place, origins)})" if run.place is not None else ""
+        return _error_output(ename, evalue + where)
 
     def _error_output(ename: str, evalue: str):
         return new_output("error", ename=ename, evalue=evalue,

@@ -115,8 +115,11 @@ def _execution() -> Execution:
     ex.functions[0].outcomes[0] = checks.TrialOutcome(
         error="timed out (cell 1, line 2)", failure=checks.Failure(
             checks.Failed.TIMED_OUT, place=Place(1, 2)))
-    ex.cell_origins = [CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1)]
-    ex.cell_runs = [CellRun(ex.cell_origins[0], "", "", "printed", "")]
+    ex.cell_origins = [CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1),
+                       CellOrigin(f"{ASSIGNMENT}.ipynb", 5, 2)]
+    ex.cell_runs = [CellRun(ex.cell_origins[0], "", "printed", ""),
+                    CellRun(ex.cell_origins[1], "KeyError: 'frames'", exception="KeyError",
+                            message="'frames'", place=Place(1, 4))]
     ex.kernel_tests = ["invert_pose"]
     ex.kernel_runs = {"invert_pose": FunctionRun("invert_pose", [
         checks.TrialOutcome(value=t.truth) for t in problems.kernel_trials("invert_pose")])}
@@ -137,6 +140,7 @@ def test_an_execution_round_trips_and_scores_the_same():
     assert after.functions == before.functions and after.flags == before.flags
     assert after.score == before.score and 0 < before.score < before.max_score
     assert back.cell_runs == ex.cell_runs and back.kernel_tests == ["invert_pose"]
+    assert (back.cell_runs[1].exception, back.cell_runs[1].place) == ("KeyError", Place(1, 4))
     assert back.functions[0].outcomes[0].failure.kind is checks.Failed.TIMED_OUT
     assert back.functions[0].outcomes[0].failure.place == Place(1, 2)
     assert before.kernel_checks == after.kernel_checks == {"invert_pose": None}
@@ -209,6 +213,14 @@ def _tampered(edit):
     (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(
         {"where": "cell 1, line 2"}) or d["functions"][0]["outcomes"][0]["failure"].pop(
         "place"), "older cobotlab.*`cobotlab grade` without --rescore"),
+    # a cell run kept with its exception as words only ("where", no "exception"): refused
+    (lambda d: d["cell_runs"][1].update({"where": "cell 1, line 4"}) or [
+        d["cell_runs"][1].pop(k) for k in ("exception", "message", "place")],
+     "cell_runs has no exception.*older cobotlab"),
+    (lambda d: d["cell_runs"][1].update(exception=["KeyError"]), "cell_runs.exception is not"),
+    (lambda d: d["cell_runs"][1].update(message=None), "cell_runs.message is not"),
+    (lambda d: d["cell_runs"][1].update(place=[1, 0]), "Place.line = 0"),
+    (lambda d: d["cell_runs"][1].pop("place"), "cell_runs has no place"),
 ])
 def test_replies_that_do_not_add_up_are_refused(edit, why):
     with pytest.raises(executions.ExecutionRefused, match=why):

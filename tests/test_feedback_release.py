@@ -24,7 +24,7 @@ from autograder.checks import CheckResult, FunctionResult
 from autograder.course import _CONFIG
 from autograder.errors import ProblemError
 from autograder.feedback import feedback_html, feedback_section
-from autograder.nbgrader_hooks import AddCobotlabFeedback
+from autograder.nbgrader_hooks import AddCobotlabFeedback, HideHiddenTests
 from autograder.pipeline.execution import cell_error_note
 from autograder.pipeline.score import SubmissionGrade
 
@@ -165,7 +165,7 @@ def test_the_hook_puts_the_section_on_top_only_for_the_submission_graded(tmp_pat
     nb, warnings = _generate(tmp_path, STAMP)
     assert len(nb.cells) == 1 and "run `cobotlab grade` first" in warnings[0]
 
-    feedback_release.write_section(tmp_path, LAB, _grade(), STAMP)
+    feedback_release.write_section(tmp_path, LAB, _grade(), STAMP, {})
     nb, warnings = _generate(tmp_path, STAMP)
     assert not warnings and len(nb.cells) == 2
     top = nb.cells[0]
@@ -176,6 +176,44 @@ def test_the_hook_puts_the_section_on_top_only_for_the_submission_graded(tmp_pat
     # the autograded notebook is of a newer submission: cobotlab's report is not about it
     nb, warnings = _generate(tmp_path, "2026-11-21 09:00:00.000000 UTC")
     assert len(nb.cells) == 1 and "run `cobotlab grade` again" in warnings[0]
+
+
+def _hide(root: Path, comments: dict[str, str]) -> dict[str, str]:
+    """HideHiddenTests on a notebook of ann's whose cells carry ``comments`` ({grade id:
+    comment}, as nbgrader's GetGrades puts them), the first an autograded answer and the
+    second a manually graded one; {grade id: the comment the feedback shows}."""
+    config = Config()
+    config.CourseDirectory.root = str(root)
+    cells = []
+    for i, (gid, comment) in enumerate(comments.items()):
+        cells.append(new_code_cell("def invert_pose(a_T_b): ...", metadata={"nbgrader": {
+            "grade_id": gid, "solution": True, "grade": i == 1, "comment": comment}}))
+    nb, _ = HideHiddenTests(config=config).preprocess(
+        new_notebook(cells=cells), {"nbgrader": {"student": "ann", "assignment": LAB}})
+    return {c.metadata["nbgrader"]["grade_id"]: c.metadata["nbgrader"]["comment"]
+            for c in nb.cells}
+
+
+def test_the_feedback_shows_a_comment_as_its_section_says_never_by_its_words(tmp_path):
+    """A comment cobotlab wrote (its digest in the section) is shown as its student lines;
+    an instructor's own comment, even one that starts as cobotlab's do, as it is; with no
+    section, the autograded answers' comments are withheld and a manual one is kept."""
+    ours = feedback_release.Comment(
+        ("cobotlab: 1.5 / 3 points on 6 hidden problems.", "Failed checks: translation."),
+        ("nbgrader's own hidden-test cell: 3 / 3 (cross-check; the score above is the "
+         "grade).", "Flags: suspicious_sys_modules."))
+    assert ours.text == "\n".join(ours.student + ours.instructor)
+    theirs = "cobotlab: Flags are how we spot copying; see me"   # a TA's words, kept whole
+    shown = {"invert_pose": ours.text, "explain": theirs}
+    assert _hide(tmp_path, shown) == {"invert_pose": "", "explain": theirs}
+    feedback_release.write_section(tmp_path, LAB, _grade(), STAMP, {"invert_pose": ours})
+    section = (tmp_path / feedback_release.section_path("ann", LAB)).read_text()
+    assert "suspicious_sys_modules" not in section and "cross-check" not in section
+    assert _hide(tmp_path, shown) == {"invert_pose": "\n".join(ours.student),
+                                      "explain": theirs}
+    # the gradebook holds another comment than the one the section stands for: kept whole
+    other = ours.text.replace("1.5 / 3", "3 / 3")
+    assert _hide(tmp_path, {"invert_pose": other, "explain": theirs})["invert_pose"] == other
 
 
 # --------------------------------------------------------------------------- the config

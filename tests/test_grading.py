@@ -652,7 +652,7 @@ def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
     claim that is no place (the worker is untrusted) leaves the failure without one."""
     reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
              "failure": "raised", "exception": "ValueError", "place": claimed}
-    failure = _reported_failure(reply, "cell 9, line 9")
+    failure = _reported_failure(reply)
     assert failure.place == (None if place is None else Place(*place))
     with pytest.raises(ValueError, match="Place.line"):
         Place(3, 0)
@@ -674,3 +674,5 @@ def test_the_worker_reports_the_place_of_a_cell_it_ran_and_no_other():
         except Exception as exc:  # noqa: BLE001 - the test's own raise
             reply = worker._failure(exc)
         assert reply["place"] == place and reply["where"] == where
+        assert (reply["exception"], reply["message"]) == (
+            ("ValueError", "no") if place else ("KeyError", "'k'"))

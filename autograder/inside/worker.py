@@ -15,7 +15,8 @@ notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` 
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
 the cell wrote to stdout and to stderr; a failed cell or call's reply says where the
 student's code stopped, in words (``"where"``) and as ``"place": [cell index, line]`` (null
-when no cell of the notebook was on the stack);
+when no cell of the notebook was on the stack), and a raise's ``"exception"`` (its type's
+name) and ``"message"`` (``str(exc)``, capped);
 ``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
 routines graded functions must not call (:class:`autograder.inside.tripwire.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
@@ -180,12 +181,16 @@ def _on_alarm(signum, frame):
     raise _Timeout(by_cpu=signum == signal.SIGPROF)
 
 
+def _message(exc: BaseException) -> str:
+    """``str(exc)``, capped: the exception's value as a traceback's last line shows it."""
+    message = str(exc)
+    return message[:300] + "..." if len(message) > 300 else message
+
+
 def _describe(exc: BaseException) -> str:
     if isinstance(exc, _Timeout):
         return "timed out"
-    message = str(exc)
-    if len(message) > 300:
-        message = message[:300] + "..."
+    message = _message(exc)
     return f"{type(exc).__name__}: {message}" if message else type(exc).__name__
 
 
@@ -202,6 +207,7 @@ def _failure(exc: BaseException) -> dict:
             reply["limit"] = "cpu"
     else:
         reply["failure"], reply["exception"] = "raised", type(exc).__name__
+        reply["message"] = _message(exc)
     return reply
 
 

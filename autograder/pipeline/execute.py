@@ -41,7 +41,7 @@ from autograder import (
 )
 from autograder.forbidden import static_hits
 from autograder.freeze import printable
-from autograder.outcomes import Cause, Failed, Failure, Flag, Note
+from autograder.outcomes import Cause, Failed, Failure, Flag, Note, Place
 from autograder.pipeline.begin import GradeRun
 from autograder.pipeline.cells import (
     CellOrigin,
@@ -335,10 +335,18 @@ def _cell_runs(report: list[dict], origins: list[CellOrigin], skip: set[int]) ->
         timed_out = entry.get("ok") is not True and _timed_out(entry)
         if entry.get("skipped") and entry.get("index") in skip:
             error, timed_out = "timed out", True
-        runs.append(CellRun(origin, error, str(entry.get("where") or "")[:80],
-                            str(entry.get("stdout") or "")[:4096],
-                            str(entry.get("stderr") or "")[:4096], timed_out))
+        raised = bool(error) and not timed_out
+        runs.append(CellRun(origin, error, str(entry.get("stdout") or "")[:4096],
+                            str(entry.get("stderr") or "")[:4096], timed_out,
+                            exception=_capped(entry.get("exception"), 80) if raised else "",
+                            message=_capped(entry.get("message"), 400) if raised else "",
+                            place=Place.claimed(entry.get("place")) if error else None))
     return runs
+
+
+def _capped(value, limit: int) -> str:
+    """A text field of the worker's (untrusted) reply, capped; "" when it is no string."""
+    return value[:limit] if isinstance(value, str) else ""
 
 
 def _start_worker(cells, limits: Limits, run: Execution, skip: set[int],

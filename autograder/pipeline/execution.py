@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from autograder import (
     checks,
 )
-from autograder.outcomes import Note
+from autograder.outcomes import Note, Place
 from autograder.pipeline.cells import CellOrigin
 
 
@@ -21,14 +21,18 @@ from autograder.pipeline.cells import CellOrigin
 class CellRun:
     """One notebook cell as the worker first ran it: ``origin`` says where it sits; ``error``
     is empty when it ran through; ``timed_out`` when its limit stopped it; ``stdout`` and
-    ``stderr`` are the first few KB it wrote to each."""
+    ``stderr`` are the first few KB it wrote to each. A cell that raised also has the
+    ``exception``'s type name, its ``message`` (``str(exc)``, capped) and the ``place`` of
+    the student's line it stopped at (None when no line of the notebook was on the stack)."""
 
     origin: CellOrigin
     error: str = ""
-    where: str = ""
     stdout: str = ""
     stderr: str = ""
     timed_out: bool = False
+    exception: str = ""
+    message: str = ""
+    place: Place | None = None
 
 
 @dataclass

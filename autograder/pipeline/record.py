@@ -27,6 +27,7 @@ from autograder import (
     scratch,
 )
 from autograder.feedback_release import (
+    Comment,
     unreleasable_note,
     write_exchange_files,
     write_section,
@@ -103,11 +104,13 @@ def record_grades(run: GradeRun, frozen, executed: dict[str, Executed],
 
     # A submission the grader could not grade gets nothing in the gradebook, not a zero.
     accepted = [(g, sub) for g, sub in zip(grades, frozen) if sub.accepted and g.graded]
+    comments = {}
     if not damaged:
         nb_own = {sid: d.nbgrader_cells.scores for sid, d in executed.items()
                   if d.nbgrader_cells is not None}
-        _record_cobotlab(root, private, assignment, accepted, nb_own,
-                         cell_to_function(root, assignment), load_ledger(private), run_notes)
+        comments = _record_cobotlab(root, private, assignment, accepted, nb_own,
+                                    cell_to_function(root, assignment), load_ledger(private),
+                                    run_notes)
         _withdraw_ungraded(root, assignment, grades, frozen, run_notes)
         damaged = _check_gradebook(root, private, run_notes)
     # names, timestamps and late penalties as the gradebook has them now, our scores in it
@@ -127,7 +130,8 @@ def record_grades(run: GradeRun, frozen, executed: dict[str, Executed],
             try:
                 record.write_file(root, f"feedback_cobotlab/{grade.student_id}/{assignment}/"
                                   "feedback.html", feedback.feedback_html(grade).encode("utf-8"))
-                write_section(root, assignment, grade, sub.timestamp)
+                write_section(root, assignment, grade, sub.timestamp,
+                              comments.get(grade.student_id, {}))
             except (OSError, ValueError) as exc:
                 grade.notes.append(f"feedback not written: {printable(exc)}")
     # every assignment graded so far, one row per student and assignment (this run's replace)
@@ -211,17 +215,18 @@ def _check_gradebook(root: Path, private: Path, run_notes: list[str]) -> str | N
 
 
 def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledger,
-                     run_notes) -> None:
+                     run_notes) -> dict[str, dict[str, Comment]]:
     """Each function's score into its autograder cell(s) of gradebook.db, the findings
     into the comment of the solution cell that defines it; nbgrader's own values into the
-    ledger for the next run's cross-check."""
+    ledger for the next run's cross-check. Returns {student: {grade id: comment}} of the
+    comments written (their section tells nbgrader's feedback which lines to show)."""
     solution_of = _solution_cells(root, assignment)
     mapped = set(cell_map.values())
     unmapped = [s.name for s in checks.SPECS[assignment] if s.name not in mapped]
     if unmapped:
         run_notes.append(f"no autograder cell in the source notebook for {unmapped}: their "
                          "scores are in grades.csv only")
-    mine = ledger.setdefault(assignment, {})
+    mine, written_comments = ledger.setdefault(assignment, {}), {}
     for grade, sub in accepted:
         by_function = {f.name: f for f in grade.functions}
         fractions = {gid: by_function[name].fraction for gid, name in cell_map.items()
@@ -232,38 +237,43 @@ def _record_cobotlab(root, private, assignment, accepted, nb_own, cell_map, ledg
             for i, f in enumerate(grade.functions) if f.name in solution_of}
         try:
             written = gradebook.write_cobotlab(root, assignment, grade.student_id,
-                                               sub.timestamp, fractions, comments)
+                                               sub.timestamp, fractions,
+                                               {gid: c.text for gid, c in comments.items()})
         except Exception as exc:  # noqa: BLE001 - grades.csv still gets the score
             note = f"cobotlab's scores not written to gradebook.db: {printable(exc, 200)}"
             if note not in run_notes:
                 run_notes.append(note)
             continue
+        written_comments[grade.student_id] = comments
         mine[grade.student_id] = {"timestamp": sub.timestamp, "cells": {
             gid: [score, theirs[gid][0] if gid in theirs else None]
             for gid, (_, score) in written.items()}}
     record.write_file(private, LEDGER, json.dumps(ledger).encode("utf-8"))
+    return written_comments
 
 
 def _comment(grade: SubmissionGrade, f: checks.FunctionResult, first: bool,
-             nbgrader_cells: list[tuple[float, float]]) -> str:
-    """The auto comment formgrader shows under the function's solution cell (nbgrader's
-    feedback shows it to the student: no test code or data in it)."""
-    lines = [f"cobotlab: {f.points:g} / {f.max_points:g} points on {f.n_problems} hidden "
-             "problems" + (f", {f.n_failed} not fully right" if f.n_failed else "") + "."]
+             nbgrader_cells: list[tuple[float, float]]) -> Comment:
+    """The auto comment formgrader shows under the function's solution cell: the score and
+    failed checks, which nbgrader's feedback shows the student too (no test code or data in
+    them), then nbgrader's cross-check and the flags, for the instructor only."""
+    student = [f"cobotlab: {f.points:g} / {f.max_points:g} points on {f.n_problems} hidden "
+               "problems" + (f", {f.n_failed} not fully right" if f.n_failed else "") + "."]
     if f.failed_checks:
-        lines.append("Failed checks: " + ", ".join(f.failed_checks) + ".")
+        student.append("Failed checks: " + ", ".join(f.failed_checks) + ".")
+    instructor = []
     if nbgrader_cells:
-        lines.append("nbgrader's own hidden-test cell: " + ", ".join(
+        instructor.append("nbgrader's own hidden-test cell: " + ", ".join(
             f"{s:g} / {m:g}" for s, m in nbgrader_cells) + " (cross-check; the score above "
             "is the grade).")
     own = [x for x in grade.flags if about_function(x) == f.name]
     whole = [x for x in grade.flags if about_function(x) is None]
     if own:
-        lines.append("Flags: " + "; ".join(printable(x, 120) for x in own) + ".")
+        instructor.append("Flags: " + "; ".join(printable(x, 120) for x in own) + ".")
     if first and whole:
-        lines.append("Flags on the whole submission: "
-                     + "; ".join(printable(x, 120) for x in whole) + ".")
-    return "\n".join(lines)
+        instructor.append("Flags on the whole submission: "
+                          + "; ".join(printable(x, 120) for x in whole) + ".")
+    return Comment(tuple(student), tuple(instructor))
 
 
 def end_run(run: GradeRun, rows, grades, executed: dict[str, Executed]) -> None:

@@ -225,11 +225,11 @@ _REPORTED = {"raised": Failed.RAISED, "timed_out": Failed.TIMED_OUT,
              "not_found": Failed.NOT_FOUND, "unusable": Failed.UNUSABLE}
 
 
-def _reported_failure(reply: dict, where: str) -> Failure:
+def _reported_failure(reply: dict) -> Failure:
     """The typed failure a call's reply reports. The worker is untrusted: the kinds it may
     claim are those that only cost the submission (a raise, a time-out, no such function,
     an unusable value); an exception's type name is what the code raised, capped; its
-    place is the typed ``place`` (``where`` is only the words of the message)."""
+    place is the typed ``place``, never read out of the reply's ``where`` words."""
     kind = _REPORTED.get(reply.get("failure"), Failed.RAISED)
     exception = reply.get("exception")
     exception = exception[:80] if kind is Failed.RAISED and isinstance(exception, str) else ""
@@ -567,7 +567,7 @@ class Worker:
         text = str(error)[:400] if error else "the call failed"
         if where:
             text += f" ({where})"
-        return checks.TrialOutcome(error=text, failure=_reported_failure(reply, where),
+        return checks.TrialOutcome(error=text, failure=_reported_failure(reply),
                                    **timing)
 
     @property
