@@ -276,17 +276,23 @@ def face_plane(points, centre, normal, fit_plane_ransac, inlier_m: float, radius
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     centre, normal = np.asarray(centre, float), np.asarray(normal, float)
     for _ in range(rounds):
-        d = pts - centre
-        near = np.abs(d @ normal) < inlier_m
-        middle = pts[near].mean(axis=0)
-        d = pts - middle
-        in_plane = np.linalg.norm(d - np.outer(d @ normal, normal), axis=1)
-        disc = near & (in_plane < inner * radius_m)
+        near = np.abs((pts - centre) @ normal) < inlier_m
+        if not near.any():
+            break
+        disc = near & (_in_plane_distance(pts, pts[near].mean(axis=0), normal)
+                       < inner * radius_m)
         if disc.sum() < 3:
             break
         centre, normal = fit_plane_ransac(pts[disc], inlier_m, seed=seed)
         centre, normal = np.asarray(centre, float), np.asarray(normal, float)
     return centre, normal
+
+
+def _in_plane_distance(points, centre, normal) -> np.ndarray:
+    """How far each of ``points`` (N, 3) lies from ``centre`` along the plane whose unit
+    ``normal`` is given: (N,), in the points' units."""
+    d = np.asarray(points, float) - centre
+    return np.linalg.norm(d - np.outer(d @ normal, normal), axis=1)
 
 
 def measure_flange(raw, K, depth_scale, radius_m, backproject, fit_plane_ransac,
@@ -316,9 +322,7 @@ def measure_flange(raw, K, depth_scale, radius_m, backproject, fit_plane_ransac,
     centre, normal = np.asarray(centre, float), np.asarray(normal, float)
     # A view where the region held something else than the face (part of the wrist, the
     # face seen too obliquely) gives rim points that are no circle of the data sheet's size.
-    d = rim - centre
-    in_plane = np.linalg.norm(d - np.outer(d @ normal, normal), axis=1)
-    rms = np.sqrt(np.mean((in_plane - radius_m) ** 2))
+    rms = np.sqrt(np.mean((_in_plane_distance(rim, centre, normal) - radius_m) ** 2))
     if rms > max_rim_rms * radius_m:
         raise ValueError(f"the rim is no circle of radius {radius_m * 1000:.1f} mm (RMS "
                          f"{rms * 1000:.1f} mm off it): the view is skipped")
