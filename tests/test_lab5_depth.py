@@ -183,6 +183,28 @@ def test_rim_points_find_the_face_whether_or_not_the_housing_ring_survives(ring_
                         near_m=float("nan"))
 
 
+def test_face_plane_leaves_the_housing_strip_a_tilted_plane_took_in():
+    """A face (radius 31.5 mm, 0.45 m, D435-like noise) with the wrist housing 6.5 mm behind
+    it on one side, and a plane tilted 6.4 deg that passes within 3 mm of both that strip and
+    most of the face (what RANSAC found on a Panda view): the refit on the face's inner disc
+    is the face's plane."""
+    rng = np.random.default_rng(0)
+    radius, g = 0.0315, np.arange(-0.06, 0.06, 0.0008)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    r = np.hypot(x, y)
+    face, housing = r < radius, (r >= radius) & (r < 0.05) & (x > 0)
+    z = np.where(face, 0.45, 0.4565) + rng.normal(0.0, 0.0007, x.size)
+    pts = np.column_stack([x, y, z])[face | housing]
+    tilt = np.arctan(0.0045 / 0.04)
+    normal = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
+    took_in = (np.abs((pts - [0, 0, 0.45]) @ normal) < 0.003) & (pts[:, 2] > 0.454)
+    assert took_in.sum() > 300                      # the start is the trap, not the answer
+    centre, n = lab5.face_plane(pts, np.array([0, 0, 0.45]), normal,
+                                _namespace()["fit_plane_ransac"], 0.003, radius)
+    assert np.degrees(np.arccos(abs(n[2]))) < 0.5
+    assert abs(centre[2] - 0.45) < 0.0005 and np.hypot(*centre[:2]) < 0.7 * radius
+
+
 def test_find_rectangle_corners_on_a_drawn_quadrilateral():
     rgb = np.full((240, 320, 3), 190, np.uint8)
     quad = np.array([[100.0, 70.0], [210.0, 90.0], [190.0, 180.0], [90.0, 160.0]])
