@@ -9,7 +9,8 @@ def add_parser(sub) -> None:
         "demo",
         help="the whole chain in simulation: calibrate the cameras, then pick and place chess pieces",
         description=(
-            "Run the course chain in the PyBullet simulator: (1) flange calibration of a fixed "
+            "Run the course chain in the simulator (MuJoCo, or PyBullet where only it is installed; "
+            "COBOTLAB_SIM_ENGINE chooses): (1) flange calibration of a fixed "
             "camera, (2) eye-in-hand calibration with every method (ours and OpenCV's), the "
             "default result saved to OUT/flange_T_cam.yaml, (3) three chess pieces picked and "
             "placed by visual servoing with that calibration. Prints each part's errors against "
