@@ -62,7 +62,7 @@ from autograder.families.base import (
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
-           "mirrored_name", "predictions", "undoing"]
+           "mirrored_name", "predictions", "transforms", "undoing"]
 
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
@@ -90,6 +90,14 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
     problem = Problem(spec, trial, answer_truth(trial, truth))
     return [(f.label(p), p) for f in FAMILIES if f.side in sides
             for p in f.predictions(problem)]
+
+
+def transforms(truth) -> list[tuple[MistakeName, Prediction]]:
+    """The output-side families' predictions on ``truth`` alone (no function, no inputs:
+    the families that read the inputs, as sum for mean, give none)."""
+    problem = Problem(None, Trial(args=(), truth=truth, tol={}), truth)
+    return [(f.label(p), p) for f in FAMILIES if f.side == OUTPUT
+            for p in f.predictions(problem) if p.undo is not None]
 
 
 def undoing(distance):

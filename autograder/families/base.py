@@ -11,6 +11,7 @@ Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix in metr
 from __future__ import annotations
 
 import copy
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -60,7 +61,10 @@ class Problem:
         if ref is None:
             return None
         try:
-            with np.errstate(all="ignore"):
+            # a reference that warns about its inputs (motions in the wrong convention) is
+            # told so on purpose here: the inputs carry the mistake
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 return ref(*copy.deepcopy(args))
         except Exception:  # noqa: BLE001 - transformed inputs may be ones it refuses
             return None
