@@ -16,7 +16,9 @@ that mistake gives on a problem. One module per act:
   transformed inputs (precomputed into practice data, as code mistakes are, so a student's
   install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
   stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
-  (a stack's first or last item for the mean over it).
+  (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
+  absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
+  in millimetres).
 
 The public surface, stable for ``labs verify`` and the grader:
 
@@ -38,7 +40,10 @@ answers, code mistakes), and never two at once.
 
 from __future__ import annotations
 
+import numpy as np
+
 from autograder.families import (
+    absolute,
     first_last,
     inverse,
     reflection,
@@ -48,6 +53,7 @@ from autograder.families import (
     sum_for_mean,
     swapped,
     units_angle,
+    units_input,
     units_length,
 )
 from autograder.families.base import (
@@ -58,6 +64,7 @@ from autograder.families.base import (
     Prediction,
     Problem,
     answer_truth,
+    same_answer,
 )
 from autograder.spec_types import FunctionSpec, Trial
 
@@ -67,7 +74,8 @@ __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction",
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
     *root.FAMILIES, *sum_for_mean.FAMILIES, *reflection.FAMILIES,
-    *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES,
+    *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES, *absolute.FAMILIES,
+    *units_input.FAMILIES,
 )
 
 
@@ -88,8 +96,15 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
     if spec.drive is not None or trial.raises is not None:
         return []
     problem = Problem(spec, trial, answer_truth(trial, truth))
-    return [(f.label(p), p) for f in FAMILIES if f.side in sides
-            for p in f.predictions(problem)]
+    found = [(f.label(p), p) for f in FAMILIES if f.side in sides
+             for p in f.predictions(problem)]
+    if INPUT not in sides:
+        return found
+    # an input-side mistake that changes nothing here (K times 1000 leaves every ray as it
+    # was) predicts the right answer: no mistake to name
+    right = problem.reference(*trial.args)
+    return [(name, p) for name, p in found
+            if p.undo is not None or right is None or not same_answer(p.answer, right)]
 
 
 def transforms(truth) -> list[tuple[MistakeName, Prediction]]:
@@ -110,7 +125,8 @@ def undoing(distance):
             if isinstance(a, Prediction) or b.undo is None:
                 a = a.answer if isinstance(a, Prediction) else a
                 return distance(a, b.answer)
-            return distance(b.undo(a), b.base)
+            with np.errstate(all="ignore"):  # an answer's square root may be NaN: far
+                return distance(b.undo(a), b.base)
         return distance(a.answer if isinstance(a, Prediction) else a, b)
     return measure
 

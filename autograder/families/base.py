@@ -124,6 +124,17 @@ def answer_truth(trial: Trial, truth=None):
     return t
 
 
+def same_answer(a, b) -> bool:
+    """True when ``a`` and ``b`` are one answer up to rounding (a tuple part by part)."""
+    if isinstance(a, tuple) or isinstance(b, tuple):
+        return isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b) \
+            and all(same_answer(x, y) for x, y in zip(a, b))
+    x, y = as_array(a), as_array(b)
+    if x is None or y is None or x.shape != y.shape:
+        return False
+    return bool(np.allclose(x, y, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(y).max()))))
+
+
 # --------------------------------------------------------------------------- kinds of value
 
 

@@ -21,10 +21,16 @@ def _length(a) -> int | None:
         else None
 
 
+def stack_lengths(args) -> list[int | None]:
+    """Each argument's number of items when it is a stack (n >= 2 rows of 2-D or more
+    items: poses, points), else None."""
+    return [_length(a) for a in args]
+
+
 def _one_item(at: slice):
     def make(problem: Problem) -> list[Prediction]:
         args = tuple(problem.trial.args)
-        lengths = [_length(a) for a in args]
+        lengths = stack_lengths(args)
         n = max((x for x in lengths if x is not None), default=None)
         if n is None:
             return []
