@@ -568,8 +568,10 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
                      m[1]) for m in predicted)]
         return mistakes.nearest(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
-    others = [(None, t) for t in mistakes.trivial_answers(truth)]
-    listed = [(None, truth), *others, *_predicted(spec, trial, truth)]
+    predicted = _predicted(spec, trial, truth)
+    others = [(None, t) for t in mistakes.trivial_answers(truth)
+              + families.nulls([p for p in predicted if isinstance(p[1], families.Prediction)])]
+    listed = [(None, truth), *others, *predicted]
     hint = mistakes.nearest(value, listed, families.undoing(_noise_distance(spec, trial)))
     if hint is None:
         hint = families.mirrored_name(value, truth)

@@ -40,6 +40,8 @@ answers, code mistakes), and never two at once.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from autograder.families import (
@@ -64,12 +66,13 @@ from autograder.families.base import (
     Prediction,
     Problem,
     answer_truth,
+    is_pose,
     same_answer,
 )
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
-           "mirrored_name", "predictions", "transforms", "undoing"]
+           "mirrored_name", "nulls", "predictions", "transforms", "undoing"]
 
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
@@ -107,6 +110,13 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
             if p.undo is not None or right is None or not same_answer(p.answer, right)]
 
 
+def nulls(found: list[tuple[MistakeName, Prediction]]) -> list:
+    """The answers that compute nothing of what each prediction scales (the truth's rotation
+    with no translation, a tuple with one part zeroed): an answer as near one of them as to
+    a mistake's is not told apart from computing nothing there, and gets no name."""
+    return [p.null for _, p in found if p.null is not None]
+
+
 def transforms(truth) -> list[tuple[MistakeName, Prediction]]:
     """The output-side families' predictions on ``truth`` alone (no function, no inputs:
     the families that read the inputs, as sum for mean, give none)."""
@@ -115,17 +125,29 @@ def transforms(truth) -> list[tuple[MistakeName, Prediction]]:
             for p in f.predictions(problem) if p.undo is not None]
 
 
+# Undoing a mistake tells it apart only where zeroing what it scales costs more than this many
+# noise units (see Prediction.null).
+RESOLVED = 4.0
+
+
 def undoing(distance):
     """``distance(a, b)`` extended to :class:`Prediction` candidates: an answer against a
     prediction with an ``undo`` is the answer mapped back, measured against the truth (so
     an estimate in millimetres is named on a noisy problem, where the truth in millimetres
     is far from it); two predictions, or one without ``undo``, compare their answers."""
     def measure(a, b) -> float:
+        if isinstance(b, Prediction) and not isinstance(a, Prediction) \
+                and is_pose(b.answer) and not is_pose(a):
+            # every pose mistake keeps the rotation block a rotation: one that is none
+            # (an axis not normalised) is no such mistake, however near in numbers
+            return math.inf
         if isinstance(b, Prediction):
             if isinstance(a, Prediction) or b.undo is None:
                 a = a.answer if isinstance(a, Prediction) else a
                 return distance(a, b.answer)
             with np.errstate(all="ignore"):  # an answer's square root may be NaN: far
+                if b.null is not None and distance(b.null, b.base) <= RESOLVED:
+                    return distance(a, b.answer)
                 return distance(b.undo(a), b.base)
         return distance(a.answer if isinstance(a, Prediction) else a, b)
     return measure

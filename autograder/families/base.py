@@ -36,12 +36,18 @@ class Prediction:
     x1000, degrees), maps a student's answer back: the grader then asks whether the answer
     with the mistake undone lies within the problem's noise of ``base`` (the truth), which
     holds on noisy problems where the student's estimate, not the truth, was transformed.
-    ``words`` overrides the family's words (a part of a tuple answer names which part)."""
+    ``words`` overrides the family's words (a part of a tuple answer names which part).
+    ``null`` is ``base`` with the quantity the mistake scales set to zero (the translation,
+    the angle): undoing tells the mistake apart only where the noise resolves that quantity
+    (a 5 cm translation under a 40 cm tolerance divided by 1000 is still "right"), so where
+    ``null`` itself lies within a few noise units of ``base``, the answer is compared with
+    ``answer`` as it is instead."""
 
     answer: Any
     undo: Callable[[Any], Any] | None = None
     base: Any = None
     words: str | None = None
+    null: Any = None
 
 
 @dataclass(frozen=True)
@@ -205,11 +211,16 @@ def scale_lengths(value, factor: float) -> np.ndarray:
     return a
 
 
-def part_predictions(truth, forward: Callable, undo: Callable, words_of=None) -> list:
+def part_predictions(truth, forward: Callable, undo: Callable, words_of=None,
+                     zero: Callable | None = None) -> list:
     """:class:`Prediction`s of a mistake made on the whole answer and, for a tuple answer,
     on each part alone (the centre of a (centre, normal) in millimetres): ``forward`` maps a
-    right value to the mistaken one, ``undo`` back; ``words_of(k)`` the words for part k."""
-    out = [Prediction(forward(truth), undo, truth)] if parts(truth) is None else []
+    right value to the mistaken one, ``undo`` back, ``zero`` to its ``null``;
+    ``words_of(k)`` the words for part k."""
+    def null(t):
+        return None if zero is None else zero(t)
+    out = [Prediction(forward(truth), undo, truth, null=null(truth))] \
+        if parts(truth) is None else []
     split = parts(truth)
     if split is None:
         return out
@@ -219,5 +230,9 @@ def part_predictions(truth, forward: Callable, undo: Callable, words_of=None) ->
 
         def back(v, k=k):
             return tuple(undo(np.asarray(x, float)) if i == k else x for i, x in enumerate(v))
-        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None))
+
+        def nothing(t, k=k):
+            return tuple(null(np.asarray(x, float)) if i == k else x for i, x in enumerate(t))
+        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None,
+                              None if zero is None else nothing(truth)))
     return out
