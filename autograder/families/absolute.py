@@ -47,7 +47,10 @@ def _absolute(problem: Problem) -> list[Prediction]:
     stacked = np.stack(items)
     # an RMS's item is |e_i|, a mean square's is e_i^2: each reading's mean of |e_i| (the
     # one that equals the truth is the truth, and the grader drops it as no mistake)
-    return [Prediction(stacked.mean(axis=0)), Prediction(np.sqrt(stacked).mean(axis=0))]
+    means = (stacked.mean(axis=0), np.sqrt(stacked).mean(axis=0))
+    # in the truth's type: a float answer stays a float (practice data keeps types)
+    scalar = np.ndim(problem.truth) == 0
+    return [Prediction(float(m) if scalar else m) for m in means]
 
 
 FAMILIES = (Family("absolute for squared", ABSOLUTE, INPUT, _absolute, "absolute for squared"),)

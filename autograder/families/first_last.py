@@ -37,14 +37,14 @@ def _one_item(at: int):
         n = max((x for x in lengths if x is not None), default=None)
         if n is None or n < 3:
             return []
-        items = [as_array(problem.reference(*[a[i:i + 1] if n_a == n else a
-                                              for a, n_a in zip(args, lengths)]))
-                 for i in range(n)]
+        answers = [problem.reference(*[a[i:i + 1] if n_a == n else a
+                                       for a, n_a in zip(args, lengths)]) for i in range(n)]
+        items = [as_array(x) for x in answers]
         whole = as_array(problem.reference(*args))
         if whole is None or any(x is None or x.shape != whole.shape for x in items) \
                 or not same_answer(np.mean(items, axis=0), whole):
             return []   # no mean over the items: no item stands for it
-        return [Prediction(items[at])]
+        return [Prediction(answers[at])]   # as the reference gives it (a float stays one)
     return make
 
 
