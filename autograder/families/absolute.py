@@ -28,9 +28,7 @@ def _per_item(problem: Problem) -> list[np.ndarray] | None:
     if n is None or truth is None or truth.ndim > 1 or truth.size == n or truth.size > 3:
         return None
     items = []
-    for i in range(n):
-        answer = problem.reference(*[a[i:i + 1] if n_a == n else a
-                                     for a, n_a in zip(args, lengths)])
+    for answer in problem.item_answers(lengths, n):
         value = as_array(answer)
         if value is None or value.shape != truth.shape or np.any(value < 0):
             return None

@@ -13,7 +13,7 @@ from __future__ import annotations
 import copy
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,26 @@ class Problem:
     spec: FunctionSpec
     trial: Trial
     truth: Any
+    # the reference's answers already computed on this problem, by their inputs' position
+    # in the calls (the families share them: a stack's items alone cost a call each)
+    cache: dict = field(default_factory=dict, compare=False)
+
+    def right_answer(self):
+        """The reference's answer on the problem's own inputs (cached), or None."""
+        if "right" not in self.cache:
+            self.cache["right"] = self.reference(*self.trial.args)
+        return self.cache["right"]
+
+    def item_answers(self, lengths: list, n: int) -> list:
+        """The reference's answer on each item alone of the inputs with ``n`` items (the
+        others as they are), cached; None for an item it refuses."""
+        key = ("items", n)
+        if key not in self.cache:
+            args = tuple(self.trial.args)
+            self.cache[key] = [self.reference(*[a[i:i + 1] if n_a == n else a
+                                                for a, n_a in zip(args, lengths)])
+                               for i in range(n)]
+        return self.cache[key]
 
     def reference(self, *args):
         """The spec's private reference on ``args`` (copies: it must not write into the
@@ -231,8 +251,7 @@ def part_predictions(truth, forward: Callable, undo: Callable, words_of=None,
         def back(v, k=k):
             return tuple(undo(np.asarray(x, float)) if i == k else x for i, x in enumerate(v))
 
-        def nothing(t, k=k):
-            return tuple(null(np.asarray(x, float)) if i == k else x for i, x in enumerate(t))
-        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None,
-                              None if zero is None else nothing(truth)))
+        # no null for a part: zero is no value of every part (a unit normal), and a measure
+        # given one as the truth has nothing to measure against
+        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None))
     return out

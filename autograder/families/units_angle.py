@@ -59,7 +59,7 @@ def _angle(factor: float, array_words: str):
             return [Prediction(_scaled_pose(t, factor), lambda v: _scaled_pose(v, 1 / factor), t,
                                null=null)]
         found = part_predictions(truth, lambda t: t * factor, lambda v: v / factor,
-                                 lambda k: f"item {k + 1} of the answer: {array_words[3:]}",
+                                 lambda k: f"item {k + 1} of the answer {array_words[3:]}",
                                  np.zeros_like)
         return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words, p.null)
                 for p in found]
@@ -71,7 +71,7 @@ def _reference_in_degrees(problem: Problem) -> list[Prediction]:
     problem the student's estimate, not the truth, was scaled (input side: private)."""
     if not is_pose(problem.truth):
         return []
-    answer = problem.reference(*problem.trial.args)
+    answer = problem.right_answer()
     return [Prediction(_scaled_pose(answer, TO_DEGREES))] if is_pose(answer) else []
 
 
