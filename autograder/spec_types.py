@@ -135,6 +135,26 @@ class FunctionSpec:
     # problem is named by check() and the feedback (autograder.mistakes names those seen
     # from the truth alone: inverse pose, millimetres, ...).
     code_mistakes: tuple[CodeMistake, ...] = ()
+    # The right answer as code (private: autograder/specs, or an instructor's spec):
+    # ``reference(*trial.args)`` returns what a right function returns on those inputs.
+    # The input-side mistake families (autograder.families: swapped arguments, a reversed
+    # stack, a stack's first item) call it on transformed inputs to predict a mistake's
+    # answer; None: those families are not tried on this function.
+    reference: Callable | None = None
+
+
+@dataclass(frozen=True)
+class MistakeName:
+    """A named mistake, as the grader carries it to check(), the feedback and the class
+    report: ``words`` what the student is told (the diagnosis, then the fix after a
+    colon); ``family`` the mistake family that named it (autograder.families, e.g.
+    "units m/mm"), None for one of a lab's own code mistakes."""
+
+    family: str | None
+    words: str
+
+    def __str__(self) -> str:
+        return self.words
 
 
 @dataclass(frozen=True)

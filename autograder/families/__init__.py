@@ -1,0 +1,113 @@
+"""Mistake families: classic mistakes tried on every graded function whose types they fit.
+
+A lab's code mistakes (``FunctionSpec.code_mistakes``) name only what its author foresaw. A
+family names a classic mistake on any function, the built-in labs' and an instructor's
+alike, deciding from the *kinds* of the function's answer and inputs (a pose, a rotation,
+an (N, 3) point set, a stack of poses, a pair of same-typed inputs, a scalar error), never
+from a lab's title or a function's name, whether it applies; and it predicts the answer
+that mistake gives on a problem. One module per act:
+
+* output side, a transform of the truth (public: computed where ``check()`` runs):
+  :mod:`.inverse` (inverse pose, transposed rotation or matrix), :mod:`.units_length`
+  (x1000, /1000; per part of a tuple answer), :mod:`.units_angle` (180/pi, pi/180),
+  :mod:`.sign`, :mod:`.root` (RMS vs mean square), :mod:`.sum_for_mean`,
+  :mod:`.reflection` (a determinant -1 rotation, read from the answer itself);
+* input side, the function's private reference (``FunctionSpec.reference``) called on
+  transformed inputs (precomputed into practice data, as code mistakes are, so a student's
+  install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
+  stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
+  (a stack's first or last item for the mean over it).
+
+The public surface, stable for ``labs verify`` and the grader:
+
+* :data:`FAMILIES`: every :class:`Family` (``.name`` the family, ``.words`` what the
+  student is told with the fix, ``.side`` "output" or "input", ``.key`` a short id);
+* :func:`applicable(spec, trial) <applicable>` -> the families that predict an answer on
+  that problem; ``family.predict(spec, trial)`` -> that answer, or None;
+* :func:`predictions(spec, trial, truth, sides) <predictions>` -> ``[(MistakeName,
+  Prediction)]``, the candidates the grader's ``nearest`` rule weighs;
+* :func:`undoing(distance)`: the distance that compares an answer with a prediction that
+  can be undone (the answer mapped back, against the truth) and with any other plainly;
+* :class:`MistakeName`: a named mistake as a typed value, ``family`` None for a lab's
+  code mistake.
+
+A family is named only by ``autograder.mistakes.nearest``: within the problem's noise and
+clearly nearer than every other candidate (the truth, the reference's answer, trivial
+answers, code mistakes), and never two at once.
+"""
+
+from __future__ import annotations
+
+from autograder.families import (
+    first_last,
+    inverse,
+    reflection,
+    reversed_stack,
+    root,
+    sign,
+    sum_for_mean,
+    swapped,
+    units_angle,
+    units_length,
+)
+from autograder.families.base import (
+    INPUT,
+    OUTPUT,
+    Family,
+    MistakeName,
+    Prediction,
+    Problem,
+    answer_truth,
+)
+from autograder.spec_types import FunctionSpec, Trial
+
+__all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
+           "mirrored_name", "predictions", "undoing"]
+
+FAMILIES: tuple[Family, ...] = (
+    *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
+    *root.FAMILIES, *sum_for_mean.FAMILIES, *reflection.FAMILIES,
+    *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES,
+)
+
+
+def applicable(spec: FunctionSpec, trial: Trial, truth=None) -> list[Family]:
+    """The families that predict an answer on ``trial`` (the input side only where
+    ``spec`` has a reference). A closed loop's function (``spec.drive``) has none: its
+    answer is the loop's measured errors."""
+    if spec.drive is not None or trial.raises is not None:
+        return []
+    return [f for f in FAMILIES if f.applies(spec, trial, truth)]
+
+
+def predictions(spec: FunctionSpec, trial: Trial, truth=None,
+                sides=(OUTPUT, INPUT)) -> list[tuple[MistakeName, Prediction]]:
+    """``[(name, prediction)]`` of every family on ``trial`` whose side is in ``sides``,
+    in :data:`FAMILIES`' order; ``truth`` the part of the truth an answer is compared with
+    (default: from ``trial.truth``). [] for a closed loop or a degenerate problem."""
+    if spec.drive is not None or trial.raises is not None:
+        return []
+    problem = Problem(spec, trial, answer_truth(trial, truth))
+    return [(f.label(p), p) for f in FAMILIES if f.side in sides
+            for p in f.predictions(problem)]
+
+
+def undoing(distance):
+    """``distance(a, b)`` extended to :class:`Prediction` candidates: an answer against a
+    prediction with an ``undo`` is the answer mapped back, measured against the truth (so
+    an estimate in millimetres is named on a noisy problem, where the truth in millimetres
+    is far from it); two predictions, or one without ``undo``, compare their answers."""
+    def measure(a, b) -> float:
+        if isinstance(b, Prediction):
+            if isinstance(a, Prediction) or b.undo is None:
+                a = a.answer if isinstance(a, Prediction) else a
+                return distance(a, b.answer)
+            return distance(b.undo(a), b.base)
+        return distance(a.answer if isinstance(a, Prediction) else a, b)
+    return measure
+
+
+def mirrored_name(value, truth) -> MistakeName | None:
+    """The reflection family's name when ``value`` is a mirror image of a pose (see
+    :func:`autograder.families.reflection.mirrored`), else None."""
+    return reflection.REFLECTION.label() if reflection.mirrored(value, truth) else None

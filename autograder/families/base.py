@@ -1,0 +1,208 @@
+"""What every mistake family is made of: the typed name, a prediction, the problem it is
+tried on, and the kinds of value a family reads from a function's answer and inputs.
+
+A family never looks at a lab's title or a function's name: it decides from the *kind* of
+the truth (a pose, a rotation, an (N, 3) point set, a scalar error, a tuple of parts) and of
+the inputs (a stack of poses, a pair of same-typed arguments) whether it applies.
+
+Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix in metres.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from autograder.spec_types import FunctionSpec, MistakeName, Trial
+
+__all__ = ["Family", "MistakeName", "Prediction", "Problem", "as_array", "is_pose",
+           "is_rotation", "is_stack", "is_points", "is_numeric_array", "part_predictions", "parts",
+           "scale_lengths"]
+
+OUTPUT, INPUT = "output", "input"
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """The answer a mistake gives on one problem.
+
+    ``answer`` is that answer (what a student making only this mistake returns).
+    ``undo``, for a mistake that is an invertible transform of a right answer (the inverse,
+    x1000, degrees), maps a student's answer back: the grader then asks whether the answer
+    with the mistake undone lies within the problem's noise of ``base`` (the truth), which
+    holds on noisy problems where the student's estimate, not the truth, was transformed.
+    ``words`` overrides the family's words (a part of a tuple answer names which part)."""
+
+    answer: Any
+    undo: Callable[[Any], Any] | None = None
+    base: Any = None
+    words: str | None = None
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem as a family sees it: the spec, the trial, and ``truth``, the part of
+    ``trial.truth`` a student's answer is compared with (a pose where the truth is
+    (pose, points))."""
+
+    spec: FunctionSpec
+    trial: Trial
+    truth: Any
+
+    def reference(self, *args):
+        """The spec's private reference on ``args`` (copies: it must not write into the
+        problem), or None when there is none or it raises on them."""
+        ref = self.spec.reference
+        if ref is None:
+            return None
+        try:
+            with np.errstate(all="ignore"):
+                return ref(*copy.deepcopy(args))
+        except Exception:  # noqa: BLE001 - transformed inputs may be ones it refuses
+            return None
+
+
+@dataclass(frozen=True)
+class Family:
+    """One classic mistake, tried on every graded function whose types it fits.
+
+    ``name`` is the family ("units m/mm", the same for each direction of it); ``words``
+    what the student is told, the diagnosis then the fix after a colon; ``side`` "output"
+    (a transform of the truth, public: computed where check() runs) or "input" (the
+    reference called on transformed inputs: private, precomputed for practice data).
+    ``predict(problem)`` gives the mistake's :class:`Prediction`s on a problem (none: the
+    family does not apply there)."""
+
+    name: str
+    words: str
+    side: str
+    make: Callable[[Problem], list[Prediction]]
+    key: str = ""
+
+    def label(self, prediction: Prediction | None = None) -> MistakeName:
+        """The typed name of this mistake (with a prediction's own words when it has them)."""
+        words = prediction.words if prediction is not None and prediction.words else self.words
+        return MistakeName(self.name, words)
+
+    def predictions(self, problem: Problem) -> list[Prediction]:
+        """Every prediction of this family on ``problem`` ([] when it does not apply);
+        never raises."""
+        try:
+            with np.errstate(all="ignore"):
+                return [p for p in self.make(problem) if p is not None]
+        except Exception:  # noqa: BLE001 - a family that cannot read a value does not apply
+            return []
+
+    def applies(self, spec: FunctionSpec, trial: Trial, truth=None) -> bool:
+        """True when this family predicts an answer on ``trial`` (see :meth:`predict`)."""
+        return self.predict(spec, trial, truth) is not None
+
+    def predict(self, spec: FunctionSpec, trial: Trial, truth=None):
+        """The answer this mistake gives on ``trial`` (the first when it gives several, as
+        one per part of a tuple answer), or None when the family does not apply."""
+        found = self.predictions(Problem(spec, trial, answer_truth(trial, truth)))
+        return found[0].answer if found else None
+
+
+def answer_truth(trial: Trial, truth=None):
+    """``truth`` if given, else ``trial.truth``'s answer part: a truth that carries what the
+    measure needs beside it (fit_rigid's (pose, points)) gives its first item when that is a
+    pose."""
+    if truth is not None:
+        return truth
+    t = trial.truth
+    if isinstance(t, (tuple, list)) and t and is_pose(t[0]) and not is_pose(t[-1]):
+        return t[0]
+    return t
+
+
+# --------------------------------------------------------------------------- kinds of value
+
+
+def as_array(value) -> np.ndarray | None:
+    """``value`` as a finite float array, or None (a dict, a string, NaN, an empty array)."""
+    if isinstance(value, (dict, str, bytes)) or value is None:
+        return None
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if a.size == 0 or not np.all(np.isfinite(a)):
+        return None
+    return a
+
+
+def is_rotation(value, atol: float = 1e-6) -> bool:
+    a = as_array(value)
+    return a is not None and a.shape == (3, 3) and bool(
+        np.allclose(a.T @ a, np.eye(3), atol=atol)) and np.linalg.det(a) > 0
+
+
+def is_pose(value) -> bool:
+    a = as_array(value)
+    return a is not None and a.shape == (4, 4) and bool(
+        np.allclose(a[3], [0, 0, 0, 1])) and is_rotation(a[:3, :3], 1e-4)
+
+
+def is_stack(value) -> bool:
+    """A stack of poses: a list of them or an (n, 4, 4) array, n >= 2."""
+    a = as_array(value)
+    return a is not None and a.ndim == 3 and a.shape[0] >= 2 and a.shape[1:] == (4, 4) \
+        and all(is_pose(T) for T in a)
+
+
+def is_points(value) -> bool:
+    a = as_array(value)
+    return a is not None and a.ndim == 2 and a.shape[1] == 3 and a.shape[0] >= 3
+
+
+def is_numeric_array(value) -> bool:
+    """A plain array of numbers (a scalar, a vector, a matrix): no pose, no tuple of parts."""
+    if isinstance(value, (tuple, list)) and value and isinstance(value[0], (tuple, list,
+                                                                             np.ndarray)):
+        return False
+    a = as_array(value)
+    return a is not None and not is_pose(a) and not is_stack(a)
+
+
+def parts(value) -> list | None:
+    """The parts of a tuple answer ((centre, normal)), each an array; None for no tuple."""
+    if not isinstance(value, tuple) or len(value) < 2:
+        return None
+    arrays = [as_array(v) for v in value]
+    return None if any(a is None for a in arrays) else arrays
+
+
+def scale_lengths(value, factor: float) -> np.ndarray:
+    """``value`` with its lengths times ``factor``: a pose's (or each stacked pose's)
+    translation, any other array whole."""
+    a = np.array(value, dtype=float)
+    if is_pose(a):
+        a[:3, 3] *= factor
+    elif is_stack(a):
+        a[:, :3, 3] *= factor
+    else:
+        a = a * factor
+    return a
+
+
+def part_predictions(truth, forward: Callable, undo: Callable, words_of=None) -> list:
+    """:class:`Prediction`s of a mistake made on the whole answer and, for a tuple answer,
+    on each part alone (the centre of a (centre, normal) in millimetres): ``forward`` maps a
+    right value to the mistaken one, ``undo`` back; ``words_of(k)`` the words for part k."""
+    out = [Prediction(forward(truth), undo, truth)] if parts(truth) is None else []
+    split = parts(truth)
+    if split is None:
+        return out
+    for k, part in enumerate(split):
+        def fwd(t, k=k):
+            return tuple(forward(np.asarray(x, float)) if i == k else x for i, x in enumerate(t))
+
+        def back(v, k=k):
+            return tuple(undo(np.asarray(x, float)) if i == k else x for i, x in enumerate(v))
+        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None))
+    return out

@@ -1,0 +1,53 @@
+"""Inverse and transpose: b_T_a where a_T_b was asked, R^T where R was, a matrix transposed.
+
+Applies to a pose answer (the inverse, the rotation transposed) and to any other square
+matrix answer (its transpose). Output side: the truth transformed; the student's answer is
+undone the same way (the inverse of an inverse) and compared with the truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autograder.families.base import OUTPUT, Family, Prediction, Problem, as_array, is_pose
+from robots import geometry as geo
+
+INVERSE = ("it is the inverse of the expected pose: b_T_a where a_T_b was asked (check "
+           "which frame each transform maps from and to)")
+TRANSPOSED = ("its rotation is the transpose of the expected one (R.T where R was asked: "
+              "check the direction of the rotation)")
+TRANSPOSE = "it is the transpose of the expected matrix"
+
+
+def _inverse(problem: Problem) -> list[Prediction]:
+    if not is_pose(problem.truth):
+        return []
+    truth = np.asarray(problem.truth, dtype=float)
+    return [Prediction(geo.invert(truth), lambda v: geo.invert(np.asarray(v, float)), truth)]
+
+
+def _rotation_transposed(T) -> np.ndarray:
+    out = np.array(T, dtype=float)
+    out[:3, :3] = out[:3, :3].T
+    return out
+
+
+def _transposed_rotation(problem: Problem) -> list[Prediction]:
+    if not is_pose(problem.truth):
+        return []
+    truth = np.asarray(problem.truth, dtype=float)
+    return [Prediction(_rotation_transposed(truth), _rotation_transposed, truth)]
+
+
+def _transpose(problem: Problem) -> list[Prediction]:
+    t = as_array(problem.truth)
+    if t is None or is_pose(t) or t.ndim != 2 or t.shape[0] != t.shape[1]:
+        return []
+    return [Prediction(t.T, lambda v: np.asarray(v, float).T, t)]
+
+
+FAMILIES = (
+    Family("inverse/transpose", INVERSE, OUTPUT, _inverse, "inverse pose"),
+    Family("inverse/transpose", TRANSPOSED, OUTPUT, _transposed_rotation, "transposed rotation"),
+    Family("inverse/transpose", TRANSPOSE, OUTPUT, _transpose, "transposed matrix"),
+)

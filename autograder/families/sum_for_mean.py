@@ -1,0 +1,34 @@
+"""Sum for mean: a sum over the inputs' items where their mean was asked.
+
+Applies to a numeric answer (no pose) of a function with a stacked input (a stack of poses,
+an (N, 3) point set, a vector): the answer is N times the truth for that input's N. Output
+side (N is read from the inputs' shapes): the answer divided by N is compared with the truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autograder.families.base import OUTPUT, Family, Prediction, Problem, as_array, is_numeric_array
+
+SUM = ("it is a sum over the items where their mean was asked: divide by their number")
+
+
+def _counts(args) -> list[int]:
+    found = []
+    for a in args:
+        arr = as_array(a)
+        if arr is not None and arr.ndim >= 1 and arr.shape[0] >= 2:
+            found.append(int(arr.shape[0]))
+    return sorted(set(found))
+
+
+def _summed(problem: Problem) -> list[Prediction]:
+    if not is_numeric_array(problem.truth):
+        return []
+    t = np.asarray(problem.truth, dtype=float)
+    return [Prediction(t * n, lambda v, n=n: np.asarray(v, float) / n, t)
+            for n in _counts(problem.trial.args)]
+
+
+FAMILIES = (Family("sum for mean", SUM, OUTPUT, _summed, "sum for mean"),)

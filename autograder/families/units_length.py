@@ -1,0 +1,55 @@
+"""Metres and millimetres: a length 1000 times too large or too small.
+
+Applies to every numeric answer: a pose's translation, a stack's translations, any other
+array whole, and, for a tuple answer ((centre, normal)), each part alone, so a centre in
+millimetres is named even though the normal beside it is right. Output side: the answer
+divided back is compared with the truth within the problem's noise.
+"""
+
+from __future__ import annotations
+
+from autograder.families.base import (
+    OUTPUT,
+    Family,
+    Prediction,
+    Problem,
+    is_pose,
+    part_predictions,
+    scale_lengths,
+)
+
+MILLIMETRES = ("its translation is 1000 times too large: millimetres where metres were "
+               "asked (the course works in metres)")
+METRES = ("its translation is 1000 times too small: metres where millimetres were asked, "
+          "or a conversion applied twice")
+ARRAY_MM = "it is 1000 times too large: millimetres where metres were asked"
+ARRAY_M = "it is 1000 times too small: metres where millimetres were asked"
+ORDINALS = ("first", "second", "third", "fourth", "fifth", "sixth")
+
+
+def _part(k: int) -> str:
+    return f"the {ORDINALS[k]} item of the answer" if k < len(ORDINALS) else f"item {k}"
+
+
+def _scaled(factor: float, pose_words: str, array_words: str, part_words: str):
+    def make(problem: Problem) -> list[Prediction]:
+        found = part_predictions(problem.truth, lambda t: scale_lengths(t, factor),
+                                 lambda v: scale_lengths(v, 1.0 / factor),
+                                 lambda k: part_words.format(part=_part(k)))
+        if is_pose(problem.truth):
+            return found
+        return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words)
+                for p in found]
+    return make
+
+
+FAMILIES = (
+    Family("units m/mm", MILLIMETRES, OUTPUT, _scaled(
+        1000.0, MILLIMETRES, ARRAY_MM,
+        "{part} is 1000 times too large: millimetres where metres were asked (the course "
+        "works in metres)"), "millimetres"),
+    Family("units m/mm", METRES, OUTPUT, _scaled(
+        1e-3, METRES, ARRAY_M,
+        "{part} is 1000 times too small: metres where millimetres were asked, or a "
+        "conversion applied twice"), "metres"),
+)
