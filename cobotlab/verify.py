@@ -779,7 +779,7 @@ def _print_families(report: Report, out) -> None:
     print("\nmistake families: share of the draws on which the family's answer loses credit "
           "(where it applies), 95 % interval; below 99 %: a hole", file=out)
     print(f"{'function':<24} {'family':<22} {'mistake':<26} {'lost / draws':>14}  "
-          f"{'share':>7}  {'95% interval':<18}", file=out)
+          f"{'share':>7}  95% interval", file=out)
     for row in rows:
         for f in row["families"]:
             if f["status"] != APPLIES:
