@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autograder import forbidden, mistakes, practice, registry
+from autograder import families, forbidden, mistakes, practice, registry
 from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
 from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
@@ -45,6 +45,7 @@ from autograder.spec_types import (  # noqa: F401
     Check,
     CodeMistake,
     FunctionSpec,
+    MistakeName,
     OutputError,
     Trial,
     measure_pose,
@@ -176,9 +177,9 @@ class FunctionResult:
     # What went wrong on each problem that erred, in the order the scoring met them
     # (``errors`` is their first lines); the feedback's counts and groups derive from it.
     problem_errors: tuple[ProblemError, ...] = ()
-    # The classic mistakes the answers looked like (each spec mistake's or classic
-    # transform's words, once each, in the order first met): what the class report counts.
-    mistakes: tuple[str, ...] = ()
+    # The classic mistakes the answers looked like (each a typed name: a mistake family's
+    # or a code mistake's, once each, in the order first met): what the class report counts.
+    mistakes: tuple[MistakeName, ...] = ()
 
     @property
     def fraction(self) -> float:
@@ -345,12 +346,12 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     ``hints=False`` leaves out the "looks like a classic mistake" notes, which never change a
     score: the fairness statistics of ``labs verify`` score thousands of draws and only count
     points, and naming a mistake costs more than scoring it (every failed problem is compared
-    with each of the spec's mistakes and the truth's classic transforms).
+    with each of the spec's mistakes and the mistake families of autograder.families).
     """
     if len(trials) != len(outcomes):
         raise ValueError(f"{len(trials)} trials but {len(outcomes)} outcomes")
     found: list[ProblemError] = []
-    mistakes: dict[str, None] = {}
+    mistakes: dict[MistakeName, None] = {}
     # First pass: each problem's rows {check: (error, tol, credit, voided)} on its own.
     table = []
     for trial, outcome in zip(trials, outcomes):
@@ -379,7 +380,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             and measured is not None and trial.raises is None else None
         if hint is not None:
             mistakes.setdefault(hint)
-            found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint}", leads=True))
+            found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint.words}", leads=True))
         for name, row in rows.items():
             per_check[name].append(row)
     if gated:   # leads: why right answers earned nothing, past the cap of five lines
@@ -467,11 +468,12 @@ def _measured(spec: FunctionSpec, value, trial: Trial) -> tuple[dict | None, str
                       + (f": {detail})" if detail else ")"))
 
 
-def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> str | None:
+def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> MistakeName | None:
     """The name of the one classic mistake ``value`` is clearly nearest to on ``trial`` (the
-    spec's code mistakes, precomputed with practice data, and the truth's classic transforms
-    of :mod:`autograder.mistakes`), or None. None when nothing is near, when two are about as
-    near, or when comparing cannot be done on a value this odd."""
+    spec's code mistakes and the input-side families' predictions, both precomputed with
+    practice data, and the output-side families of :mod:`autograder.families`), or None.
+    None when nothing is near, when two are about as near, or when comparing cannot be done
+    on a value this odd."""
     try:
         return _matching_mistake(spec, value, trial)
     except Exception:  # noqa: BLE001 - a hint is a courtesy: no hint, never a failed grade
@@ -534,21 +536,45 @@ def _noise_distance(spec: FunctionSpec, trial: Trial):
     return distance
 
 
-def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> str | None:
-    predicted_mistakes = trial.mistakes if trial.mistakes is not None else \
-        mistake_answers(spec, trial)
+def _predicted(spec: FunctionSpec, trial: Trial, truth) -> list:
+    """[(MistakeName, answer or Prediction)]: the code mistakes, then the families, in that
+    order so that where a family predicts what a code mistake does, the lab's own words
+    (written for that function) speak for both. Practice data carries the code mistakes and
+    the input-side families precomputed (a student's install has no reference to call)."""
+    if trial.mistakes is not None:
+        listed = [(_as_name(m), m[1]) for m in trial.mistakes]
+        sides = (families.OUTPUT,)
+    else:
+        listed = [(MistakeName(None, words), answer)
+                  for words, answer in mistake_answers(spec, trial)]
+        sides = (families.OUTPUT, families.INPUT)
+    return listed + families.predictions(spec, trial, truth, sides)
+
+
+def _as_name(entry) -> MistakeName:
+    """A practice problem's precomputed mistake ``(words, answer[, family])`` as its name."""
+    if isinstance(entry[0], MistakeName):
+        return entry[0]
+    return MistakeName(entry[2] if len(entry) > 2 else None, str(entry[0]))
+
+
+def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | None:
     if spec.drive is not None:
         # the closed loop's measured errors; the truth's are none at all
-        truth, others = {c.name: 0.0 for c in spec.checks}, []
-        transforms = []
-    else:
-        truth = _answer_truth(trial, value)
-        others = [(None, t) for t in mistakes.trivial_answers(truth)]
-        transforms = mistakes.candidates(truth)
-    listed = [(None, truth), *others, *predicted_mistakes, *transforms]
-    hint = mistakes.nearest(value, listed, _noise_distance(spec, trial))
-    if hint is None and spec.drive is None:
-        hint = mistakes.mirrored(value, truth)
+        predicted = trial.mistakes if trial.mistakes is not None else \
+            mistake_answers(spec, trial)
+        listed = [(None, {c.name: 0.0 for c in spec.checks}),
+                  *((_as_name(m) if trial.mistakes is not None else MistakeName(None, m[0]),
+                     m[1]) for m in predicted)]
+        return mistakes.nearest(value, listed, _noise_distance(spec, trial))
+    truth = _answer_truth(trial, value)
+    predicted = _predicted(spec, trial, truth)
+    others = [(None, t) for t in mistakes.trivial_answers(truth)
+              + families.nulls([p for p in predicted if isinstance(p[1], families.Prediction)])]
+    listed = [(None, truth), *others, *predicted]
+    hint = mistakes.nearest(value, listed, families.undoing(_noise_distance(spec, trial)))
+    if hint is None:
+        hint = families.mirrored_name(value, truth)
     return hint
 
 

@@ -23,8 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from autograder import families
+from autograder.families import inverse, reflection, units_angle, units_length
 from robots import geometry as geo
 
 __all__ = ["candidates", "diagnose", "matches", "mirrored", "nearest", "relative_distance",
@@ -36,19 +37,10 @@ __all__ = ["candidates", "diagnose", "matches", "mirrored", "nearest", "relative
 _RELATIVE = 0.02
 _FLOOR = 1e-6
 
-_INVERSE = ("it is the inverse of the expected pose: b_T_a where a_T_b was asked (check "
-            "which frame each transform maps from and to)")
-_TRANSPOSED = ("its rotation is the transpose of the expected one (R.T where R was asked: "
-               "check the direction of the rotation)")
-_MILLIMETRES = ("its translation is 1000 times too large: millimetres where metres were "
-                "asked (the course works in metres)")
-_METRES = ("its translation is 1000 times too small: metres where millimetres were asked, "
-           "or a conversion applied twice")
-_DEGREES = ("its rotation angle is off by a factor of 180/pi: degrees and radians mixed up "
-            "(numpy's trigonometry takes radians)")
-_TRANSPOSE = "it is the transpose of the expected matrix"
-_MIRRORED = ("its rotation has determinant -1: a mirror image, not a rotation (in an SVD fit, "
-             "flip the sign of the last column of V when det(V U^T) < 0)")
+# The words are the families' (one place for each mistake's words).
+_INVERSE, _TRANSPOSED, _TRANSPOSE = inverse.INVERSE, inverse.TRANSPOSED, inverse.TRANSPOSE
+_MILLIMETRES, _METRES = units_length.MILLIMETRES, units_length.METRES
+_DEGREES, _MIRRORED = units_angle.DEGREES, reflection.MIRRORED
 
 
 def _close(value: np.ndarray, predicted: np.ndarray) -> bool:
@@ -115,16 +107,7 @@ def mirrored(value, truth) -> str | None:
     """The mirror-image hint when ``value`` is a (4, 4) pose whose rotation block is
     orthonormal with determinant -1 (no rotation: an SVD fit without the reflection fix),
     the truth a pose; else None."""
-    try:
-        v, t = np.asarray(value, dtype=float), np.asarray(truth, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    if v.shape != (4, 4) or not _is_pose(t) or not np.all(np.isfinite(v)):
-        return None
-    R = v[:3, :3]
-    if np.linalg.det(R) < 0 and np.allclose(R.T @ R, np.eye(3), atol=1e-3):
-        return _MIRRORED
-    return None
+    return _MIRRORED if reflection.mirrored(value, truth) else None
 
 
 def matches(value, predicted) -> bool:
@@ -165,47 +148,24 @@ def diagnose(value, truth) -> str | None:
 MARGIN = 0.5
 
 
-def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
 def _is_pose(t: np.ndarray) -> bool:
     return t.shape == (4, 4) and bool(np.allclose(t[3], [0, 0, 0, 1]))
 
 
 def candidates(truth) -> list[tuple[str, np.ndarray]]:
-    """[(hint, the answer that mistake gives)] for the classic mistakes :func:`diagnose`
-    knows, made on ``truth``: for a (4, 4) pose ``a_T_b`` (metres) the inverse, the
-    transposed rotation, the translation in mm or a thousandth, the rotation angle scaled
-    by 180/pi or pi/180; for any other numeric array x1000, /1000, degrees, radians, the
-    opposite sign and (square) the transpose. [] for anything else (a pair, a dict)."""
+    """[(hint, the answer that mistake gives)] for the output-side mistake families of
+    :mod:`autograder.families` made on ``truth`` alone: for a (4, 4) pose ``a_T_b`` (metres)
+    the inverse, the transposed rotation, the translation in mm or a thousandth, the
+    rotation angle scaled by 180/pi or pi/180; for any other numeric array x1000, /1000,
+    degrees, radians, the opposite sign, the square or the root and (square) the transpose.
+    [] for what no family reads (a dict)."""
     try:
         t = np.asarray(truth, dtype=float)
     except (TypeError, ValueError):
         return []
     if t.size == 0 or not np.all(np.isfinite(t)):
         return []
-    if _is_pose(t):
-        R, p = t[:3, :3], t[:3, 3]
-        out = [(_INVERSE, _pose(R.T, -R.T @ p)), (_TRANSPOSED, _pose(R.T, p)),
-               (_MILLIMETRES, _pose(R, 1000.0 * p)), (_METRES, _pose(R, p / 1000.0))]
-        # scipy, not robots.geometry: a rotation vector scaled by 180/pi is the mistake here,
-        # not a reason to warn
-        rotvec = Rotation.from_matrix(geo.project_to_so3(R)).as_rotvec()
-        for factor in (math.pi / 180.0, 180.0 / math.pi):
-            out.append((_DEGREES, _pose(Rotation.from_rotvec(rotvec * factor).as_matrix(), p)))
-        return out
-    out = [("it is 1000 times too large: millimetres where metres were asked", 1000.0 * t),
-           ("it is 1000 times too small: metres where millimetres were asked", t / 1000.0),
-           ("it is in degrees where radians were asked", t * 180.0 / math.pi),
-           ("it is in radians where degrees were asked", t * math.pi / 180.0),
-           ("it has the opposite sign of the expected answer (check the direction or the "
-            "order)", -t)]
-    if t.ndim == 2 and t.shape[0] == t.shape[1]:
-        out.append((_TRANSPOSE, t.T))
-    return out
+    return [(name.words, p.answer) for name, p in families.transforms(truth)]
 
 
 def trivial_answers(truth) -> list[np.ndarray]:
@@ -230,7 +190,8 @@ def nearest(value, candidates, distance, within: float = 1.0,
     """The label of the one candidate ``value`` is clearly nearest to, or None.
 
     ``candidates`` are ``[(label, answer)]`` in order of precedence, ``label`` None for an
-    answer that is no mistake (the truth, a trivial answer). ``distance(a, b)`` measures
+    answer that is no mistake (the truth, a trivial answer); candidates of equal labels
+    are one explanation, never each other's runner-up. ``distance(a, b)`` measures
     answer ``a`` against ``b`` taken as the truth, in units of the noise: at most
     ``within`` is within it. A candidate ``same`` close to an earlier one is the same answer
     on this problem and the earlier one speaks for it (a mistake that gives the truth or
@@ -245,16 +206,29 @@ def nearest(value, candidates, distance, within: float = 1.0,
             return math.inf
         return d if math.isfinite(d) and d >= 0 else math.inf
 
-    kept: list[tuple[str | None, object]] = []
-    for label, answer in candidates:
-        if not any(far(answer, other) <= same for _, other in kept):
-            kept.append((label, answer))
-    if not kept:
+    listed = list(candidates)
+    if not listed:
         return None
-    ranked = sorted((far(value, answer), i) for i, (_, answer) in enumerate(kept))
-    best, index = ranked[0]
-    label = kept[index][0]
-    runner_up = ranked[1][0] if len(ranked) > 1 else math.inf
-    if label is None or best > within or best > margin * runner_up:
+    ranked = sorted((far(value, answer), i) for i, (_, answer) in enumerate(listed))
+    status: dict[int, bool] = {}
+
+    def kept(i: int) -> bool:
+        # dropped when ``same`` close to an earlier candidate that is itself kept; decided
+        # only for the few candidates the ranking reaches (each costs a measure per earlier
+        # candidate, and a problem has dozens of them)
+        if i not in status:
+            status[i] = not any(far(listed[i][1], listed[j][1]) <= same and kept(j)
+                                for j in range(i))
+        return status[i]
+
+    survivors = (entry for entry in ranked if kept(entry[1]))
+    best, index = next(survivors)
+    label = listed[index][0]
+    if label is None or best > within:
+        return None
+    # candidates of the same name are one explanation (a mistake made on each part of an
+    # answer, each preimage of an angle): the runner-up is the nearest of another name
+    runner_up = next((d for d, i in survivors if listed[i][0] != label), math.inf)
+    if best > margin * runner_up:
         return None
     return label

@@ -28,12 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from autograder import registry
+from autograder import families, registry
 from autograder.inside import wire
 from autograder.spec_types import FunctionSpec, Trial, mistake_answers
 
 __all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "load_practice",
-           "practice_file_name", "practice_rng", "practice_trials", "releasable",
+           "practice_file_name", "practice_rng", "practice_trials", "precomputed_mistakes",
+           "releasable",
            "save_practice", "write_practice"]
 
 # The seeds check() shows a student (autograder.checks re-exports both).
@@ -76,7 +77,7 @@ def _full_spec(assignment: str, name: str) -> FunctionSpec:
 
 def _encode_trial(spec: FunctionSpec, trial: Trial) -> dict:
     """``trial`` in the file's form, with its mistakes and stand-in tables computed now."""
-    mistakes = [(str(words), value) for words, value in mistake_answers(spec, trial)]
+    mistakes = precomputed_mistakes(spec, trial)
     # With a drive the stand-ins are needed at states only the closed loop reaches: the
     # public scoring entry derives those tables itself.
     tables = spec.substitutes(trial.args) if spec.substitutes and spec.drive is None else None
@@ -84,6 +85,16 @@ def _encode_trial(spec: FunctionSpec, trial: Trial) -> dict:
         "args": tuple(trial.args), "truth": trial.truth, "tol": dict(trial.tol),
         "label": trial.label, "all_or_nothing": bool(trial.all_or_nothing),
         "raises": trial.raises, "mistakes": mistakes, "substitutes": tables})
+
+
+def precomputed_mistakes(spec: FunctionSpec, trial: Trial) -> list[tuple]:
+    """What practice data carries of ``trial``'s mistakes: ``(words, answer, family)`` of
+    each code mistake (family None) and each input-side mistake family (the private
+    reference called on transformed inputs; the output side is computed from the truth
+    where check() runs), so a student's install names them without any answer code."""
+    code = [(str(words), value, None) for words, value in mistake_answers(spec, trial)]
+    inputs = families.predictions(spec, trial, sides=(families.INPUT,))
+    return code + [(name.words, p.answer, name.family) for name, p in inputs]
 
 
 def _built(assignment: str, name: str, seed: int) -> tuple:
@@ -197,8 +208,9 @@ def _trial_from(data, where: str) -> Trial:
             or not (fields["raises"] is None or isinstance(fields["raises"], str)):
         raise _damaged(where, "a problem's label or flags")
     if not isinstance(mistakes, list) or not all(
-            isinstance(m, tuple) and len(m) == 2 and isinstance(m[0], str) for m in mistakes):
-        raise _damaged(where, "a problem's mistakes are not (words, answer) pairs")
+            isinstance(m, tuple) and len(m) in (2, 3) and isinstance(m[0], str)
+            and (len(m) == 2 or m[2] is None or isinstance(m[2], str)) for m in mistakes):
+        raise _damaged(where, "a problem's mistakes are not (words, answer[, family]) tuples")
     if tables is not None and not (isinstance(tables, dict) and all(
             isinstance(entries, list) and all(
                 isinstance(e, tuple) and len(e) == 2 and isinstance(e[0], tuple)

@@ -87,8 +87,9 @@ class Trial:
     # whatever it is.
     raises: str | None = None
     # Precomputed by the private side for practice data (autograder.practice), where the
-    # spec's ``code_mistakes`` and ``substitutes`` are not shipped: this problem's
-    # [(words, predicted answer)], and the stand-in tables for a call with ``args``
+    # spec's ``code_mistakes``, ``reference`` and ``substitutes`` are not shipped: this
+    # problem's [(words, predicted answer, family)] of its code mistakes (family None) and
+    # its input-side mistake families (autograder.families), and the stand-in tables for a call with ``args``
     # (functions without a ``drive`` only). None: ask the spec.
     mistakes: list | None = None
     substitutes: dict | None = None

@@ -13,8 +13,9 @@ Per draw a mistake
 * is *named* when every mistake check() names for it (its "looks like a classic mistake"
   notes) is a right name, *misnamed* when one of them is not, *unnamed* when there is none.
 
-A name is right when its family (:func:`family_of`, read from its diagnosis, the words
-before the first colon) is the entry's family or one of its ``also`` families (those that
+A name is right when its family (the mistake family that named it, carried by check() as
+data, ``MistakeName.family``; for a lab's code mistake, which has none, :func:`family_of`
+reads it from its diagnosis, the words before the first colon) is the entry's family or one of its ``also`` families (those that
 describe the answer exactly as well), or when its diagnosis matches the entry's ``names``
 pattern (for a mistake of no family: "the median", "the last row"). Each row prints the name itself, so a reader can
 check the verdict. A name equal to the words of one of the spec's code mistakes on that
@@ -58,8 +59,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import mistake_corpus  # noqa: E402
 
-from autograder import checks, practice  # noqa: E402
+from autograder import checks  # noqa: E402
 from autograder.fairness import mean_interval  # noqa: E402
+from autograder.spec_types import MistakeName  # noqa: E402
 
 DOC = ROOT / "docs" / "benchmarks" / "mistake_naming.md"
 GOAL_NAMED = 0.90
@@ -90,23 +92,27 @@ def diagnosis(name: str) -> str:
     return name.split(": ", 1)[0]
 
 
-def family_of(name: str) -> str | None:
+def family_of(name: MistakeName) -> str | None:
     """The mistake family a name given by check() speaks of, or None (a name of no family).
 
-    The families are the issue's (``mistake_corpus.FAMILIES``); when the grader's names
-    carry their family as data, read it here instead of from the words."""
+    The families are the issue's (``mistake_corpus.FAMILIES``, which autograder.families
+    names its families by): a family's name carries it as data; a lab's code mistake has
+    none, and its words are read instead (the fallback patterns above)."""
+    if name.family is not None:
+        return name.family
     for family, pattern in FAMILY_WORDS:
-        if re.search(pattern, diagnosis(name), re.IGNORECASE):
+        if re.search(pattern, diagnosis(name.words), re.IGNORECASE):
             return family
     return None
 
 
-def is_right_name(mistake: mistake_corpus.Mistake, name: str) -> bool:
-    """True when ``name`` (one of check()'s mistake notes) is a right name for ``mistake``:
+def is_right_name(mistake: mistake_corpus.Mistake, name: MistakeName) -> bool:
+    """True when ``name`` (one of check()'s named mistakes) is a right name for ``mistake``:
     its family is one the entry accepts, or its diagnosis matches the entry's pattern."""
     if family_of(name) in mistake.accepted:
         return True
-    return bool(mistake.names and re.search(mistake.names, diagnosis(name), re.IGNORECASE))
+    return bool(mistake.names and re.search(mistake.names, diagnosis(name.words),
+                                            re.IGNORECASE))
 
 
 @dataclass
@@ -114,7 +120,7 @@ class Draw:
     """One check() run of one mistake."""
 
     fraction: float                 # points kept / full points
-    names: tuple[str, ...]          # the distinct mistakes check() named
+    names: tuple[MistakeName, ...]  # the distinct mistakes check() named
     by_code: bool                   # every name given is one of the spec's code mistakes
     outcome: str                    # named | misnamed | unnamed
 
@@ -147,15 +153,14 @@ def score(mistake: mistake_corpus.Mistake, seeds) -> Draw:
         warnings.simplefilter("ignore")  # a bug's NaN and overflow warnings are its own
         result = checks.evaluate(mistake.func, mistake.function, seeds, mistake.lab)
     names = result.mistakes   # the typed names, not the words of the messages
-    code_words = {words for t in practice.practice_trials(mistake.lab, mistake.function, seeds)
-                  for words, _ in (t.mistakes or [])}
     if not names:
         outcome = "unnamed"
     elif all(is_right_name(mistake, n) for n in names):
         outcome = "named"
     else:
         outcome = "misnamed"
-    return Draw(result.fraction, names, bool(names) and set(names) <= code_words, outcome)
+    by_code = bool(names) and all(n.family is None for n in names)
+    return Draw(result.fraction, names, by_code, outcome)
 
 
 # --------------------------------------------------------------------------- statistics
@@ -220,9 +225,9 @@ def mistake_table(rows: list[Row]) -> list[str]:
         kept = np.mean([d.fraction for d in r.draws])
         verdicts = ", ".join(f"{o} {100 * r.share(o):.0f} %" for o in OUTCOMES
                              if r.share(o) > 0)
-        names = sorted({n for d in r.draws for n in d.names})
-        said = "; ".join(_short(n) + (" (code mistake)" if any(
-            d.by_code and n in d.names for d in r.draws) else "") for n in names) or "-"
+        names = sorted({n for d in r.draws for n in d.names}, key=lambda n: n.words)
+        said = "; ".join(_short(n.words) + (" (code mistake)" if n.family is None else "")
+                         for n in names) or "-"
         lines.append(f"| {m.id} | {m.function} | {m.family} | {100 * kept:.0f} % | "
                      f"{100 * r.loses_share:.0f} % | {verdicts} | {said} |")
     return lines
@@ -238,8 +243,8 @@ def findings(rows: list[Row]) -> list[str]:
                        f"`{r.mistake.id}` ({r.mistake.function}): {r.mistake.words}")
     for r in rows:
         if r.share("misnamed") > 0:
-            wrong = sorted({n for d in r.draws if d.outcome == "misnamed" for n in d.names
-                            if not is_right_name(r.mistake, n)})
+            wrong = sorted({n.words for d in r.draws if d.outcome == "misnamed"
+                            for n in d.names if not is_right_name(r.mistake, n)})
             out.append(f"- **misnamed** on {100 * r.share('misnamed'):.0f} % of draws: "
                        f"`{r.mistake.id}` ({r.mistake.words}) was called: "
                        + "; ".join(f"\"{_short(n, 120)}\"" for n in wrong))
@@ -288,7 +293,8 @@ DOC_HEAD = """# Naming classic mistakes nobody listed (issue 52)
 (`benchmarks/mistake_corpus/`: {n} student functions of labs 0, 1, 2 and 4, each with one
 classic bug, none from issue 52's list) as `check()` scores it for a student, and counts per
 lab how many lose credit and how many check() names right, names wrongly or leaves unnamed.
-A name is judged by its family (read from its words, `family_of`) against the family the
+A name is judged by its family (carried by the name, `MistakeName.family`; read from its
+words, `family_of`, for a lab's code mistake) against the family the
 corpus gives the mistake, or against the entry's own pattern for a mistake of no family;
 every row shows the name itself. The corpus is the test set of the mistake families (issue
 52, Required 1-3): build the families without tuning on it.

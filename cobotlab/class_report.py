@@ -199,6 +199,7 @@ class ClassNumbers:
     lost_function: dict[str, list[str]] = field(default_factory=dict)
     lost_check: dict[tuple[str, str], list[str]] = field(default_factory=dict)
     rescored: list[str] = field(default_factory=list)
+    # (function, the mistake's words): students; a family's and a code mistake's words alike
     mistakes: dict[tuple[str, str], list[str]] = field(default_factory=dict)
     errors: list[tuple[str, str, str, int, float, float, str]] = field(default_factory=list)
     units: dict[tuple[str, str], str] = field(default_factory=dict)
@@ -237,7 +238,7 @@ def class_numbers(course_dir, assignment: str) -> ClassNumbers:
                 if c.credit < 1.0:
                     n.lost_check[(f.name, c.name)].append(sid)
             for label in f.mistakes:
-                who = n.mistakes.setdefault((f.name, label), [])
+                who = n.mistakes.setdefault((f.name, label.words), [])
                 if sid not in who:
                     who.append(sid)
             run = runs.get(f.name)
@@ -430,7 +431,7 @@ are in the CSV files beside this page: {", ".join(link(k) for k in files)}.</p>
 
 <h2>Named mistakes</h2>
 <p class="note">The grader names a classic mistake when a student's answer on a problem is
-clearly nearest to it (the lab's code mistakes and the classic transforms of the truth).</p>
+clearly nearest to it (the lab's code mistakes and the mistake families of autograder.families).</p>
 {_table(("function", "mistake", "students", "who"), mistakes) if mistakes else
  "<p>No named mistake.</p>"}
 

@@ -31,7 +31,6 @@ import numpy as np
 import pytest
 
 from autograder import checks, forbidden, practice, registry
-from autograder.spec_types import mistake_answers
 from autograder.specs import lab3_servoing as lab3
 
 TESTS = Path(__file__).resolve().parent
@@ -85,7 +84,7 @@ def test_practice_file_holds_the_generators_problems(lab, practice_dir, monkeypa
                 assert _same_value(truth, b.truth), (spec.name, seed)
                 assert (a.tol, a.label, a.all_or_nothing, a.raises) == \
                     (b.tol, b.label, b.all_or_nothing, b.raises)
-                assert _same_value(mistake_answers(spec, a), b.mistakes)
+                assert _same_value(practice.precomputed_mistakes(spec, a), b.mistakes)
                 tables = spec.substitutes(a.args) if spec.substitutes and not spec.drive \
                     else None
                 assert _same_value(tables, b.substitutes)

@@ -15,6 +15,7 @@ import pytest
 
 from autograder import checks, feedback, mistakes
 from autograder.outcomes import raised
+from autograder.spec_types import MistakeName
 from autograder.specs import lab1_flange as lab1
 from autograder.specs import lab3_servoing as lab3
 
@@ -50,7 +51,7 @@ def test_each_new_mistake_is_named_with_exactly_its_label(lab, name, func):
     value = _answer(spec, func, trial)
     result = checks.score_function(spec, [trial], [checks.TrialOutcome(value=value)])
     assert result.fraction < 1.0, f"{func.__name__} kept full credit"
-    assert checks._mistake_hint(spec, value, trial) == label
+    assert checks._mistake_hint(spec, value, trial) == MistakeName(None, label)
     named = [e for e in result.errors if "classic mistake" in e]
     assert len(named) == 1 and label in named[0], result.errors
 
@@ -78,7 +79,7 @@ def test_a_diverging_servo_law_is_not_told_to_check_the_gain():
     trial = _ordinary_trials(spec, 5, 2)[0]
     for func in (lab3._ibvs_error_stacked, lab3._ibvs_degrees, lab3._ibvs_w_first):
         hint = checks._mistake_hint(spec, _answer(spec, func, trial), trial)
-        assert hint is not None and "gain" not in hint, (func.__name__, hint)
+        assert hint is not None and "gain" not in hint.words, (func.__name__, hint)
 
 
 @pytest.mark.parametrize("lab, name", [("lab1_flange", "fit_rigid"),
@@ -105,7 +106,8 @@ def test_an_answer_between_two_mistakes_is_named_with_nothing():
     # tolerance times the widest band), is given its name
     labels = {m.func: m.label for m in spec.code_mistakes}
     near_b = b + 1e-6 * (a - b)
-    assert checks._mistake_hint(spec, near_b, trial) == labels[lab3._interaction_z_for_inverse]
+    assert checks._mistake_hint(spec, near_b, trial) == \
+        MistakeName(None, labels[lab3._interaction_z_for_inverse])
 
 
 def test_nearest_names_one_candidate_only_when_clearly_nearest():

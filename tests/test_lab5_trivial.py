@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from autograder import checks
+from autograder.spec_types import MistakeName
 from autograder.specs import lab5_depth as spec5
 
 ASSIGNMENT = "lab5_depth"
@@ -111,7 +112,8 @@ def test_each_new_mistake_loses_credit_and_is_named_with_its_words(name, func, w
         result = checks.score_function(
             spec, trials, [checks.TrialOutcome(value=func(*t.args)) for t in trials])
         assert result.points < spec.points, (name, func.__name__, k)
-        named += sum(checks._mistake_hint(spec, func(*t.args), t) == words for t in trials)
+        named += sum(checks._mistake_hint(spec, func(*t.args), t) == MistakeName(None, words)
+                     for t in trials)
     assert named > 0, (name, func.__name__)
 
 
@@ -152,7 +154,7 @@ def test_the_rim_centroid_is_not_named_the_algebraic_fit_where_that_passes():
         if any(kasa[c.name] > t.tol[c.name] for c in spec.checks):
             continue
         assert checks._mistake_hint(spec, spec5._circle_centroid(*t.args), t) == \
-            spec5.CENTROID_WORDS
+            MistakeName(None, spec5.CENTROID_WORDS)
         seen += 1
     assert seen > 10
 

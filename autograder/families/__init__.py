@@ -16,7 +16,9 @@ that mistake gives on a problem. One module per act:
   transformed inputs (precomputed into practice data, as code mistakes are, so a student's
   install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
   stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
-  (a stack's first or last item for the mean over it).
+  (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
+  absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
+  in millimetres).
 
 The public surface, stable for ``labs verify`` and the grader:
 
@@ -38,7 +40,12 @@ answers, code mistakes), and never two at once.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from autograder.families import (
+    absolute,
     first_last,
     inverse,
     reflection,
@@ -48,6 +55,7 @@ from autograder.families import (
     sum_for_mean,
     swapped,
     units_angle,
+    units_input,
     units_length,
 )
 from autograder.families.base import (
@@ -58,16 +66,19 @@ from autograder.families.base import (
     Prediction,
     Problem,
     answer_truth,
+    is_pose,
+    same_answer,
 )
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
-           "mirrored_name", "predictions", "undoing"]
+           "mirrored_name", "nulls", "predictions", "transforms", "undoing"]
 
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
     *root.FAMILIES, *sum_for_mean.FAMILIES, *reflection.FAMILIES,
-    *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES,
+    *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES, *absolute.FAMILIES,
+    *units_input.FAMILIES,
 )
 
 
@@ -88,8 +99,35 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
     if spec.drive is not None or trial.raises is not None:
         return []
     problem = Problem(spec, trial, answer_truth(trial, truth))
-    return [(f.label(p), p) for f in FAMILIES if f.side in sides
-            for p in f.predictions(problem)]
+    found = [(f.label(p), p) for f in FAMILIES if f.side in sides
+             for p in f.predictions(problem)]
+    if INPUT not in sides:
+        return found
+    # an input-side mistake that changes nothing here (K times 1000 leaves every ray as it
+    # was) predicts the right answer: no mistake to name
+    right = problem.reference(*trial.args)
+    return [(name, p) for name, p in found
+            if p.undo is not None or right is None or not same_answer(p.answer, right)]
+
+
+def nulls(found: list[tuple[MistakeName, Prediction]]) -> list:
+    """The answers that compute nothing of what each prediction scales (the truth's rotation
+    with no translation, a tuple with one part zeroed): an answer as near one of them as to
+    a mistake's is not told apart from computing nothing there, and gets no name."""
+    return [p.null for _, p in found if p.null is not None]
+
+
+def transforms(truth) -> list[tuple[MistakeName, Prediction]]:
+    """The output-side families' predictions on ``truth`` alone (no function, no inputs:
+    the families that read the inputs, as sum for mean, give none)."""
+    problem = Problem(None, Trial(args=(), truth=truth, tol={}), truth)
+    return [(f.label(p), p) for f in FAMILIES if f.side == OUTPUT
+            for p in f.predictions(problem) if p.undo is not None]
+
+
+# Undoing a mistake tells it apart only where zeroing what it scales costs more than this many
+# noise units (see Prediction.null).
+RESOLVED = 4.0
 
 
 def undoing(distance):
@@ -98,11 +136,19 @@ def undoing(distance):
     an estimate in millimetres is named on a noisy problem, where the truth in millimetres
     is far from it); two predictions, or one without ``undo``, compare their answers."""
     def measure(a, b) -> float:
+        if isinstance(b, Prediction) and not isinstance(a, Prediction) \
+                and is_pose(b.answer) and not is_pose(a):
+            # every pose mistake keeps the rotation block a rotation: one that is none
+            # (an axis not normalised) is no such mistake, however near in numbers
+            return math.inf
         if isinstance(b, Prediction):
             if isinstance(a, Prediction) or b.undo is None:
                 a = a.answer if isinstance(a, Prediction) else a
                 return distance(a, b.answer)
-            return distance(b.undo(a), b.base)
+            with np.errstate(all="ignore"):  # an answer's square root may be NaN: far
+                if b.null is not None and distance(b.null, b.base) <= RESOLVED:
+                    return distance(a, b.answer)
+                return distance(b.undo(a), b.base)
         return distance(a.answer if isinstance(a, Prediction) else a, b)
     return measure
 

@@ -11,6 +11,7 @@ Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix in metr
 from __future__ import annotations
 
 import copy
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -35,12 +36,18 @@ class Prediction:
     x1000, degrees), maps a student's answer back: the grader then asks whether the answer
     with the mistake undone lies within the problem's noise of ``base`` (the truth), which
     holds on noisy problems where the student's estimate, not the truth, was transformed.
-    ``words`` overrides the family's words (a part of a tuple answer names which part)."""
+    ``words`` overrides the family's words (a part of a tuple answer names which part).
+    ``null`` is ``base`` with the quantity the mistake scales set to zero (the translation,
+    the angle): undoing tells the mistake apart only where the noise resolves that quantity
+    (a 5 cm translation under a 40 cm tolerance divided by 1000 is still "right"), so where
+    ``null`` itself lies within a few noise units of ``base``, the answer is compared with
+    ``answer`` as it is instead."""
 
     answer: Any
     undo: Callable[[Any], Any] | None = None
     base: Any = None
     words: str | None = None
+    null: Any = None
 
 
 @dataclass(frozen=True)
@@ -60,7 +67,10 @@ class Problem:
         if ref is None:
             return None
         try:
-            with np.errstate(all="ignore"):
+            # a reference that warns about its inputs (motions in the wrong convention) is
+            # told so on purpose here: the inputs carry the mistake
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 return ref(*copy.deepcopy(args))
         except Exception:  # noqa: BLE001 - transformed inputs may be ones it refuses
             return None
@@ -118,6 +128,17 @@ def answer_truth(trial: Trial, truth=None):
     if isinstance(t, (tuple, list)) and t and is_pose(t[0]) and not is_pose(t[-1]):
         return t[0]
     return t
+
+
+def same_answer(a, b) -> bool:
+    """True when ``a`` and ``b`` are one answer up to rounding (a tuple part by part)."""
+    if isinstance(a, tuple) or isinstance(b, tuple):
+        return isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b) \
+            and all(same_answer(x, y) for x, y in zip(a, b))
+    x, y = as_array(a), as_array(b)
+    if x is None or y is None or x.shape != y.shape:
+        return False
+    return bool(np.allclose(x, y, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(y).max()))))
 
 
 # --------------------------------------------------------------------------- kinds of value
@@ -190,11 +211,16 @@ def scale_lengths(value, factor: float) -> np.ndarray:
     return a
 
 
-def part_predictions(truth, forward: Callable, undo: Callable, words_of=None) -> list:
+def part_predictions(truth, forward: Callable, undo: Callable, words_of=None,
+                     zero: Callable | None = None) -> list:
     """:class:`Prediction`s of a mistake made on the whole answer and, for a tuple answer,
     on each part alone (the centre of a (centre, normal) in millimetres): ``forward`` maps a
-    right value to the mistaken one, ``undo`` back; ``words_of(k)`` the words for part k."""
-    out = [Prediction(forward(truth), undo, truth)] if parts(truth) is None else []
+    right value to the mistaken one, ``undo`` back, ``zero`` to its ``null``;
+    ``words_of(k)`` the words for part k."""
+    def null(t):
+        return None if zero is None else zero(t)
+    out = [Prediction(forward(truth), undo, truth, null=null(truth))] \
+        if parts(truth) is None else []
     split = parts(truth)
     if split is None:
         return out
@@ -204,5 +230,9 @@ def part_predictions(truth, forward: Callable, undo: Callable, words_of=None) ->
 
         def back(v, k=k):
             return tuple(undo(np.asarray(x, float)) if i == k else x for i, x in enumerate(v))
-        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None))
+
+        def nothing(t, k=k):
+            return tuple(null(np.asarray(x, float)) if i == k else x for i, x in enumerate(t))
+        out.append(Prediction(fwd(truth), back, truth, words_of(k) if words_of else None,
+                              None if zero is None else nothing(truth)))
     return out

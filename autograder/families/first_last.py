@@ -1,13 +1,16 @@
 """A stack's first or last item where the mean over all of them was asked.
 
-Applies to a function whose inputs include stacks of the same length n >= 2 (poses, point
-sets, vectors): input side, the private reference is called on the first (or the last) item
-of each of them alone.
+Applies to a function whose answer is the mean over the items of its input stacks (of one
+length n >= 3; with two items the first alone is also "all but the last"): the reference's
+answer is the mean of its answers on each item alone. Input side: the private reference is
+called on the first (or the last) item of each stack alone.
 """
 
 from __future__ import annotations
 
-from autograder.families.base import INPUT, Family, Prediction, Problem, as_array
+import numpy as np
+
+from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, same_answer
 
 FIRST = ("it uses only the first item of the inputs where all of them were asked (a mean "
          "over every item): loop over, or vectorise across, the whole stack")
@@ -21,20 +24,31 @@ def _length(a) -> int | None:
         else None
 
 
-def _one_item(at: slice):
+def stack_lengths(args) -> list[int | None]:
+    """Each argument's number of items when it is a stack (n >= 2 rows of 2-D or more
+    items: poses, points), else None."""
+    return [_length(a) for a in args]
+
+
+def _one_item(at: int):
     def make(problem: Problem) -> list[Prediction]:
         args = tuple(problem.trial.args)
-        lengths = [_length(a) for a in args]
+        lengths = stack_lengths(args)
         n = max((x for x in lengths if x is not None), default=None)
-        if n is None:
+        if n is None or n < 3:
             return []
-        cut = [a[at] if n_a == n else a for a, n_a in zip(args, lengths)]
-        answer = problem.reference(*cut)
-        return [] if answer is None else [Prediction(answer)]
+        items = [as_array(problem.reference(*[a[i:i + 1] if n_a == n else a
+                                              for a, n_a in zip(args, lengths)]))
+                 for i in range(n)]
+        whole = as_array(problem.reference(*args))
+        if whole is None or any(x is None or x.shape != whole.shape for x in items) \
+                or not same_answer(np.mean(items, axis=0), whole):
+            return []   # no mean over the items: no item stands for it
+        return [Prediction(items[at])]
     return make
 
 
 FAMILIES = (
-    Family("first/last for mean", FIRST, INPUT, _one_item(slice(0, 1)), "first item"),
-    Family("first/last for mean", LAST, INPUT, _one_item(slice(-1, None)), "last item"),
+    Family("first/last for mean", FIRST, INPUT, _one_item(0), "first item"),
+    Family("first/last for mean", LAST, INPUT, _one_item(-1), "last item"),
 )

@@ -25,12 +25,14 @@ def _non_negative(problem: Problem) -> np.ndarray | None:
 
 def _squared(problem: Problem) -> list[Prediction]:
     t = _non_negative(problem)
-    return [] if t is None else [Prediction(t ** 2, lambda v: np.sqrt(np.asarray(v, float)), t)]
+    return [] if t is None else [Prediction(t ** 2, lambda v: np.sqrt(np.asarray(v, float)), t,
+                                            null=np.zeros_like(t))]
 
 
 def _rooted(problem: Problem) -> list[Prediction]:
     t = _non_negative(problem)
-    return [] if t is None else [Prediction(np.sqrt(t), lambda v: np.asarray(v, float) ** 2, t)]
+    return [] if t is None else [Prediction(np.sqrt(t), lambda v: np.asarray(v, float) ** 2, t,
+                                            null=np.zeros_like(t))]
 
 
 FAMILIES = (

@@ -17,7 +17,7 @@ def _negated(problem: Problem) -> list[Prediction]:
     if not is_numeric_array(problem.truth):
         return []
     t = np.asarray(problem.truth, dtype=float)
-    return [Prediction(-t, lambda v: -np.asarray(v, float), t)]
+    return [Prediction(-t, lambda v: -np.asarray(v, float), t, null=np.zeros_like(t))]
 
 
 FAMILIES = (Family("sign", SIGN, OUTPUT, _negated, "sign"),)

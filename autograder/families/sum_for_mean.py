@@ -27,7 +27,7 @@ def _summed(problem: Problem) -> list[Prediction]:
     if not is_numeric_array(problem.truth):
         return []
     t = np.asarray(problem.truth, dtype=float)
-    return [Prediction(t * n, lambda v, n=n: np.asarray(v, float) / n, t)
+    return [Prediction(t * n, lambda v, n=n: np.asarray(v, float) / n, t, null=np.zeros_like(t))
             for n in _counts(problem.trial.args)]
 
 

@@ -1,9 +1,10 @@
 """Radians and degrees: an angle off by a factor of 180/pi.
 
 Applies to a pose answer (its rotation angle scaled, about the same axis) and to every other
-numeric answer or part of a tuple answer (the values scaled). Output side: the answer is
-mapped back (for a pose, the preimage angle nearest the truth's, since a scaled angle wraps
-around 2 pi) and compared with the truth within the problem's noise.
+numeric answer or part of a tuple answer (the values scaled). Output side: values and a
+pose's angle in radians are mapped back and compared with the truth within the noise; a
+pose's angle in degrees wraps around 2 pi, so it is compared as it is, with the truth's and
+(input side) with the reference's own estimate scaled.
 """
 
 from __future__ import annotations
@@ -13,7 +14,15 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from autograder.families.base import OUTPUT, Family, Prediction, Problem, is_pose, part_predictions
+from autograder.families.base import (
+    INPUT,
+    OUTPUT,
+    Family,
+    Prediction,
+    Problem,
+    is_pose,
+    part_predictions,
+)
 from robots import geometry as geo
 
 DEGREES = ("its rotation angle is off by a factor of 180/pi: degrees and radians mixed up "
@@ -35,41 +44,39 @@ def _scaled_pose(T, factor: float) -> np.ndarray:
     return out
 
 
-def _unscaled_pose(value, truth, factor: float) -> np.ndarray:
-    """The pose whose rotation, angle times ``factor``, is ``value``'s: of the preimages
-    (the scaled angle wraps around 2 pi), the one nearest ``truth``'s rotation."""
-    v = np.array(value, dtype=float)
-    r = _rotvec(v[:3, :3])
-    angle, axis = float(np.linalg.norm(r)), r / max(float(np.linalg.norm(r)), 1e-300)
-    target = float(np.linalg.norm(_rotvec(np.asarray(truth)[:3, :3]))) * factor
-    best, best_err = None, math.inf
-    for sign in (1.0, -1.0):
-        k = round((target - sign * angle) / (2 * math.pi))
-        for kk in (k - 1, k, k + 1):
-            R = Rotation.from_rotvec(sign * axis * (sign * angle + 2 * math.pi * kk)
-                                     / factor).as_matrix()
-            err = float(np.abs(R - np.asarray(truth)[:3, :3]).max())
-            if err < best_err:
-                best, best_err = R, err
-    v[:3, :3] = best
-    return v
-
-
 def _angle(factor: float, array_words: str):
     def make(problem: Problem) -> list[Prediction]:
         truth = problem.truth
         if is_pose(truth):
             t = np.asarray(truth, dtype=float)
-            return [Prediction(_scaled_pose(t, factor),
-                               lambda v: _unscaled_pose(v, t, factor), t)]
+            if factor > 1.0:
+                # an angle times 180/pi wraps around 2 pi: every rotation about the right
+                # axis has a preimage within 3 degrees of the truth, so undoing would name
+                # any wrong angle; compared as it is (and with the reference's answer scaled)
+                return [Prediction(_scaled_pose(t, factor))]
+            null = np.array(t)
+            null[:3, :3] = np.eye(3)
+            return [Prediction(_scaled_pose(t, factor), lambda v: _scaled_pose(v, 1 / factor), t,
+                               null=null)]
         found = part_predictions(truth, lambda t: t * factor, lambda v: v / factor,
-                                 lambda k: f"item {k + 1} of the answer: {array_words[3:]}")
-        return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words)
+                                 lambda k: f"item {k + 1} of the answer: {array_words[3:]}",
+                                 np.zeros_like)
+        return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words, p.null)
                 for p in found]
     return make
 
 
+def _reference_in_degrees(problem: Problem) -> list[Prediction]:
+    """The reference's own answer on the problem, its angle times 180/pi: on a noisy
+    problem the student's estimate, not the truth, was scaled (input side: private)."""
+    if not is_pose(problem.truth):
+        return []
+    answer = problem.reference(*problem.trial.args)
+    return [Prediction(_scaled_pose(answer, TO_DEGREES))] if is_pose(answer) else []
+
+
 FAMILIES = (
     Family("units rad/deg", DEGREES, OUTPUT, _angle(TO_DEGREES, ARRAY_DEGREES), "degrees"),
+    Family("units rad/deg", DEGREES, INPUT, _reference_in_degrees, "degrees of the estimate"),
     Family("units rad/deg", DEGREES, OUTPUT, _angle(TO_RADIANS, ARRAY_RADIANS), "radians"),
 )

@@ -35,10 +35,11 @@ def _scaled(factor: float, pose_words: str, array_words: str, part_words: str):
     def make(problem: Problem) -> list[Prediction]:
         found = part_predictions(problem.truth, lambda t: scale_lengths(t, factor),
                                  lambda v: scale_lengths(v, 1.0 / factor),
-                                 lambda k: part_words.format(part=_part(k)))
+                                 lambda k: part_words.format(part=_part(k)),
+                                 lambda t: scale_lengths(t, 0.0))
         if is_pose(problem.truth):
             return found
-        return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words)
+        return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words, p.null)
                 for p in found]
     return make
 

@@ -54,6 +54,10 @@ def _pose(R, t) -> np.ndarray:
     return T
 
 
+def _compose(poses) -> np.ndarray:
+    return geo.compose(*poses)
+
+
 def _invert_keeps_r(a_T_b):
     R, t = a_T_b[:3, :3], a_T_b[:3, 3]
     return _pose(R, -R @ t)
@@ -133,11 +137,11 @@ ROTVEC_MISTAKES = (
 )
 
 INVERT_POSE = replace(scoring.INVERT_POSE, make_trial=_trial_invert,
-                      code_mistakes=INVERT_MISTAKES)
+                      code_mistakes=INVERT_MISTAKES, reference=geo.invert)
 COMPOSE_CHAIN = replace(scoring.COMPOSE_CHAIN, make_trial=_trial_compose,
-                        code_mistakes=COMPOSE_MISTAKES)
+                        code_mistakes=COMPOSE_MISTAKES, reference=_compose)
 POSE_FROM_ROTVEC = replace(scoring.POSE_FROM_ROTVEC, make_trial=_trial_rotvec,
-                           code_mistakes=ROTVEC_MISTAKES)
+                           code_mistakes=ROTVEC_MISTAKES, reference=geo.pose_from_rotvec)
 
 SPECS = (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC)
 
@@ -145,4 +149,4 @@ SPECS = (INVERT_POSE, COMPOSE_CHAIN, POSE_FROM_ROTVEC)
 # (_invert_returns_input, np.array(T), is no answer code: helpers everywhere read the same.)
 ANSWERS = (_trial_invert, _trial_compose, _trial_rotvec, _invert_keeps_r, _invert_negates_t,
            _compose_left_to_right, _compose_reversed, _compose_inverses, _rotvec_as_degrees,
-           _rotvec_transposed, _rotvec_no_zero_check, _rotvec_translation_mm)
+           _rotvec_transposed, _rotvec_no_zero_check, _rotvec_translation_mm, _compose)

@@ -286,11 +286,13 @@ def rmse_mistakes(src: str, dst: str) -> tuple[CodeMistake, ...]:
     )
 
 
-FIT_RIGID = replace(scoring.FIT_RIGID, make_trial=_trial_fit_rigid, code_mistakes=FIT_MISTAKES)
+FIT_RIGID = replace(scoring.FIT_RIGID, make_trial=_trial_fit_rigid, code_mistakes=FIT_MISTAKES,
+                    reference=_kabsch)
 PER_POINT_RESIDUALS = replace(scoring.PER_POINT_RESIDUALS, make_trial=_trial_point_residuals,
-                              code_mistakes=RESIDUAL_MISTAKES)
+                              code_mistakes=RESIDUAL_MISTAKES,
+                              reference=_true_point_residuals)
 PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_axis_rmse,
-                        code_mistakes=rmse_mistakes("src", "dst"))
+                        code_mistakes=rmse_mistakes("src", "dst"), reference=_true_axis_rmse)
 
 SPECS = (FIT_RIGID, PER_POINT_RESIDUALS, PER_AXIS_RMSE)
 

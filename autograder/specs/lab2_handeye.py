@@ -386,13 +386,18 @@ TRANSLATION_RESIDUAL_MISTAKES = (
 
 # --------------------------------------------------------------------------- specs
 
-MOTIONS = replace(scoring.MOTIONS, make_trial=_trial_motions, code_mistakes=MOTIONS_MISTAKES)
-TSAI_LENZ = replace(scoring.TSAI_LENZ, make_trial=_trial_solver, code_mistakes=TSAI_MISTAKES)
-AXES_LS = replace(scoring.AXES_LS, make_trial=_trial_solver, code_mistakes=AXES_LS_MISTAKES)
+MOTIONS = replace(scoring.MOTIONS, make_trial=_trial_motions, code_mistakes=MOTIONS_MISTAKES,
+                  reference=motion_pairs_truth)
+TSAI_LENZ = replace(scoring.TSAI_LENZ, make_trial=_trial_solver, code_mistakes=TSAI_MISTAKES,
+                    reference=he.solve_tsai)
+AXES_LS = replace(scoring.AXES_LS, make_trial=_trial_solver, code_mistakes=AXES_LS_MISTAKES,
+                  reference=he.solve_axes_ls)
 ROTATION_RESIDUAL = replace(scoring.ROTATION_RESIDUAL, make_trial=_trial_residual(0),
-                            code_mistakes=ROTATION_RESIDUAL_MISTAKES)
+                            code_mistakes=ROTATION_RESIDUAL_MISTAKES,
+                            reference=lambda A, B, X: course_residuals(A, B, X)[0])
 TRANSLATION_RESIDUAL = replace(scoring.TRANSLATION_RESIDUAL, make_trial=_trial_residual(1),
-                               code_mistakes=TRANSLATION_RESIDUAL_MISTAKES)
+                               code_mistakes=TRANSLATION_RESIDUAL_MISTAKES,
+                               reference=lambda A, B, X: course_residuals(A, B, X)[1])
 
 SPECS = (MOTIONS, TSAI_LENZ, AXES_LS, ROTATION_RESIDUAL, TRANSLATION_RESIDUAL)
 

@@ -372,11 +372,11 @@ PIECE_MISTAKES = (
 )
 
 INTERACTION_MATRIX = replace(scoring.INTERACTION_MATRIX, make_trial=_trial_interaction,
-                             code_mistakes=INTERACTION_MISTAKES)
+                             code_mistakes=INTERACTION_MISTAKES, reference=_true_interaction)
 IBVS_VELOCITY = replace(scoring.IBVS_VELOCITY, make_trial=_trial_ibvs,
                         code_mistakes=IBVS_MISTAKES)
 PIECE_POSITION = replace(scoring.PIECE_POSITION, make_trial=_trial_piece,
-                         code_mistakes=PIECE_MISTAKES)
+                         code_mistakes=PIECE_MISTAKES, reference=_window_median_position)
 
 SPECS = (INTERACTION_MATRIX, IBVS_VELOCITY, PIECE_POSITION)
 

@@ -236,6 +236,12 @@ def _frames_of(cam_points, base_points) -> tuple[np.ndarray, np.ndarray]:
             _three_point_frame(*np.asarray(cam_points, dtype=float)))
 
 
+def _hand_to_eye(cam_points, base_points) -> np.ndarray:
+    """base_T_cam = base_T_world inv(cam_T_world): the right answer (the reference)."""
+    base_T_world, cam_T_world = _frames_of(cam_points, base_points)
+    return base_T_world @ geo.invert(cam_T_world)
+
+
 def _hand_to_eye_inverse(cam_points, base_points):
     base_T_world, cam_T_world = _frames_of(cam_points, base_points)
     return cam_T_world @ geo.invert(base_T_world)
@@ -281,13 +287,14 @@ HAND_TO_EYE_MISTAKES = (
 )
 
 FRAME_FROM_THREE_POINTS = replace(scoring.FRAME_FROM_THREE_POINTS, make_trial=_trial_frame,
-                                  code_mistakes=FRAME_MISTAKES)
+                                  code_mistakes=FRAME_MISTAKES, reference=_three_point_frame)
 REPROJECT = replace(scoring.REPROJECT, make_trial=_trial_reproject,
-                    code_mistakes=REPROJECT_MISTAKES)
+                    code_mistakes=REPROJECT_MISTAKES, reference=_reproject)
 HAND_TO_EYE = replace(scoring.HAND_TO_EYE, make_trial=_trial_hand_to_eye,
-                      substitutes=_hand_to_eye_substitutes, code_mistakes=HAND_TO_EYE_MISTAKES)
+                      substitutes=_hand_to_eye_substitutes, code_mistakes=HAND_TO_EYE_MISTAKES,
+                      reference=_hand_to_eye)
 PER_AXIS_RMSE = replace(scoring.PER_AXIS_RMSE, make_trial=_trial_rmse,
-                        code_mistakes=rmse_mistakes("camera", "base"))
+                        code_mistakes=rmse_mistakes("camera", "base"), reference=_true_rmse)
 
 SPECS = (FRAME_FROM_THREE_POINTS, REPROJECT, HAND_TO_EYE, PER_AXIS_RMSE)
 
@@ -297,4 +304,4 @@ ANSWERS = (_three_point_frame, _hand_to_eye_substitutes, _true_rmse, _trial_fram
            _trial_reproject, _trial_hand_to_eye, _trial_rmse, _frame_left_handed,
            _frame_y_copied, _frame_inverse, _frame_transposed, _reproject, _reproject_by_z,
            _reproject_no_shift, _reproject_disparity_flipped, _reproject_mm, _frames_of,
-           _hand_to_eye_inverse, _hand_to_eye_reversed, _hand_to_eye_not_inverted)
+           _hand_to_eye, _hand_to_eye_inverse, _hand_to_eye_reversed, _hand_to_eye_not_inverted)

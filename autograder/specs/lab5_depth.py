@@ -768,16 +768,16 @@ RECTANGLE_MISTAKES = (
 
 
 BACKPROJECT = replace(scoring.BACKPROJECT, make_trial=_trial_backproject,
-                      code_mistakes=BACKPROJECT_MISTAKES)
+                      code_mistakes=BACKPROJECT_MISTAKES, reference=_true_backproject)
 FIT_PLANE_RANSAC = replace(scoring.FIT_PLANE_RANSAC, make_trial=_trial_plane,
-                           code_mistakes=PLANE_MISTAKES)
+                           code_mistakes=PLANE_MISTAKES, reference=_ransac_plane)
 FIT_FLANGE_CIRCLE = replace(scoring.FIT_FLANGE_CIRCLE, make_trial=_trial_circle,
-                            code_mistakes=CIRCLE_MISTAKES)
+                            code_mistakes=CIRCLE_MISTAKES, reference=_refined_circle)
 BASE_T_CAM_FROM_FLANGES = replace(scoring.BASE_T_CAM_FROM_FLANGES,
                                   make_trial=_trial_registration,
-                                  code_mistakes=REGISTRATION_MISTAKES)
+                                  code_mistakes=REGISTRATION_MISTAKES, reference=_register)
 RECTANGLE_POSE = replace(scoring.RECTANGLE_POSE, make_trial=_trial_rectangle,
-                         code_mistakes=RECTANGLE_MISTAKES)
+                         code_mistakes=RECTANGLE_MISTAKES, reference=_shape_pose)
 
 SPECS = (BACKPROJECT, FIT_PLANE_RANSAC, FIT_FLANGE_CIRCLE, BASE_T_CAM_FROM_FLANGES,
          RECTANGLE_POSE)
