@@ -79,7 +79,8 @@ MISTAKE_DRAWS = 1000         # 1,000 losses in 1,000 draws bound the rate above 
 TRIVIAL_DRAWS = 200
 # Mistake families are scored on the first 100 draws: a family's answer that loses on all of
 # them is shown as such (95 % lower bound 0.964), one that passes on a few percent shows as
-# a hole; lab 2's tsai_lenz takes about 0.2 s a draw for the 18 family mistakes.
+# a hole. Lab 2's axes_ls takes about 1.3 s a draw for its family mistakes (the input side
+# calls the reference solver on swapped and inverted motions), 6 minutes for the lab.
 FAMILY_DRAWS = 100
 SECRET = "cobotlab-labs-verify"   # not the course's: verify needs no course secret
 SOLUTION_BEGIN, SOLUTION_END = "### BEGIN SOLUTION", "### END SOLUTION"
@@ -600,10 +601,12 @@ def _families(spec: FunctionSpec, gate: FamilyGate, report: Report) -> list[dict
                 f"{spec.name}: the mistake family {r['family']!r} ({r['mistake']}) applies "
                 f"on {r['draws']} draws but its answer loses credit on only {r['lost']} "
                 f"({r['share']:.1%}): on the others a student making it keeps full credit "
-                "and check() cannot tell it from a right answer. Fix: if the mistake's "
-                "answer is near the truth on those problems, draw problems where it is far "
-                "(or add an all-or-nothing check that sees it); if the tolerance is wider "
-                "than the noise needs, derive it from the noise"), spec.name))
+                "and check() cannot tell it from a right answer. Fix: if the mistake "
+                "changes nothing this function computes (millimetres in an input it does "
+                "not read), nothing to do; if its answer is near the truth on those "
+                "problems, draw problems where it is far (or add an all-or-nothing check "
+                "that sees it); if the tolerance is wider than the noise needs, derive it "
+                "from the noise"), spec.name))
     return rows
 
 
