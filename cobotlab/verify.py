@@ -21,6 +21,12 @@ Two kinds of evidence, one table:
   echoed back, the mean of the input points, another problem's truth, raising on every
   problem) are scored the same way; one that earns more than 5 % of a function's points on
   average fails the lab, naming the answer and the check that credits it.
+* **mistake families** (:mod:`cobotlab.verify_families`): on the first ``FAMILY_DRAWS``
+  draws, each family of :mod:`autograder.families` that applies to the function (by the
+  kinds of its answer and inputs) answers as that mistake would, and the table gives the
+  share of draws on which that answer loses credit; a family that applies but loses on
+  fewer than 99 % of its draws is a warning (a hole in the tolerances), one that applies
+  nowhere is listed as such.
 * **tolerances**: per check, the range of its tolerance over the draws in the check's unit,
   with a warning (not a failure) where the largest is as large as a trivial answer's typical
   error, e.g. a 3.5 m tolerance on a translation.
@@ -59,9 +65,10 @@ from autograder.pipeline.execute import NotebookRunner
 from autograder.pipeline.problems import problem_rng
 from autograder.pipeline.worker import GraderError, Limits, WorkerSetup
 from autograder.spec_types import FunctionSpec, Trial
+from cobotlab.verify_families import APPLIES, NO_REFERENCE, NOT_APPLICABLE, FamilyGate
 
-__all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "MISTAKE_DRAWS",
-           "TRIVIAL_DRAWS"]
+__all__ = ["Finding", "run_verify", "verify_lab", "worst_cell", "DEFAULT_RATE", "FAMILY_DRAWS",
+           "MISTAKE_DRAWS", "TRIVIAL_DRAWS"]
 
 DEFAULT_RATE = 1e-3          # the reference's loss rate the default draws can bound
 MISTAKE_TARGET = 0.99        # a mistake's Clopper-Pearson lower bound must reach this
@@ -70,6 +77,11 @@ MISTAKE_DRAWS = 1000         # 1,000 losses in 1,000 draws bound the rate above 
 # their mean share is 1.8 %, well under the 5 % they may earn; 200 draws of lab 5's 48-problem
 # fit_flange_circle take about 30 s on one core.
 TRIVIAL_DRAWS = 200
+# Mistake families are scored on the first 100 draws: a family's answer that loses on all of
+# them is shown as such (95 % lower bound 0.964), one that passes on a few percent shows as
+# a hole. Lab 2's axes_ls takes about 1.3 s a draw for its family mistakes (the input side
+# calls the reference solver on swapped and inverted motions), 6 minutes for the lab.
+FAMILY_DRAWS = 100
 SECRET = "cobotlab-labs-verify"   # not the course's: verify needs no course secret
 SOLUTION_BEGIN, SOLUTION_END = "### BEGIN SOLUTION", "### END SOLUTION"
 
@@ -498,12 +510,15 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     totals: dict[str, fairness.DrawStats] = {}
     worst_draw, worst_margin = None, -math.inf
     gate = fairness.TrivialGate(spec)
+    family_gate = FamilyGate(spec)
     tolerances = _Tolerances(spec)
 
     def on_draw(k: int, trials: list[Trial]) -> None:
         tolerances.add(trials)
         if k < TRIVIAL_DRAWS:
             gate.add(trials)
+        if k < FAMILY_DRAWS:
+            family_gate.add(trials)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -570,7 +585,29 @@ def _statistics(lab: str, spec: FunctionSpec, draws: int, reference, report: Rep
     row["trivial"] = _trivial(spec, gate, report)
     row["trivial_seconds"] = round(gate.seconds, 2)
     row["tolerances"] = tolerances.rows(gate, report)
+    row["families"] = _families(spec, family_gate, report)
+    row["families_seconds"] = round(family_gate.seconds, 2)
     return row
+
+
+def _families(spec: FunctionSpec, gate: FamilyGate, report: Report) -> list[dict]:
+    """The family rows (:meth:`FamilyGate.rows`); a warning, never a failure, for each
+    family that applies but keeps full credit on more than 1 % of its draws: the lab's own
+    code mistakes are what it must catch, a family is what it may also meet."""
+    rows = gate.rows()
+    for r in rows:
+        if r["status"] == APPLIES and r["share"] < MISTAKE_TARGET:
+            report.warnings.append(Finding("family", (
+                f"{spec.name}: the mistake family {r['family']!r} ({r['mistake']}) applies "
+                f"on {r['draws']} draws but its answer loses credit on only {r['lost']} "
+                f"({r['share']:.1%}): on the others a student making it keeps full credit "
+                "and check() cannot tell it from a right answer. Fix: if the mistake "
+                "changes nothing this function computes (millimetres in an input it does "
+                "not read), nothing to do; if its answer is near the truth on those "
+                "problems, draw problems where it is far (or add an all-or-nothing check "
+                "that sees it); if the tolerance is wider than the noise needs, derive it "
+                "from the noise"), spec.name))
+    return rows
 
 
 def _trivial(spec: FunctionSpec, gate: fairness.TrivialGate, report: Report) -> list[dict]:
@@ -721,6 +758,7 @@ def _print(report: Report, out=None) -> None:
                 print(f"{row['function']:<24} {t['check']:<14} {t['unit'] or '(ratio)':<9} "
                       f"{t['low']:>10.3g} {_quantity(t['high'], t['unit']):>22} "
                       f"{typical:>14}", file=out)
+    _print_families(report, out)
     print("", file=out)
     for row in report.functions:
         if row.get("worst_draw") is not None:
@@ -733,6 +771,31 @@ def _print(report: Report, out=None) -> None:
     verdict = "passed" if report.passed else f"FAILED ({len(report.findings)} problem" + \
         ("s)" if len(report.findings) > 1 else ")")
     print(f"{report.lab}: {verdict} in {report.seconds:.0f} s", file=out)
+
+
+def _print_families(report: Report, out) -> None:
+    """The family table: per function, each family that applies with its loss share, then
+    in one line the families that do not apply."""
+    rows = [row for row in report.functions if row.get("families")]
+    if not rows:
+        return
+    print("\nmistake families: share of the draws on which the family's answer loses credit "
+          "(where it applies), 95 % interval; below 99 %: a hole", file=out)
+    print(f"{'function':<24} {'family':<22} {'mistake':<26} {'lost / draws':>14}  "
+          f"{'share':>7}  95% interval", file=out)
+    for row in rows:
+        for f in row["families"]:
+            if f["status"] != APPLIES:
+                continue
+            flag = "  HOLE" if f["share"] < MISTAKE_TARGET else ""
+            print(f"{row['function']:<24} {_clip(f['family'], 22):<22} "
+                  f"{_clip(f['mistake'], 26):<26} {f['lost']:>6} / {f['draws']:<6} "
+                  f"{f['share']:>7.1%}  [{f['low']:.3f}, {f['high']:.3f}]{flag}", file=out)
+        for status in (NOT_APPLICABLE, NO_REFERENCE):
+            names = [f"{f['family']} ({f['mistake']})" for f in row["families"]
+                     if f["status"] == status]
+            if names:
+                print(f"{row['function']:<24} {status}: " + ", ".join(names), file=out)
 
 
 # --------------------------------------------------------------------------- --worst

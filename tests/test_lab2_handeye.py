@@ -173,6 +173,35 @@ def test_tolerance_comes_from_the_noise():
     assert t2["translation"] == pytest.approx(2 * t1["translation"], rel=1e-2)
 
 
+def test_ill_conditioned_motion_sets_are_drawn_again():
+    """Motions about one axis leave R_X's turn about that axis unknown: such a set is refused
+    by its geometry alone; the hidden problems drawn are well conditioned, reproducible from
+    their stream, and the identity earns nothing on any of them."""
+    from dataclasses import replace
+
+    from autograder import synthetic
+    from autograder.outcomes import TrialOutcome
+
+    p = synthetic.make_hand_eye(3, n_poses=8, noise=spec._noise(np.random.default_rng(3)))
+    trial, _ = spec.draw_solver_problem(np.random.default_rng(3))
+    about_z = np.array([geo.make_pose(geo.rotation_from_rotvec([0.0, 0.0, 0.4 * k]),
+                                      [0.1 * k, 0.0, 0.0]) for k in range(8)])
+    parallel = replace(p, base_T_flange=about_z)
+    info = spec.motion_information(parallel.base_T_flange)
+    assert info.rotation_gain > 1e3 * spec.MAX_ROTATION_GAIN
+    assert not spec.tests_the_solver(trial, parallel)
+    for seed in range(12):
+        trial = spec._trial_solver(np.random.default_rng(seed), 0)
+        again = spec._trial_solver(np.random.default_rng(seed), 0)
+        assert np.array_equal(trial.truth, again.truth) and trial.tol == again.tol
+        assert trial.tol["rotation"] <= spec.ROT_K * np.hypot(0.05, 0.3) * spec.MAX_ROTATION_GAIN
+        identity = checks.score_function(spec.TSAI_LENZ, [trial],
+                                         [TrialOutcome(value=np.eye(4))], hints=False)
+        assert identity.points == 0.0, (seed, trial.label, identity.summary())
+        reference = handeye.solve_tsai(*trial.args)
+        assert geo.rotation_error_deg(reference, trial.truth) < trial.tol["rotation"]
+
+
 # --------------------------------------------------------------------------- full cycle
 
 

@@ -268,11 +268,29 @@ def test_the_skeleton_shows_trivial_answers_tolerances_and_its_worst_problem(lab
     (mistake,) = [v for v in variants.values() if not v["correct"]]
     assert mistake["problems"] == 30 * 12 == mistake["problems_lost"]
     assert row["worst_problem"]["check"] == "offset"
+    # mistake families (issue 52): an offset in mm, a plain vector, takes the unit, sign and
+    # sum families, each losing every draw; no pose, so no inverse; no reference in the
+    # skeleton's spec, so nothing for the input side to call on swapped inputs
+    families = {(f["family"], f["mistake"]): f for f in row["families"]}
+    assert len(families) == len(row["families"])
+    for key in (("units m/mm", "millimetres"), ("units m/mm", "metres"), ("sign", "sign"),
+                ("sum for mean", "sum for mean")):
+        f = families[key]
+        assert (f["status"], f["draws"], f["lost"], f["share"]) == ("applies", 30, 30, 1.0)
+        assert f["problems"] == 30 * 12 and f["low"] < 1.0 == f["high"]
+    assert families[("inverse/transpose", "inverse pose")]["status"] == "does not apply"
+    assert families[("swapped arguments", "swapped arguments")]["status"] == "no reference"
 
     assert cli.main(["labs", "verify", LAB, "--draws", "30", "--worst"]) == 1
     out = capsys.readouterr().out
     assert "trivial answers: mean share of the function's points" in out
     assert "tolerances over the draws" in out and "problems lost" in out
+    table = out.split("mistake families: ", 1)[1]
+    assert "mean_offset              units m/mm             millimetres" in table
+    assert "HOLE" not in table
+    assert "mean_offset              does not apply: " in table and "(inverse pose)" in table
+    saved = json.loads((lab[0] / ".cobotlab" / "verified" / f"{LAB}.json").read_text())
+    assert saved["functions"][0]["families"] == json.loads(json.dumps(row["families"]))
     cell = out.split("# ---- cell ----\n", 1)[1]
     ast.parse(cell)   # pastes into a notebook as it is
     # and, run beside the reference, it rebuilds the worst problem: full credit, no error
@@ -301,6 +319,13 @@ def test_a_tolerance_as_large_as_the_answer_fails_the_trivial_gate(lab):
     (row,) = report.functions
     (zeros,) = [t for t in row["trivial"] if t["answer"] == "zeros"]
     assert zeros["mean"] == 1.0 and zeros["check"] == "offset" and zeros["draws"] == 20
-    (warning,) = report.warnings
-    assert warning.check == "tolerance" and "check 'offset' reaches" in warning.message
+    (warning,) = [w for w in report.warnings if w.check == "tolerance"]
+    assert "check 'offset' reaches" in warning.message
     assert " m)" in warning.message   # millimetres past a metre are shown in metres too
+    # the families see the hole too: the offset in metres (a thousandth of the truth) and
+    # any sign are within metres of tolerance; the offset in millimetres x1000 is not
+    holes = {w.message.split("(", 1)[1].split(")", 1)[0] for w in report.warnings
+             if w.check == "family"}
+    assert {"metres", "sign"} <= holes and "millimetres" not in holes, report.warnings
+    families = {f["mistake"]: f for f in row["families"]}
+    assert families["metres"]["lost"] == 0 and families["millimetres"]["share"] == 1.0
