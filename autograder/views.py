@@ -48,7 +48,7 @@ WORKER_MODULES = ("__init__.py", "inside", "datasets.py", "synthetic.py", "data"
 # practice problems of the kernel seeds (data, not the generators behind them).
 KERNEL_MODULES = WORKER_MODULES + ("checks.py", "spec_types.py", "mistakes.py", "practice.py",
                                    "registry.py", "forbidden.py", "outcomes.py", "errors.py",
-                                   "scoring", "nbgrader_hooks.py")
+                                   "scoring", "families", "nbgrader_hooks.py")
 # Distributions whose closure a lab notebook may import besides cobotlab's requirements
 # (the notebook's own display libraries), and what nbgrader's run needs on top.
 NOTEBOOK_DISTRIBUTIONS = ("ipython", "ipywidgets")

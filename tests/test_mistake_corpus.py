@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from autograder import checks
+from autograder.spec_types import MistakeName
 from robots import geometry as geo
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,25 +76,40 @@ def test_each_mistake_of_the_slice_loses_credit_where_the_answer_keeps_it(mistak
 
 
 def test_names_are_judged_by_their_diagnosis_not_their_fix():
+    """A lab's code mistake carries no family: the judge reads its words (a family's name
+    carries its family as data, test_a_familys_name_is_judged_by_its_family)."""
     by_id = {m.id: m for m in CORPUS}
-    mirrored = ("its rotation has determinant -1: a mirror image (flip the sign of the last "
-                "column of V)")
+
+    def code(words: str) -> MistakeName:
+        return MistakeName(None, words)
+
+    mirrored = code("its rotation has determinant -1: a mirror image (flip the sign of the last "
+                    "column of V)")
     assert mistake_naming.family_of(mirrored) == "reflection"   # not "sign", not "last"
     assert mistake_naming.is_right_name(by_id["frame_y_cross_order"], mirrored)
     assert not mistake_naming.is_right_name(by_id["inv_translation_sign"], mirrored)
-    inverse = "this is cam_T_base, the inverse of base_T_cam: base_T_cam = ..."
+    inverse = code("this is cam_T_base, the inverse of base_T_cam: base_T_cam = ...")
     # swapping the point sets returns exactly the inverse: "also" accepts that name
     assert mistake_naming.is_right_name(by_id["hand_to_eye_point_sets_swapped"], inverse)
     assert not mistake_naming.is_right_name(by_id["hand_to_eye_wrong_frame_inverted"], inverse)
     # words of the other labs' code mistakes, which the judge was not written on
-    assert mistake_naming.family_of("the centre is the centroid of the rim points: ...") is None
-    assert mistake_naming.family_of("the cross-covariance is of the raw points, not the "
-                                    "centred ones: subtract each set's centroid") == "uncentred"
-    assert mistake_naming.family_of("u and v are swapped: ...") == "swapped arguments"
-    assert mistake_naming.family_of("the gain's sign is flipped: ...") == "sign"
-    median = "the median was taken: the RMS is the root of the mean square"
+    assert mistake_naming.family_of(code("the centre is the centroid of the rim points: ...")) is None
+    assert mistake_naming.family_of(code("the cross-covariance is of the raw points, not the "
+                                         "centred ones: subtract each set's centroid")) == "uncentred"
+    assert mistake_naming.family_of(code("u and v are swapped: ...")) == "swapped arguments"
+    assert mistake_naming.family_of(code("the gain's sign is flipped: ...")) == "sign"
+    median = code("the median was taken: the RMS is the root of the mean square")
     assert mistake_naming.is_right_name(by_id["rmse_median"], median)
     assert not mistake_naming.is_right_name(by_id["rmse_std"], median)
+
+
+def test_a_familys_name_is_judged_by_its_family():
+    by_id = {m.id: m for m in CORPUS}
+    named = MistakeName("reflection", "its rotation has determinant -1: ...")
+    assert mistake_naming.family_of(named) == "reflection"
+    assert mistake_naming.is_right_name(by_id["frame_y_cross_order"], named)
+    # the family decides, whatever the words say
+    assert mistake_naming.family_of(MistakeName("sign", "a mirror image: ...")) == "sign"
 
 
 def test_the_doc_keeps_its_baseline_through_later_runs(tmp_path, monkeypatch):
