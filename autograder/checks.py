@@ -569,13 +569,37 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
         return mistakes.nearest(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
     predicted = _predicted(spec, trial, truth)
-    others = [(None, t) for t in mistakes.trivial_answers(truth)
-              + families.nulls([p for p in predicted if isinstance(p[1], families.Prediction)])]
-    listed = [(None, truth), *others, *predicted]
-    hint = mistakes.nearest(value, listed, families.undoing(_noise_distance(spec, trial)))
+    exact = [p for p in predicted if not _loose(p[1])]
+    distance = families.undoing(_noise_distance(spec, trial))
+    nothing = [(None, truth), *_no_mistakes(truth, exact)]
+    hint = mistakes.nearest(value, nothing + exact, distance)
     if hint is None:
-        hint = families.mirrored_name(value, truth)
-    return hint
+        # a mistake in one part whatever the rest: only where no whole answer names it, and
+        # only where that part's mistake moves the answer past the noise (a half turn is
+        # its own transpose)
+        loose = [p for p in predicted if _loose(p[1])
+                 and _noise_distance(spec, trial)(p[1].answer, truth) > families.RESOLVED]
+        # before the whole-answer candidates: where one gives the same answer on this
+        # problem, it was not near in the first pass, so the loose one speaks for both
+        hint = mistakes.nearest(value, nothing + loose + exact, distance) if loose else None
+    return hint or families.mirrored_name(value, truth) \
+        or families.not_rotation_name(value, truth)
+
+
+def _loose(candidate) -> bool:
+    return isinstance(candidate, families.Prediction) and candidate.loose
+
+
+def _no_mistakes(truth, predicted: list) -> list:
+    """(None, answer) of the answers that compute nothing: the trivial ones and the
+    predictions' nulls, less those a family names as its mistake (a translation left out
+    is the zero translation)."""
+    answers = [p[1].answer if isinstance(p[1], families.Prediction) else p[1]
+               for p in predicted]
+    nulls = [t for t in families.nulls([p for p in predicted
+                                        if isinstance(p[1], families.Prediction)])
+             if not any(families.same_answer(t, a) for a in answers)]
+    return [(None, t) for t in mistakes.trivial_answers(truth) + nulls]
 
 
 class StudentCallError(Exception):

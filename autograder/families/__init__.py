@@ -11,14 +11,20 @@ that mistake gives on a problem. One module per act:
   :mod:`.inverse` (inverse pose, transposed rotation or matrix), :mod:`.units_length`
   (x1000, /1000; per part of a tuple answer), :mod:`.units_angle` (180/pi, pi/180),
   :mod:`.sign`, :mod:`.root` (RMS vs mean square), :mod:`.sum_for_mean`,
-  :mod:`.reflection` (a determinant -1 rotation, read from the answer itself);
+  :mod:`.reflection` (a determinant -1 rotation, read from the answer itself),
+  :mod:`.pose_parts` (a pose part by part: its rotation right and its translation
+  negated, zero or rotated the wrong way; its angle halved or doubled; its rotation
+  transposed whatever its translation), :mod:`.stack_items` (each pose of a stack
+  answer inverted or transposed), :mod:`.not_rotation` (a rotation block that is not
+  orthonormal, read from the answer itself);
 * input side, the function's private reference (``FunctionSpec.reference``) called on
   transformed inputs (precomputed into practice data, as code mistakes are, so a student's
   install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
   stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
   absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
-  in millimetres).
+  in millimetres), :mod:`.product_order` (the factors of each product in reverse
+  order).
 
 The public surface, stable for ``labs verify`` and the grader:
 
@@ -48,10 +54,14 @@ from autograder.families import (
     absolute,
     first_last,
     inverse,
+    not_rotation,
+    pose_parts,
+    product_order,
     reflection,
     reversed_stack,
     root,
     sign,
+    stack_items,
     sum_for_mean,
     swapped,
     units_angle,
@@ -72,13 +82,15 @@ from autograder.families.base import (
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
-           "mirrored_name", "nulls", "predictions", "transforms", "undoing"]
+           "mirrored_name", "not_rotation_name", "nulls", "predictions", "transforms", "undoing"]
 
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
     *root.FAMILIES, *sum_for_mean.FAMILIES, *reflection.FAMILIES,
     *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES, *absolute.FAMILIES,
     *units_input.FAMILIES,
+    *pose_parts.FAMILIES, *stack_items.FAMILIES, *not_rotation.FAMILIES,
+    *product_order.FAMILIES,
 )
 
 
@@ -157,3 +169,10 @@ def mirrored_name(value, truth) -> MistakeName | None:
     """The reflection family's name when ``value`` is a mirror image of a pose (see
     :func:`autograder.families.reflection.mirrored`), else None."""
     return reflection.REFLECTION.label() if reflection.mirrored(value, truth) else None
+
+
+def not_rotation_name(value, truth) -> MistakeName | None:
+    """The not-a-rotation family's name when ``value``'s rotation block is not orthonormal
+    (see :func:`autograder.families.not_rotation.not_orthonormal`), else None."""
+    return not_rotation.NOT_ROTATION.label() \
+        if not_rotation.not_orthonormal(value, truth) else None

@@ -41,13 +41,17 @@ class Prediction:
     the angle): undoing tells the mistake apart only where the noise resolves that quantity
     (a 5 cm translation under a 40 cm tolerance divided by 1000 is still "right"), so where
     ``null`` itself lies within a few noise units of ``base``, the answer is compared with
-    ``answer`` as it is instead."""
+    ``answer`` as it is instead.
+    ``loose``: the prediction compares a part of the answer only (the rotation of a pose,
+    whatever its translation): the grader weighs it only where no whole-answer candidate
+    names the answer."""
 
     answer: Any
     undo: Callable[[Any], Any] | None = None
     base: Any = None
     words: str | None = None
     null: Any = None
+    loose: bool = False
 
 
 @dataclass(frozen=True)
