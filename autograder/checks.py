@@ -51,6 +51,7 @@ from autograder.spec_types import (  # noqa: F401
     measure_pose,
     mistake_answers,
 )
+from robots import geometry as geo
 
 __all__ = [
     "Check",
@@ -568,22 +569,68 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
                      m[1]) for m in predicted)]
         return mistakes.nearest(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
-    predicted = _predicted(spec, trial, truth)
+    predicted = _resolved(_predicted(spec, trial, truth), _noise_distance(spec, trial), truth)
     exact = [p for p in predicted if not _loose(p[1])]
-    distance = families.undoing(_noise_distance(spec, trial))
+    distance = _wrapping(families.undoing(_noise_distance(spec, trial)),
+                         lambda: _wrap_radius(_noise_distance(spec, trial), truth))
     nothing = [(None, truth), *_no_mistakes(truth, exact)]
     hint = mistakes.nearest(value, nothing + exact, distance)
     if hint is None:
-        # a mistake in one part whatever the rest: only where no whole answer names it, and
-        # only where that part's mistake moves the answer past the noise (a half turn is
-        # its own transpose)
-        loose = [p for p in predicted if _loose(p[1])
-                 and _noise_distance(spec, trial)(p[1].answer, truth) > families.RESOLVED]
+        # a mistake in one part whatever the rest: only where no whole answer names it
+        loose = [p for p in predicted if _loose(p[1])]
         # before the whole-answer candidates: where one gives the same answer on this
         # problem, it was not near in the first pass, so the loose one speaks for both
         hint = mistakes.nearest(value, nothing + loose + exact, distance) if loose else None
     return hint or families.mirrored_name(value, truth) \
         or families.not_rotation_name(value, truth)
+
+
+# A pose's angle scaled (times 180/pi, halved, doubled) is named only where a wrong angle
+# about the right axis (another scaling, an axis left unnormalised) lands that near it by
+# chance at most this often (its noise band against a full turn): on a problem whose noise
+# spans degrees only an answer that is the mistake to rounding is named.
+WRAP_CHANCE = 1e-4
+
+
+def _wrap_radius(distance, truth) -> float:
+    """The radius, in noise units (at most 1), within which an answer is named as a pose
+    whose angle was scaled: a wrong angle about the right axis (an axis left unnormalised,
+    another factor; times 180/pi wraps around the turn) lands within a band of the
+    prediction by chance; the band is kept to :data:`WRAP_CHANCE` of the turn."""
+    T = np.array(truth, dtype=float)
+    axis = geo.rotvec_from_rotation(T[:3, :3])
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-9 else np.eye(3)[2]
+    turned = np.array(T)
+    turned[:3, :3] = T[:3, :3] @ geo.rotation_from_rotvec(np.radians(1.0) * axis)
+    per_degree = float(distance(turned, T))      # noise units per degree about the axis
+    return min(1.0, WRAP_CHANCE * 180.0 * per_degree)
+
+
+def _wrapping(distance, radius):
+    """``distance`` with an answer's distance to a ``wraps`` prediction over ``radius()``
+    (computed once, when first needed)."""
+    found: list[float] = []
+
+    def measure(a, b) -> float:
+        d = distance(a, b)
+        if isinstance(b, families.Prediction) and b.wraps and \
+                not isinstance(a, families.Prediction):
+            if not found:
+                found.append(radius())
+            return d / found[0] if found[0] > 0 else math.inf
+        return d
+    return measure
+
+
+def _resolved(predicted: list, distance, truth) -> list:
+    """``predicted`` less the predictions marked ``resolved`` that lie within
+    ``families.RESOLVED`` noise units of the truth: there the mistake moves the answer too
+    little to be told (a half turn is its own transpose; an angle halved under noise that
+    spans degrees)."""
+    def kept(candidate) -> bool:
+        return not (isinstance(candidate, families.Prediction) and candidate.resolved) \
+            or distance(candidate.answer, truth) > families.RESOLVED
+    return [p for p in predicted if kept(p[1])]
 
 
 def _loose(candidate) -> bool:

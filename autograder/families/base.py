@@ -44,7 +44,14 @@ class Prediction:
     ``answer`` as it is instead.
     ``loose``: the prediction compares a part of the answer only (the rotation of a pose,
     whatever its translation): the grader weighs it only where no whole-answer candidate
-    names the answer."""
+    names the answer.
+    ``wraps``: the prediction is an angle scaled past a full turn (a pose's angle times
+    180/pi), compared as it is: any wrong angle about the right axis lands within the noise
+    of it by chance, so the grader names it only within the radius where that chance is
+    small (``autograder.checks``).
+    ``resolved``: the prediction is weighed only where it lies more than a few noise units
+    from the truth (``families.RESOLVED``): an angle halved on a problem whose noise
+    spans degrees is no mistake the answer can be told by."""
 
     answer: Any
     undo: Callable[[Any], Any] | None = None
@@ -52,6 +59,8 @@ class Prediction:
     words: str | None = None
     null: Any = None
     loose: bool = False
+    wraps: bool = False
+    resolved: bool = False
 
 
 @dataclass(frozen=True)

@@ -90,7 +90,8 @@ def _translation_off(problem: Problem) -> list[Prediction]:
     truth = np.asarray(problem.truth, dtype=float)
     R, t = truth[:3, :3], truth[:3, 3]
     null = _pose(R, np.zeros(3))
-    out = [Prediction(_pose(R, -t), lambda v: _pose(v[:3, :3], -v[:3, 3]), truth, SIGN_T, null)]
+    out = [Prediction(_pose(R, -t), lambda v: _pose(v[:3, :3], -v[:3, 3]), truth, SIGN_T, null,
+                      resolved=True)]
     for name, M in _matrices(R):
         # M built from the answer's own rotation when undone: the truth's, within the noise
         index = [n for n, _ in _matrices(R)].index(name)
@@ -99,7 +100,8 @@ def _translation_off(problem: Problem) -> list[Prediction]:
             v = np.asarray(v, float)
             M_v = _matrices(geo.project_to_so3(v[:3, :3]))[index][1]
             return _pose(v[:3, :3], M_v.T @ v[:3, 3])
-        out.append(Prediction(_pose(R, M @ t), undo, truth, ROTATED_T.format(M=name), null))
+        out.append(Prediction(_pose(R, M @ t), undo, truth, ROTATED_T.format(M=name), null,
+                              resolved=True))
     return out
 
 
@@ -107,7 +109,7 @@ def _translation_zero(problem: Problem) -> list[Prediction]:
     if not is_pose(problem.truth):
         return []
     truth = np.asarray(problem.truth, dtype=float)
-    return [Prediction(_pose(truth[:3, :3], np.zeros(3)), words=ZERO_T)]
+    return [Prediction(_pose(truth[:3, :3], np.zeros(3)), words=ZERO_T, resolved=True)]
 
 
 # --------------------------------------------------------------------------- the rotation
@@ -124,7 +126,8 @@ def _angle(factor: float, words: str):
         else:
             def undo(v):
                 return _pose(_halved_back(np.asarray(v, float)[:3, :3], R), v[:3, 3])
-        return [Prediction(_pose(_scaled(R, factor), t), undo, truth, words)]
+        return [Prediction(_pose(_scaled(R, factor), t), undo, truth, words, resolved=True,
+                           wraps=True)]
     return make
 
 
@@ -136,7 +139,7 @@ def _centre(R_answer, t_answer, R, t) -> np.ndarray:
     return np.linalg.pinv(R_answer - R) @ (np.asarray(t, float) - t_answer)
 
 
-def _loose(change, back, words: str):
+def _loose(change, back, words: str, wraps: bool = False):
     """A rotation mistake whatever the translation: the answer's rotation undone (``back``
     maps it to the right one) with the truth's translation, compared with the truth: only
     the rotation counts (turned about :func:`_centre`, where a fit's error lies)."""
@@ -153,7 +156,8 @@ def _loose(change, back, words: str):
             # the truth's translation, moved as the rotation's own error moves it about
             # the centre (a fit's error is a turn about its centroid, not about the origin)
             return _pose(R_back, t + (R - R_back) @ _centre(R_v, t_v, R, t))
-        return [Prediction(_pose(change(R), t), undo, truth, words, loose=True)]
+        return [Prediction(_pose(change(R), t), undo, truth, words, loose=True,
+                           resolved=True, wraps=wraps)]
     return make
 
 
@@ -168,9 +172,9 @@ FAMILIES = (
            _loose(lambda R: R.T, lambda R_v, R: R_v.T, TRANSPOSED_ANY_T),
            "transposed rotation, any translation"),
     Family("half angle", HALF_ANY_T, OUTPUT,
-           _loose(lambda R: _scaled(R, 0.5), lambda R_v, R: _scaled(R_v, 2.0), HALF_ANY_T),
+           _loose(lambda R: _scaled(R, 0.5), lambda R_v, R: _scaled(R_v, 2.0), HALF_ANY_T, True),
            "half angle, any translation"),
     Family("half angle", DOUBLE_ANY_T, OUTPUT,
-           _loose(lambda R: _scaled(R, 2.0), _halved_back, DOUBLE_ANY_T),
+           _loose(lambda R: _scaled(R, 2.0), _halved_back, DOUBLE_ANY_T, True),
            "double angle, any translation"),
 )

@@ -44,6 +44,15 @@ def _scaled_pose(T, factor: float) -> np.ndarray:
     return out
 
 
+def _unscaled_pose(v, factor: float) -> np.ndarray | None:
+    """``v`` with its angle divided by ``factor`` (< 1), or None where that angle passes
+    half a turn: a rotation vector in radians never does, so an answer whose angle times
+    180/pi would wrap is no angle in radians where degrees were asked."""
+    if np.linalg.norm(_rotvec(np.asarray(v, float)[:3, :3])) / factor > math.pi + 1e-9:
+        return None
+    return _scaled_pose(v, 1 / factor)
+
+
 def _angle(factor: float, array_words: str):
     def make(problem: Problem) -> list[Prediction]:
         truth = problem.truth
@@ -53,10 +62,10 @@ def _angle(factor: float, array_words: str):
                 # an angle times 180/pi wraps around 2 pi: every rotation about the right
                 # axis has a preimage within 3 degrees of the truth, so undoing would name
                 # any wrong angle; compared as it is (and with the reference's answer scaled)
-                return [Prediction(_scaled_pose(t, factor))]
+                return [Prediction(_scaled_pose(t, factor), wraps=True)]
             null = np.array(t)
             null[:3, :3] = np.eye(3)
-            return [Prediction(_scaled_pose(t, factor), lambda v: _scaled_pose(v, 1 / factor), t,
+            return [Prediction(_scaled_pose(t, factor), lambda v: _unscaled_pose(v, factor), t,
                                null=null)]
         found = part_predictions(truth, lambda t: t * factor, lambda v: v / factor,
                                  lambda k: f"item {k + 1} of the answer {array_words[3:]}",
@@ -72,7 +81,8 @@ def _reference_in_degrees(problem: Problem) -> list[Prediction]:
     if not is_pose(problem.truth):
         return []
     answer = problem.right_answer()
-    return [Prediction(_scaled_pose(answer, TO_DEGREES))] if is_pose(answer) else []
+    return [Prediction(_scaled_pose(answer, TO_DEGREES), wraps=True)] if is_pose(answer) \
+        else []
 
 
 FAMILIES = (
