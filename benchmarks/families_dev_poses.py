@@ -23,9 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
+import test_families_poses as dev  # noqa: E402
+
 from autograder import checks, families  # noqa: E402
 from autograder.families import not_rotation, pose_parts, product_order, stack_items  # noqa: E402
-import test_families_poses as dev  # noqa: E402
 
 NEW = {id(f) for m in (pose_parts, stack_items, not_rotation, product_order)
        for f in m.FAMILIES}

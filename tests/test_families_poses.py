@@ -229,10 +229,10 @@ def _names(spec, func, trials):
 @pytest.mark.parametrize("lab, name, func, family", DEV, ids=[d[2].__name__ for d in DEV])
 def test_each_dev_mistake_is_named_by_its_family(lab, name, func, family):
     spec = _spec(lab, name)
-    trials = _trials(spec, 5, 4)
+    trials = _trials(spec, 5, 3)
     names = _names(spec, func, trials)
     assert all(n is None or n.family == family for n in names), names   # never misnamed
-    assert sum(n is not None for n in names) >= len(trials) - 1, names
+    assert len(trials) == 3 and sum(n is not None for n in names) >= 2, names
 
 
 # --------------------------------------------------------------------------- no misnaming
@@ -291,7 +291,7 @@ UNDESCRIBED = [
                                                              enumerate(UNDESCRIBED)])
 def test_a_mistake_no_family_describes_is_not_named_by_one(lab, name, func):
     spec = _spec(lab, name)
-    trials = _trials(spec, 9, 6)
+    trials = _trials(spec, 9, 4)
     names = _names(spec, func, trials)
     allowed = {None, "sign"} if func is tsai_translation_negated else {None}
     assert all(n is None or n.family in allowed for n in names), names
@@ -299,15 +299,18 @@ def test_a_mistake_no_family_describes_is_not_named_by_one(lab, name, func):
 
 def test_no_dev_mistake_is_named_by_another_family_and_right_answers_by_none():
     """The confusion table over the dev set, on draws the per-mistake test did not use:
-    each row's names all fall in its own family's column (or none)."""
+    each row's names all fall in its own family's column (or none), and at least 90 % of
+    the problems are named."""
     confusion: dict[tuple[str, str | None], int] = {}
     for lab, name, func, family in DEV:
         spec = _spec(lab, name)
-        trials = _trials(spec, 23, 3)
+        trials = _trials(spec, 23, 2)
         for n in _names(spec, func, trials):
             key = (family, None if n is None else n.family)
             confusion[key] = confusion.get(key, 0) + 1
-        assert not [n for n in _names(spec, spec.reference, trials) if n is not None], name
+    # the labs' references are test_families.py's; the instructor's function's here
+    trials = _trials(RELATIVE, 23, 4)
+    assert not [n for n in _names(RELATIVE, RELATIVE.reference, trials) if n is not None]
     wrong = {k: v for k, v in confusion.items() if k[1] is not None and k[0] != k[1]}
     assert not wrong, confusion
     named = sum(v for k, v in confusion.items() if k[1] is not None)

@@ -66,7 +66,8 @@ def _reversed_products(problem: Problem) -> list[Prediction]:
         changed = [(_inverted(a) if i in subset else a) for i, a in enumerate(args)]
         answer = problem.reference(*changed)
         back = None if answer is None else _back(answer, right)
-        if back is not None:
+        # a single factor has no order (the inverse of an inverse): no mistake here
+        if back is not None and not (right is not None and same_answer(back, right)):
             out.append(Prediction(back))
     return out
 
