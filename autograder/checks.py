@@ -641,11 +641,16 @@ def _no_mistakes(truth, predicted: list) -> list:
     """(None, answer) of the answers that compute nothing: the trivial ones and the
     predictions' nulls, less those a family names as its mistake (a translation left out
     is the zero translation)."""
+    # only an answer compared as it is can be a null (one with an undo is a transform of the
+    # truth); the families' nulls are mostly one answer ([R | 0]): each compared once
     answers = [p[1].answer if isinstance(p[1], families.Prediction) else p[1]
-               for p in predicted]
-    nulls = [t for t in families.nulls([p for p in predicted
-                                        if isinstance(p[1], families.Prediction)])
-             if not any(families.same_answer(t, a) for a in answers)]
+               for p in predicted
+               if not (isinstance(p[1], families.Prediction) and p[1].undo is not None)]
+    nulls: list = []
+    for t in families.nulls([p for p in predicted if isinstance(p[1], families.Prediction)]):
+        if not any(families.same_answer(t, u) for u in nulls):
+            nulls.append(t)
+    nulls = [t for t in nulls if not any(families.same_answer(t, a) for a in answers)]
     return [(None, t) for t in mistakes.trivial_answers(truth) + nulls]
 
 
