@@ -11,6 +11,8 @@ that right answers and their noisy estimates are never named.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -337,3 +339,18 @@ def test_the_new_families_show_in_the_applicable_list_of_a_pose_function():
     assert {"translation sign", "translation rotated", "translation zero", "half angle",
             "transposed rotation, any translation", "product order", "not a rotation"} <= keys
     assert "each pose inverted" not in keys      # no stack answer here
+
+
+def test_a_part_of_a_tuple_answer_with_its_sign_flipped_is_named():
+    """A circle's normal flipped beside its right centre: the sign of that part (on lab 5's
+    function without its code mistakes, as an instructor's lab that wrote none)."""
+    spec = replace(checks.spec_for("fit_flange_circle", "lab5_depth"), code_mistakes=())
+    trials = _trials(spec, 3, 3)
+
+    def flipped(*args):
+        centre, normal = lab5._refined_circle(*args)
+        return centre, -np.asarray(normal, float)
+    names = _names(spec, flipped, trials)
+    assert all(n is None or n.family == "sign" for n in names), names
+    assert sum(n is not None for n in names) >= 2, names
+    assert "item 2" in next(n for n in names if n is not None).words
