@@ -26,9 +26,12 @@ PART_SIGN = ("item {k} of the answer has the opposite sign of the expected one, 
 
 
 def _negated(problem: Problem) -> list[Prediction]:
-    if parts(problem.truth) is not None:
-        return part_predictions(problem.truth, lambda t: -t, lambda v: -v,
-                                lambda k: PART_SIGN.format(k=k + 1))
+    split = parts(problem.truth)
+    if split is not None:
+        # a pose or a stack of poses negated is none: only the plain parts
+        found = part_predictions(problem.truth, lambda t: -t, lambda v: -v,
+                                 lambda k: PART_SIGN.format(k=k + 1))
+        return [p for p, part in zip(found, split) if is_numeric_array(part)]
     if not is_numeric_array(problem.truth):
         return []
     t = np.asarray(problem.truth, dtype=float)

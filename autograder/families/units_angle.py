@@ -21,7 +21,9 @@ from autograder.families.base import (
     Prediction,
     Problem,
     is_pose,
+    is_stack,
     part_predictions,
+    parts,
 )
 from robots import geometry as geo
 
@@ -67,9 +69,14 @@ def _angle(factor: float, array_words: str):
             null[:3, :3] = np.eye(3)
             return [Prediction(_scaled_pose(t, factor), lambda v: _unscaled_pose(v, factor), t,
                                null=null)]
+        if is_stack(truth):
+            return []   # a stack of poses times 180/pi is no stack: no angle read that way
         found = part_predictions(truth, lambda t: t * factor, lambda v: v / factor,
                                  lambda k: f"item {k + 1} of the answer {array_words[3:]}",
                                  np.zeros_like)
+        split = parts(truth)
+        if split is not None:   # likewise a part that is a pose or a stack of them
+            found = [p for p, part in zip(found, split) if not (is_pose(part) or is_stack(part))]
         return [p if p.words else Prediction(p.answer, p.undo, p.base, array_words, p.null)
                 for p in found]
     return make
