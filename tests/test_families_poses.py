@@ -354,3 +354,17 @@ def test_a_part_of_a_tuple_answer_with_its_sign_flipped_is_named():
     assert all(n is None or n.family == "sign" for n in names), names
     assert sum(n is not None for n in names) >= 2, names
     assert "item 2" in next(n for n in names if n is not None).words
+
+
+def test_radians_are_not_named_where_undoing_them_wraps_past_a_turn():
+    """An angle of (theta + 2 pi) * pi/180 times 180/pi wraps onto theta, but no angle in
+    radians taken for degrees gives it: not named; theta * pi/180 is."""
+    axis = np.array([0.0, 0.6, 0.8])
+    truth = _pose(Rotation.from_rotvec(0.5 * axis).as_matrix(), [0.3, -0.2, 0.5])
+    trial = Trial(args=(np.eye(4), truth), truth=truth, tol=dict(EXACT_TOL))
+
+    def turned(angle):
+        return _pose(Rotation.from_rotvec(angle * axis).as_matrix(), truth[:3, 3])
+    assert checks._mistake_hint(RELATIVE, turned(np.radians(0.5)), trial).family \
+        == "units rad/deg"
+    assert checks._mistake_hint(RELATIVE, turned(np.radians(0.5 + 2 * np.pi)), trial) is None
