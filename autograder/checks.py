@@ -36,6 +36,7 @@ import numpy as np
 
 from autograder import families, forbidden, mistakes, practice, registry
 from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
+from autograder.families import units_angle
 from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
@@ -543,13 +544,23 @@ def _predicted(spec: FunctionSpec, trial: Trial, truth) -> list:
     (written for that function) speak for both. Practice data carries the code mistakes and
     the input-side families precomputed (a student's install has no reference to call)."""
     if trial.mistakes is not None:
-        listed = [(_as_name(m), m[1]) for m in trial.mistakes]
+        listed = [(_as_name(m), _precomputed(_as_name(m), m[1], truth)) for m in trial.mistakes]
         sides = (families.OUTPUT,)
     else:
         listed = [(MistakeName(None, words), answer)
                   for words, answer in mistake_answers(spec, trial)]
         sides = (families.OUTPUT, families.INPUT)
     return listed + families.predictions(spec, trial, truth, sides)
+
+
+def _precomputed(name: MistakeName, answer, truth):
+    """A practice problem's precomputed answer as the grader weighs it live: practice data
+    holds answers only, so the one input-side family whose prediction wraps (the
+    reference's pose estimate with its angle times 180/pi) gets its rule back."""
+    if name.family == units_angle.FAMILIES[0].name and families.is_pose(truth) \
+            and families.is_pose(answer):
+        return families.Prediction(answer, wraps=True)
+    return answer
 
 
 def _as_name(entry) -> MistakeName:

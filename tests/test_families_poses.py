@@ -368,3 +368,18 @@ def test_radians_are_not_named_where_undoing_them_wraps_past_a_turn():
     assert checks._mistake_hint(RELATIVE, turned(np.radians(0.5)), trial).family \
         == "units rad/deg"
     assert checks._mistake_hint(RELATIVE, turned(np.radians(0.5 + 2 * np.pi)), trial) is None
+
+
+def test_practice_data_names_what_the_grader_names():
+    """check() on a student's install weighs precomputed answers (no reference to call):
+    the same names as the grader's live families, the wrapping rule of the reference's
+    estimate in degrees included (tsai_lenz with its angle times 1.3 lands near that
+    estimate on one of these draws by chance)."""
+    from autograder import practice
+
+    spec = checks.spec_for("tsai_lenz", "lab2_handeye")
+    func = _angle_scaled(lab2.he.solve_tsai, 1.3)
+    for t in _trials(spec, 9, 6):
+        stored = replace(t, mistakes=practice.precomputed_mistakes(spec, t))
+        value = func(*t.args)
+        assert checks._mistake_hint(spec, value, stored) == checks._mistake_hint(spec, value, t)
