@@ -48,15 +48,20 @@ from autograder.families import (
     absolute,
     first_last,
     inverse,
+    off_by_one,
+    precision,
     reflection,
     reversed_stack,
     root,
     sign,
+    statistic,
     sum_for_mean,
     swapped,
+    uncentred,
     units_angle,
     units_input,
     units_length,
+    wrong_axis,
 )
 from autograder.families.base import (
     INPUT,
@@ -79,6 +84,9 @@ FAMILIES: tuple[Family, ...] = (
     *root.FAMILIES, *sum_for_mean.FAMILIES, *reflection.FAMILIES,
     *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES, *absolute.FAMILIES,
     *units_input.FAMILIES,
+    # stacks and reductions (issue 52): each a walk over the inputs gone wrong
+    *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
+    *uncentred.FAMILIES,
 )
 
 

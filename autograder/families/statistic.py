@@ -1,0 +1,83 @@
+"""The wrong statistic over a stack: the median or the maximum where the mean (or the RMS)
+was asked, n - 1 where n divides (or n where n - 1 does), the mean where the sum was asked.
+
+Applies to a function whose answer is a reduction over the items of its input stacks (a
+mean error over motions, a per-axis RMS over points; see :class:`.stacks.Reduction`): the
+reference's answers on each item alone give the per-item values ``v_i``, and each mistake
+is the same values reduced the other way (the median of an RMS's ``|e_i|`` is the root of
+the median of ``e_i^2``). Input side (it calls the private reference on each item).
+
+Not covered: the centred standard deviation where the RMS was asked. It needs the signs of
+the per-item errors, and a reference on one item gives only ``|e_i|``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autograder.families.base import INPUT, Family, Prediction, Problem
+from autograder.families.stacks import Reduction, loses_credit, reduction
+
+MEDIAN = ("it takes the median over the items where their mean was asked: average them "
+          "(np.mean), the median ignores how large the largest errors are")
+MAXIMUM = ("it takes the largest item where the mean over the items was asked: average "
+           "them (np.mean), not np.max")
+N_MINUS_1 = ("it divides by n - 1 where the mean over the n items was asked: divide by n "
+             "(np.mean; np.std and np.var take ddof=0 unless told otherwise)")
+N_FOR_N_MINUS_1 = ("it divides by n where n - 1 was asked (the unbiased estimate): divide "
+                   "by n - 1 (ddof=1)")
+MEAN_FOR_SUM = ("it is the mean over the items where their sum was asked: add them up, "
+                "do not divide by their number")
+
+
+def _statistic(of):
+    """A family's make: ``of(reduction)`` the mistaken value, or None where the mistake
+    does not apply to that reduction."""
+    def make(problem: Problem) -> list[Prediction]:
+        if problem.spec is None or problem.spec.reference is None:
+            return []
+        r = reduction(problem)
+        value = None if r is None else of(r)
+        if value is None:
+            return []
+        # in the reference's type: a float answer stays a float (practice data keeps types)
+        answer = float(value) if np.ndim(problem.right_answer()) == 0 else value
+        return [Prediction(answer)] if loses_credit(problem, answer) else []
+    return make
+
+
+def _median(r: Reduction) -> np.ndarray | None:
+    if r.divisor == 1:
+        return None
+    # of the summed powers: an RMS's median is the root of the median square
+    value = np.median(r.items ** r.power, axis=0) ** (1.0 / r.power)
+    # an odd stack's median is one of its items: where that is the first or the last, the
+    # answer is as much "one item for all" (.first_last) as a median, and neither is named
+    ends = [r.items[0], r.items[-1]]
+    return value if all(not np.allclose(value, e, rtol=1e-9, atol=0) for e in ends) else None
+
+
+def _maximum(r: Reduction) -> np.ndarray | None:
+    return None if r.divisor == 1 else np.max(r.items, axis=0)
+
+
+def _n_minus_1(r: Reduction) -> np.ndarray | None:
+    return r.over(r.n - 1) if r.divisor == r.n else None
+
+
+def _n_for_n_minus_1(r: Reduction) -> np.ndarray | None:
+    return r.over(r.n) if r.divisor == r.n - 1 else None
+
+
+def _mean_for_sum(r: Reduction) -> np.ndarray | None:
+    return r.over(r.n) if r.divisor == 1 else None
+
+
+FAMILIES = (
+    Family("wrong statistic", MEDIAN, INPUT, _statistic(_median), "median for mean"),
+    Family("wrong statistic", MAXIMUM, INPUT, _statistic(_maximum), "max for mean"),
+    Family("wrong statistic", N_MINUS_1, INPUT, _statistic(_n_minus_1), "n-1 for n"),
+    Family("wrong statistic", N_FOR_N_MINUS_1, INPUT, _statistic(_n_for_n_minus_1),
+           "n for n-1"),
+    Family("wrong statistic", MEAN_FOR_SUM, INPUT, _statistic(_mean_for_sum), "mean for sum"),
+)
