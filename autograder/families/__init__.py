@@ -19,6 +19,12 @@ that mistake gives on a problem. One module per act:
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
   absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
   in millimetres).
+* over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
+  reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
+  last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum),
+  :mod:`.wrong_axis` (one value over every axis), input side; :mod:`.precision` (float32
+  where that alone loses credit) and :mod:`.uncentred` (a rigid fit of raw points, or its
+  translation from before the reflection fix), output side.
 
 The public surface, stable for ``labs verify`` and the grader:
 
