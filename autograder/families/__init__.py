@@ -17,7 +17,7 @@ that mistake gives on a problem. One module per act:
   install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
   stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
-  absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
+  absolute errors for an RMS), :mod:`.units_input` (one input's lengths
   in millimetres).
 * over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
   reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or

@@ -5,8 +5,9 @@ input stacks of n >= 3 items (with two, the first alone is also "all but the las
 :class:`.stacks.Reduction`). Input side: the private reference is called on the first (or
 the last) item of each stack alone.
 
-An odd stack's median is one of its items: where the median is the first or the last item,
-the answer is as much a median (.statistic) as one item for all, and neither is named.
+An odd stack's median, and any stack's maximum, is one of its items: where it is the first
+or the last item, the answer is as much a median or a maximum (.statistic) as one item for
+all, and neither is named.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from autograder.families.base import INPUT, Family, Prediction, Problem
-from autograder.families.stacks import loses_credit, reduction
+from autograder.families.stacks import coincide, loses_credit, reduction
 
 FIRST = ("it uses only the first item of the inputs where all of them were asked (a mean "
          "over every item): loop over, or vectorise across, the whole stack")
@@ -28,9 +29,8 @@ def _one_item(at: int):
         if r is None or r.divisor != r.n:
             return []   # no mean over the items: no item stands for it
         item = r.items[at]
-        median = np.median(r.items ** r.power, axis=0) ** (1.0 / r.power)
-        if np.allclose(item, median, rtol=1e-9, atol=0):
-            return []
+        if coincide(item, [r.median(), r.maximum()]):
+            return []   # as much a median or a maximum (.statistic) as one item: no name
         # in the reference's type: a float answer stays a float (practice data keeps types)
         answer = float(item) if np.ndim(problem.right_answer()) == 0 else item
         return [Prediction(answer)] if loses_credit(problem, answer) else []

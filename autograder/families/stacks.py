@@ -85,6 +85,25 @@ class Reduction:
         """The same reduction with another divisor."""
         return (np.sum(self.items ** self.power, axis=0) / divisor) ** (1.0 / self.power)
 
+    def median(self) -> np.ndarray:
+        """The median over the items, of their powers (an RMS's median is the root of the
+        median square)."""
+        return np.median(self.items ** self.power, axis=0) ** (1.0 / self.power)
+
+    def maximum(self) -> np.ndarray:
+        return np.max(self.items, axis=0)
+
+    def ends(self) -> list[np.ndarray]:
+        """The first and the last item."""
+        return [self.items[0], self.items[-1]]
+
+
+def coincide(value: np.ndarray, others: list[np.ndarray]) -> bool:
+    """True when ``value`` is one of ``others`` up to rounding. An order statistic (an odd
+    stack's median, the maximum) is one of the items: where it is the first or the last,
+    the answer is as much "one item for all" as that statistic, and neither is named."""
+    return any(np.allclose(value, o, rtol=1e-9, atol=0) for o in others)
+
 
 def reduction(problem: Problem, min_items: int = 3) -> Reduction | None:
     """How the reference's answer on ``problem`` is made of its answers on each item alone

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from autograder.families.base import INPUT, Family, Prediction, Problem
-from autograder.families.stacks import Reduction, loses_credit, reduction
+from autograder.families.stacks import Reduction, coincide, loses_credit, reduction
 
 MEDIAN = ("it takes the median over the items where their mean was asked: average them "
           "(np.mean), the median ignores how large the largest errors are")
@@ -47,18 +47,13 @@ def _statistic(of):
 
 
 def _median(r: Reduction) -> np.ndarray | None:
-    if r.divisor == 1:
-        return None
-    # of the summed powers: an RMS's median is the root of the median square
-    value = np.median(r.items ** r.power, axis=0) ** (1.0 / r.power)
-    # an odd stack's median is one of its items: where that is the first or the last, the
-    # answer is as much "one item for all" (.first_last) as a median, and neither is named
-    ends = [r.items[0], r.items[-1]]
-    return value if all(not np.allclose(value, e, rtol=1e-9, atol=0) for e in ends) else None
+    value = r.median()
+    return None if r.divisor == 1 or coincide(value, r.ends()) else value
 
 
 def _maximum(r: Reduction) -> np.ndarray | None:
-    return None if r.divisor == 1 else np.max(r.items, axis=0)
+    value = r.maximum()
+    return None if r.divisor == 1 or coincide(value, r.ends()) else value
 
 
 def _n_minus_1(r: Reduction) -> np.ndarray | None:
