@@ -300,3 +300,10 @@ def test_float32_is_named_only_where_it_loses_credit():
         assert checks._mistake_hint(spec, right, t) is None
         named = checks._mistake_hint(spec, _lab2_f32(_translation_items)(*t.args), t)
         assert named is not None and named.family == F
+        # another mistake made in float32 is no float32 mistake (n - 1 moves it by per cents)
+        items = _translation_items(*[np.asarray(a, F32) for a in t.args])
+        other = checks._mistake_hint(spec, F32(np.sum(items) / (len(items) - 1)), t)
+        assert other is None or other.family != F, other
+    # a tolerance set to hold float32 (lab 4's reproject): float32 is no mistake there
+    spec, trials = _lab_trials("lab4_stereo", "reproject", 4, 3)
+    assert not any(f.key == "float32" for t in trials for f in families.applicable(spec, t))
