@@ -108,15 +108,17 @@ def coincide(value: np.ndarray, others: list[np.ndarray]) -> bool:
 def reduction(problem: Problem, min_items: int = 3) -> Reduction | None:
     """How the reference's answer on ``problem`` is made of its answers on each item alone
     (the stacks of the most items cut to one item each), or None: no stack of at least
-    ``min_items`` items, an answer that is no plain array or that lists the items one by
-    one, or no power and divisor that rebuild it."""
+    ``min_items`` items, an answer that is no scalar or vector or that lists the items one
+    by one, or no power and divisor that rebuild it."""
     args = tuple(problem.trial.args)
     n = longest(args)
     whole = problem.right_answer()
     if n is None or n < min_items or not is_numeric_array(whole):
         return None
     whole = np.asarray(whole, dtype=float)
-    if whole.ndim > 1 or whole.size == n:
+    # an answer that lists the items one by one (a residual per point) has another shape on
+    # one item than on n, and is no reduction: the shapes below tell, whatever n is
+    if whole.ndim > 1:
         return None
     items = []
     for answer in problem.item_answers(stack_lengths(args), n):
