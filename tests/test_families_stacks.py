@@ -353,3 +353,14 @@ def test_one_value_per_point_for_one_per_axis_is_named_where_it_can_be_measured(
     per_point = _rmse_with(lambda r: np.sqrt(np.mean(r ** 2, axis=1)))
     names, failed = _failed_names(spec, per_point, trials[:4])
     assert failed == len(trials[:4]) >= 3 and all(n and n.family == AXIS for n in names)
+
+
+def test_one_item_left_of_two_is_no_off_by_one():
+    """Of a two-pose chain, one pose is left either way: leaving out the last, reversing the
+    chain and leaving out its first, and using the first pose alone give that one answer."""
+    spec, trials = _lab_trials("lab0_frames", "compose_chain", 1000, 10)
+    pairs = [t for t in trials if len(t.args[0]) == 2]
+    assert pairs
+    for t in pairs:
+        hint = checks._mistake_hint(spec, np.asarray(t.args[0][0], float), t)
+        assert hint is None or hint.family != OFF, hint

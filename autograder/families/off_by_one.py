@@ -8,6 +8,10 @@ side: the private reference is called with every stack of the most items cut (or
 repeated) the same way, so paired stacks (A and B, src and dst) stay paired. Named only
 where the answer it gives loses credit (a fit on noisy points without one of twenty is
 still right).
+
+An item is left out only from a stack of three or more: with two, what remains is one item,
+as much "only the first (or last) item" as "the other end left out" (or the stack reversed
+and cut), and no one mistake describes it.
 """
 
 from __future__ import annotations
@@ -25,11 +29,11 @@ LAST_TWICE = ("it takes the last item of the input stack twice (one item too man
               "range(n + 1) with the index clipped): go over each item once")
 
 
-def _off_by_one(change):
+def _off_by_one(change, min_items: int):
     def make(problem: Problem) -> list[Prediction]:
         args = tuple(problem.trial.args)
         n = longest(args)
-        if n is None or problem.spec is None or problem.spec.reference is None:
+        if n is None or n < min_items or problem.spec is None or problem.spec.reference is None:
             return []
         answer = problem.reference(*with_stacks(args, n, change))
         if answer is None or not loses_credit(problem, answer):
@@ -39,8 +43,8 @@ def _off_by_one(change):
 
 
 FAMILIES = (
-    Family("off by one", WITHOUT_FIRST, INPUT, _off_by_one(lambda s: s[1:]), "first left out"),
-    Family("off by one", WITHOUT_LAST, INPUT, _off_by_one(lambda s: s[:-1]), "last left out"),
-    Family("off by one", FIRST_TWICE, INPUT, _off_by_one(lambda s: [s[0], *s]), "first twice"),
-    Family("off by one", LAST_TWICE, INPUT, _off_by_one(lambda s: [*s, s[-1]]), "last twice"),
+    Family("off by one", WITHOUT_FIRST, INPUT, _off_by_one(lambda s: s[1:], 3), "first left out"),
+    Family("off by one", WITHOUT_LAST, INPUT, _off_by_one(lambda s: s[:-1], 3), "last left out"),
+    Family("off by one", FIRST_TWICE, INPUT, _off_by_one(lambda s: [s[0], *s], 2), "first twice"),
+    Family("off by one", LAST_TWICE, INPUT, _off_by_one(lambda s: [*s, s[-1]], 2), "last twice"),
 )
