@@ -18,10 +18,11 @@ import numpy as np
 from autograder.families.base import INPUT, Family, Prediction, Problem
 from autograder.families.stacks import Reduction, coincide, loses_credit, reduction
 
-MEDIAN = ("it takes the median over the items where their mean was asked: average them "
-          "(np.mean), the median ignores how large the largest errors are")
-MAXIMUM = ("it takes the largest item where the mean over the items was asked: average "
-           "them (np.mean), not np.max")
+MEDIAN = ("it takes the median over the items where their mean (or RMS) was asked: "
+          "average over every item (np.mean), the median ignores how large the largest "
+          "errors are")
+MAXIMUM = ("it takes the largest item where the mean (or RMS) over the items was asked: "
+           "average over every item (np.mean), not np.max")
 N_MINUS_1 = ("it divides by n - 1 where the mean over the n items was asked: divide by n "
              "(np.mean; np.std and np.var take ddof=0 unless told otherwise)")
 N_FOR_N_MINUS_1 = ("it divides by n where n - 1 was asked (the unbiased estimate): divide "
