@@ -190,7 +190,8 @@ def test_the_reduction_is_read_from_the_reference():
 
 def test_a_pose_is_no_stack_and_a_depth_image_is_none():
     assert stacks.stack_lengths([np.eye(4), np.zeros((480, 640)), np.zeros((5, 3)),
-                                 [np.eye(4)] * 3]) == [None, None, 5, 3]
+                                 [np.eye(4)] * 3, np.zeros(7), 2.0]) == [None, None, 5, 3, 7,
+                                                                         None]
 
 
 # --------------------------------------------------------------------------- an instructor's lab
@@ -244,6 +245,23 @@ def _items(P, Q):
     return np.sum((np.asarray(P) - np.asarray(Q)) ** 2, axis=1)
 
 
+def _spread_spec() -> FunctionSpec:
+    """spread(errors): the sample standard deviation (ddof=1) of N scalar errors (m)."""
+    def reference(errors):
+        return float(np.std(np.asarray(errors, float), ddof=1))
+
+    def make_trial(rng, index):
+        errors = rng.normal(0.0, 0.01, int(rng.integers(5, 12)))
+        return Trial(args=(errors,), truth=reference(errors), tol={"value": 1e-9})
+
+    def measure(value, trial):
+        return {"value": abs(float(value) - trial.truth) / trial.truth}
+
+    return FunctionSpec("spread", 1.0, 6, make_trial, measure,
+                        (Check("value", "relative", 1.0, ((1.0, 1.0),)),),
+                        "spread(errors) -> float", reference=reference)
+
+
 INSTRUCTOR = [
     (_rms_distance_spec, lambda P, Q: float(np.sqrt(np.median(_items(P, Q)))), STAT),
     (_rms_distance_spec, lambda P, Q: float(np.sqrt(np.sum(_items(P, Q)) / (len(P) - 1))), STAT),
@@ -255,6 +273,7 @@ INSTRUCTOR = [
     (_rms_distance_spec, lambda P, Q: float(np.sqrt(np.mean(_items(P.astype(F32),
                                                                    Q.astype(F32))))), F),
     (_fit_pose_spec, _kabsch_uncentred, FIT),
+    (_spread_spec, lambda e: float(np.std(e)), STAT),
 ]
 
 

@@ -3,9 +3,10 @@ the reference's answer rebuilt as a reduction over its items, and how far two an
 apart on the problem's own noise scale.
 
 A *stack* is an input whose first axis lists items of a few numbers each: an (N, 3) point
-set, an (N, 2) set of pixels, an (N, 4, 4) stack of poses or a list of poses. A single pose
-or a depth image is no stack (a pose's rows are no items; a depth image's rows are too big
-to be one).
+set, an (N, 2) set of pixels, an (N, 4, 4) stack of poses or a list of poses, a vector of N
+values (N errors, or a vector's coordinates, whose norm is a root of their summed squares).
+A single pose or a depth image is no stack (a pose's rows are no items; a depth image's rows
+are too big to be one).
 
 A *reduction* is how the reference's answer ``W`` is made of its answers ``v_i`` on each
 item alone (the reference called on one-item stacks): ``W = (sum_i v_i^p / d)^(1/p)`` with
@@ -36,7 +37,7 @@ def _length(a) -> int | None:
     if isinstance(a, (int, float, str, bytes, dict)) or is_pose(a):
         return None
     arr = as_array(a)
-    if arr is None or arr.ndim < 2 or arr.shape[0] < 2 or arr[0].size > _ITEM_SIZE:
+    if arr is None or arr.ndim < 1 or arr.shape[0] < 2 or arr[0].size > _ITEM_SIZE:
         return None
     return int(arr.shape[0])
 

@@ -7,6 +7,11 @@ reference's answers on each item alone give the per-item values ``v_i``, and eac
 is the same values reduced the other way (the median of an RMS's ``|e_i|`` is the root of
 the median of ``e_i^2``). Input side (it calls the private reference on each item).
 
+A centred statistic (a standard deviation, a variance) is no reduction of its items' own
+answers (one item has no spread), so n - 1 for n (np.std's ddof) is also read from the
+answer, output side: the truth times n / (n - 1), or its root for a statistic that is a
+root, for each stack length n >= 3 of the inputs (with two, n / (n - 1) is the sum's 2).
+
 Not covered: the centred standard deviation where the RMS was asked. It needs the signs of
 the per-item errors, and a reference on one item gives only ``|e_i|``.
 """
@@ -15,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from autograder.families.base import INPUT, Family, Prediction, Problem
-from autograder.families.stacks import Reduction, coincide, loses_credit, reduction
+from autograder.families.base import INPUT, OUTPUT, Family, Prediction, Problem, is_numeric_array
+from autograder.families.stacks import Reduction, coincide, loses_credit, reduction, stack_lengths
 
 MEDIAN = ("it takes the median over the items where their mean (or RMS) was asked: "
           "average over every item (np.mean), the median ignores how large the largest "
@@ -69,6 +74,24 @@ def _mean_for_sum(r: Reduction) -> np.ndarray | None:
     return r.over(r.n) if r.divisor == 1 else None
 
 
+def _divisor_swapped(up: bool):
+    """The truth with n - 1 for n (``up``) or n for n - 1, linear and rooted, for each stack
+    length n >= 3 among the inputs (output side: no reference)."""
+    def make(problem: Problem) -> list[Prediction]:
+        if problem.spec is None or not is_numeric_array(problem.truth):
+            return []
+        truth = np.asarray(problem.truth, dtype=float)
+        out = []
+        for n in sorted({n for n in stack_lengths(problem.trial.args) if n and n >= 3}):
+            ratio = n / (n - 1) if up else (n - 1) / n
+            for factor in (ratio, np.sqrt(ratio)):
+                answer = float(truth * factor) if truth.ndim == 0 else truth * factor
+                if loses_credit(problem, answer):
+                    out.append(Prediction(answer))
+        return out
+    return make
+
+
 FAMILIES = (
     Family("wrong statistic", MEDIAN, INPUT, _statistic(_median), "median for mean"),
     Family("wrong statistic", MAXIMUM, INPUT, _statistic(_maximum), "max for mean"),
@@ -76,4 +99,7 @@ FAMILIES = (
     Family("wrong statistic", N_FOR_N_MINUS_1, INPUT, _statistic(_n_for_n_minus_1),
            "n for n-1"),
     Family("wrong statistic", MEAN_FOR_SUM, INPUT, _statistic(_mean_for_sum), "mean for sum"),
+    Family("wrong statistic", N_MINUS_1, OUTPUT, _divisor_swapped(True), "n-1 for n, any"),
+    Family("wrong statistic", N_FOR_N_MINUS_1, OUTPUT, _divisor_swapped(False),
+           "n for n-1, any"),
 )
