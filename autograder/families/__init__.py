@@ -21,10 +21,11 @@ that mistake gives on a problem. One module per act:
   in millimetres).
 * over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
   reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
-  last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum),
-  :mod:`.wrong_axis` (one value over every axis), input side; :mod:`.precision` (float32
-  where that alone loses credit) and :mod:`.uncentred` (a rigid fit of raw points, or its
-  translation from before the reflection fix), output side.
+  last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum;
+  n - 1 also read from the answer), :mod:`.wrong_axis` (one value over every axis or per
+  item), input side; :mod:`.precision` (float32 where that alone loses credit) and
+  :mod:`.uncentred` (a rigid fit of raw points, or its translation from before the
+  reflection fix), output side.
 
 The public surface, stable for ``labs verify`` and the grader:
 
