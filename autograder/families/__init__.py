@@ -22,9 +22,16 @@ that mistake gives on a problem. One module per act:
   install holds no answer code): :mod:`.swapped` (A for B), :mod:`.reversed_stack` (a
   stack last to first, its poses inverted, an input pose inverted), :mod:`.first_last`
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
-  absolute errors for a mean of squared ones), :mod:`.units_input` (one input's lengths
+  absolute errors for an RMS), :mod:`.units_input` (one input's lengths
   in millimetres), :mod:`.product_order` (the factors of each product in reverse
   order).
+* over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
+  reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
+  last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum;
+  n - 1 also read from the answer), :mod:`.wrong_axis` (one value over every axis or per
+  item), input side; :mod:`.precision` (float32 where that alone loses credit) and
+  :mod:`.uncentred` (a rigid fit of raw points, or its translation from before the
+  reflection fix), output side.
 
 The public surface, stable for ``labs verify`` and the grader:
 
@@ -55,18 +62,23 @@ from autograder.families import (
     first_last,
     inverse,
     not_rotation,
+    off_by_one,
     pose_parts,
+    precision,
     product_order,
     reflection,
     reversed_stack,
     root,
     sign,
     stack_items,
+    statistic,
     sum_for_mean,
     swapped,
+    uncentred,
     units_angle,
     units_input,
     units_length,
+    wrong_axis,
 )
 from autograder.families.base import (
     INPUT,
@@ -91,6 +103,9 @@ FAMILIES: tuple[Family, ...] = (
     *units_input.FAMILIES,
     *pose_parts.FAMILIES, *stack_items.FAMILIES, *not_rotation.FAMILIES,
     *product_order.FAMILIES,
+    # stacks and reductions (issue 52): each a walk over the inputs gone wrong
+    *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
+    *uncentred.FAMILIES,
 )
 
 

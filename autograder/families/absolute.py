@@ -1,54 +1,34 @@
-"""Absolute for squared: a mean of absolute (unsquared) errors where the mean of squared
-errors, or their root (an RMS), was asked.
+"""Absolute for squared: a mean of absolute (unsquared) errors where their root mean square
+(an RMS) was asked.
 
-Applies to a function whose answer is a non-negative scalar or a short vector (a scalar
-error over a stack, a per-axis RMS) and whose inputs include stacks of one length n >= 2
-(motions, point sets) that the answer does not list item by item. Input side: the private
-reference, called on each item alone, gives that item's squared error (for a mean square)
-or its absolute error (for an RMS); the mistake's answer is the mean over the items of the
-absolute errors.
+Applies to a function whose answer is an RMS over the items of its input stacks (a scalar
+error over a stack, a per-axis RMS over points; see :class:`.stacks.Reduction`, power 2):
+the private reference, called on each item alone, gives that item's absolute error
+``|e_i|``, and the mistake's answer is their mean. Input side.
+
+A mean of norms where a mean of *squared* norms was asked (no root anywhere) is the other
+reading of "not squared": :mod:`.root` names it, so that the two never both fit.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, is_numeric_array
-from autograder.families.first_last import stack_lengths
+from autograder.families.base import INPUT, Family, Prediction, Problem
+from autograder.families.stacks import loses_credit, reduction
 
-ABSOLUTE = ("it is a mean of absolute errors where squared errors were asked (a mean square "
-            "or its root, the RMS): square each error before averaging")
-
-
-def _per_item(problem: Problem) -> list[np.ndarray] | None:
-    args = tuple(problem.trial.args)
-    lengths = stack_lengths(args)
-    n = max((x for x in lengths if x is not None), default=None)
-    truth = as_array(problem.truth)
-    if n is None or truth is None or truth.ndim > 1 or truth.size == n or truth.size > 3:
-        return None
-    items = []
-    for answer in problem.item_answers(lengths, n):
-        value = as_array(answer)
-        if value is None or value.shape != truth.shape or np.any(value < 0):
-            return None
-        items.append(value)
-    return items
+ABSOLUTE = ("it is a mean of absolute errors where their root mean square (the RMS) was "
+            "asked: square each error, average, then take the square root")
 
 
 def _absolute(problem: Problem) -> list[Prediction]:
-    if not is_numeric_array(problem.truth) or np.any(np.asarray(problem.truth) < 0):
+    r = reduction(problem, min_items=2)
+    if r is None or r.power != 2 or r.divisor != r.n:
         return []
-    items = _per_item(problem)
-    if items is None:
-        return []
-    stacked = np.stack(items)
-    # an RMS's item is |e_i|, a mean square's is e_i^2: each reading's mean of |e_i| (the
-    # one that equals the truth is the truth, and the grader drops it as no mistake)
-    means = (stacked.mean(axis=0), np.sqrt(stacked).mean(axis=0))
-    # in the truth's type: a float answer stays a float (practice data keeps types)
-    scalar = np.ndim(problem.truth) == 0
-    return [Prediction(float(m) if scalar else m) for m in means]
+    value = r.items.mean(axis=0)
+    # in the reference's type: a float answer stays a float (practice data keeps types)
+    answer = float(value) if np.ndim(problem.right_answer()) == 0 else value
+    return [Prediction(answer)] if loses_credit(problem, answer) else []
 
 
 FAMILIES = (Family("absolute for squared", ABSOLUTE, INPUT, _absolute, "absolute for squared"),)

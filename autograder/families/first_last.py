@@ -1,16 +1,21 @@
-"""A stack's first or last item where the mean over all of them was asked.
+"""A stack's first or last item where the mean (or the RMS) over all of them was asked.
 
-Applies to a function whose answer is the mean over the items of its input stacks (of one
-length n >= 3; with two items the first alone is also "all but the last"): the reference's
-answer is the mean of its answers on each item alone. Input side: the private reference is
-called on the first (or the last) item of each stack alone.
+Applies to a function whose answer is a mean or a root mean square over the items of its
+input stacks of n >= 3 items (with two, the first alone is also "all but the last"; see
+:class:`.stacks.Reduction`). Input side: the private reference is called on the first (or
+the last) item of each stack alone.
+
+An odd stack's median, and any stack's maximum, is one of its items: where it is the first
+or the last item, the answer is as much a median or a maximum (.statistic) as one item for
+all, and neither is named.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, same_answer
+from autograder.families.base import INPUT, Family, Prediction, Problem
+from autograder.families.stacks import coincide, loses_credit, reduction
 
 FIRST = ("it uses only the first item of the inputs where all of them were asked (a mean "
          "over every item): loop over, or vectorise across, the whole stack")
@@ -18,32 +23,17 @@ LAST = ("it uses only the last item of the inputs where all of them were asked (
         "every item): accumulate over the whole stack, not the loop's last value")
 
 
-def _length(a) -> int | None:
-    arr = None if isinstance(a, (int, float, str)) else as_array(a)
-    return int(arr.shape[0]) if arr is not None and arr.ndim >= 2 and arr.shape[0] >= 2 \
-        else None
-
-
-def stack_lengths(args) -> list[int | None]:
-    """Each argument's number of items when it is a stack (n >= 2 rows of 2-D or more
-    items: poses, points), else None."""
-    return [_length(a) for a in args]
-
-
 def _one_item(at: int):
     def make(problem: Problem) -> list[Prediction]:
-        args = tuple(problem.trial.args)
-        lengths = stack_lengths(args)
-        n = max((x for x in lengths if x is not None), default=None)
-        if n is None or n < 3:
-            return []
-        answers = problem.item_answers(lengths, n)
-        items = [as_array(x) for x in answers]
-        whole = as_array(problem.right_answer())
-        if whole is None or any(x is None or x.shape != whole.shape for x in items) \
-                or not same_answer(np.mean(items, axis=0), whole):
+        r = reduction(problem)
+        if r is None or r.divisor != r.n:
             return []   # no mean over the items: no item stands for it
-        return [Prediction(answers[at])]   # as the reference gives it (a float stays one)
+        item = r.items[at]
+        if coincide(item, [r.median(), r.maximum()]):
+            return []   # as much a median or a maximum (.statistic) as one item: no name
+        # in the reference's type: a float answer stays a float (practice data keeps types)
+        answer = float(item) if np.ndim(problem.right_answer()) == 0 else item
+        return [Prediction(answer)] if loses_credit(problem, answer) else []
     return make
 
 

@@ -3,6 +3,7 @@
 Applies to a numeric answer (no pose) of a function with a stacked input (a stack of poses,
 an (N, 3) point set, a vector): the answer is N times the truth for that input's N. Output
 side (N is read from the inputs' shapes): the answer divided by N is compared with the truth.
+A single pose's four rows, or a depth image's rows, are no items (:mod:`.stacks`).
 """
 
 from __future__ import annotations
@@ -10,16 +11,19 @@ from __future__ import annotations
 import numpy as np
 
 from autograder.families.base import OUTPUT, Family, Prediction, Problem, as_array, is_numeric_array
+from autograder.families.stacks import stack_lengths
 
 SUM = ("it is a sum over the items where their mean was asked: divide by their number")
 
 
 def _counts(args) -> list[int]:
     found = []
-    for a in args:
-        arr = as_array(a)
-        if arr is not None and arr.ndim >= 1 and arr.shape[0] >= 2:
-            found.append(int(arr.shape[0]))
+    for a, n in zip(args, stack_lengths(args)):
+        arr = None if isinstance(a, (str, bytes, dict)) else as_array(a)
+        if n is not None:
+            found.append(n)
+        elif arr is not None and arr.ndim == 1 and arr.shape[0] >= 2:
+            found.append(int(arr.shape[0]))   # a vector's entries are its items
     return sorted(set(found))
 
 
