@@ -93,13 +93,17 @@ def built_once(name: str, build: Callable[[Path], None]) -> Path:
     return folder
 
 
+def initialized_master() -> Path:
+    """The course `init_course` laid out once in this test run (built_once; its practice
+    files alone cost about 8 s of CPU): shared, to read or copy, never to change."""
+    return built_once("initialized", lambda folder: init_course(folder / "course")) / "course"
+
+
 def initialized_course(root: Path) -> Path:
     """A new course under ``root`` (``root/course``) as `init_course` lays it out: a copy of
-    the one it laid out once in this test run (built_once; its practice files alone cost
-    about 5 s of CPU). Like init_course, it makes the course the one this process loads
-    labs from."""
-    master = built_once("initialized", lambda folder: init_course(folder / "course")) / "course"
-    course = fresh_course(master, root)
+    :func:`initialized_master`. Like init_course, it makes the course the one this process
+    loads labs from."""
+    course = fresh_course(initialized_master(), root)
     registry.use_course(course)
     return course
 
