@@ -5,19 +5,22 @@ the full corpus, in one run.
 (tests/test_corpus_batch_*.py), and repeats only slices of the corpus, the cases each
 repetition can tell apart (tests/course_kit.full_corpus): started cold
 (``REGRADED_COLD``), as an unprivileged user (tests/test_unprivileged.py's
-``SANDBOX_CASES``), on labs 3, 4 and 5 (tests/test_adversarial_labs.py's ``LAB_SLICE``).
-This script runs those same tests twice, each test in a pytest process of its own: as the
-suite runs them, then with ``COBOTLAB_FULL_CORPUS=1``, where every case is repeated in every
-mode (each lab 0 case cold, every notebook-layer case as the user, every case on every
-lab). A case that fails only in the full run is a hole the slice does not cover: add it to
-the slice.
+``SANDBOX_CASES``), on labs 3, 4 and 5 (tests/test_adversarial_labs.py's ``LAB_SLICE``), on
+a Dask cluster (tests/test_cluster.py's ``CLUSTER_CASES``). This script runs those same
+tests twice, each test in a pytest process of its own: as the suite runs them, then with
+``COBOTLAB_FULL_CORPUS=1``, where every case is repeated in every mode (each lab 0 case
+cold, every notebook-layer case as the user, every case on every lab, ``reply_flood`` on
+the cluster). A case that fails only in the full run is a hole the slice does not cover:
+add it to the slice. (The cases that only burn their limits, ``BURNS_ITS_LIMITS``, are
+graded at the short limits in both runs: what they test is that each loop is stopped.)
+docs/benchmarks/adversarial_corpus.md has a run's table.
 
 Prints one row per test: its outcome, wall clock and machine CPU seconds (all the
 machine's busy time while it ran, read from /proc/stat: run it on an otherwise idle
 machine) for the slice and for the full corpus. With ``--repeat N`` each is run N times and
 the CPU the slice saves is given with a bootstrap 95 % interval.
 
-    .venv/bin/python benchmarks/adversarial_corpus.py             # ~12 min on 2 cores, as root
+    .venv/bin/python benchmarks/adversarial_corpus.py             # ~14 min on 2 cores, as root
     .venv/bin/python benchmarks/adversarial_corpus.py --only full --tests batch_b
 """
 
@@ -44,6 +47,8 @@ TESTS = {
             "test_adversarial_corpus_scores_no_more_than_the_blank[lab4_stereo]",
     "lab5": "tests/test_adversarial_labs.py::"
             "test_adversarial_corpus_scores_no_more_than_the_blank[lab5_depth]",
+    "cluster": "tests/test_cluster.py::"
+               "test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies",
 }
 BOOTSTRAP = 2000
 

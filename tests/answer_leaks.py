@@ -29,6 +29,7 @@ import pkgutil
 import textwrap
 from collections import Counter
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -222,6 +223,14 @@ def _files(paths) -> list[Path]:
     return files
 
 
+@cache
+def _forms(code: str) -> tuple[tuple[str, str], ...]:
+    """(name, normalised form) of every function def in ``code``. Kept by the code's text:
+    a test run searches the same modules more than once (the student wheel, then the
+    grading views' copies of them), and normalising is most of a search's CPU."""
+    return tuple((node.name, normalise(node)) for node in functions_in(code))
+
+
 def find_answers(paths, needles: list[Needle]) -> list[str]:
     """Where any needle occurs among the function defs of ``paths`` (files, or folders
     searched for .py and .ipynb files): "<file>: def <name> is <origin>" per finding."""
@@ -231,9 +240,9 @@ def find_answers(paths, needles: list[Needle]) -> list[str]:
     findings = []
     for file in _files(paths):
         for code in code_of(file):
-            for node in functions_in(code):
-                for origin in by_form.get(normalise(node), ()):
-                    findings.append(f"{file}: def {node.name} is {origin}")
+            for name, form in _forms(code):
+                for origin in by_form.get(form, ()):
+                    findings.append(f"{file}: def {name} is {origin}")
     return findings
 
 

@@ -93,13 +93,17 @@ def built_once(name: str, build: Callable[[Path], None]) -> Path:
     return folder
 
 
+def initialized_master() -> Path:
+    """The course `init_course` laid out once in this test run (built_once; its practice
+    files alone cost about 8 s of CPU): shared, to read or copy, never to change."""
+    return built_once("initialized", lambda folder: init_course(folder / "course")) / "course"
+
+
 def initialized_course(root: Path) -> Path:
     """A new course under ``root`` (``root/course``) as `init_course` lays it out: a copy of
-    the one it laid out once in this test run (built_once; its practice files alone cost
-    about 5 s of CPU). Like init_course, it makes the course the one this process loads
-    labs from."""
-    master = built_once("initialized", lambda folder: init_course(folder / "course")) / "course"
-    course = fresh_course(master, root)
+    :func:`initialized_master`. Like init_course, it makes the course the one this process
+    loads labs from."""
+    course = fresh_course(initialized_master(), root)
     registry.use_course(course)
     return course
 
@@ -405,11 +409,16 @@ def full_corpus() -> bool:
 # forks inherit. The others never meet the template's state.
 REGRADED_COLD = ("exception_handler", "forbidden_thread", "forge_protocol", "kernel_patch",
                  "memory_bomb", "numpy_patch", "secret_hunt", "stack_peek", "sys_modules")
-# Graded once in the corpus batch, forked from the template only, even in the full corpus: a
-# pass costs 25 s of CPU, all of it its cells and calls looping until their limits stop them.
-# A cold worker's time-outs are tested on their own (tests/test_grading_contention.py, both
-# ways).
-NOT_REGRADED_COLD = ("infinite_loop",)
+# The cases that only burn their CPU limits: every cell and call loops until a limit stops
+# it. Graded in a run of their own with SHORT_LIMITS, forked from the template only, even in
+# the full corpus: a pass cost 25 s of CPU at the batch's 5 s / 3 s limits, all of it loops
+# being stopped. What is tested is that each loop is stopped and charged to the student
+# whatever the limit (the same bounds and flags), not the clock. A cold worker's time-outs
+# are tested on their own (tests/test_grading_contention.py, both ways).
+BURNS_ITS_LIMITS = ("infinite_loop",)
+# tests/test_adversarial_labs.py's limits, which grade every case on labs 3-5 in the full
+# corpus (benchmarks/adversarial_corpus.py)
+SHORT_LIMITS = Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60, wall_factor=2)
 
 
 def corpus_batch_parts() -> tuple[list[str], list[str]]:
@@ -426,6 +435,14 @@ def log_lines(course: Path, student: str) -> list[str]:
     log = course / ".cobotlab" / "last_run.log"
     text = log.read_text() if log.exists() else ""
     return [line[:2000] for line in text.splitlines() if student in line]
+
+
+def _keep_only(course: Path, students) -> Path:
+    """``course`` with every submission but those of ``students`` removed."""
+    for folder in (course / "submitted").iterdir():
+        if folder.name not in students:
+            shutil.rmtree(folder)
+    return course
 
 
 def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None:
@@ -452,15 +469,19 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     # sleepers are cut at 2x their limit: the attack is tested here, not the clock
     limits = Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=60,
                             wall_factor=2)
+    # The cases that only burn their limits, in a course of their own (BURNS_ITS_LIMITS)
+    burning = [n for n in cases if n in BURNS_ITS_LIMITS]
+    burn = _keep_only(fresh_course(course, tmp_path / "burn"), burning) if burning else None
+    for name in burning:
+        shutil.rmtree(course / "submitted" / name)
     # Graded twice: each worker forked from a template (the default) and each a new
     # interpreter; the template must change no score and no flag. Twice: the reference and
-    # the cases the template could change (REGRADED_COLD; all with full_corpus()), never
-    # those that only burn their CPU limits (NOT_REGRADED_COLD).
-    cold = fresh_course(course, tmp_path / "cold")
-    for name in cases:
-        if name in NOT_REGRADED_COLD or not (full_corpus() or name in REGRADED_COLD):
-            shutil.rmtree(cold / "submitted" / name)
+    # the cases the template could change (REGRADED_COLD; all with full_corpus()).
+    cold = _keep_only(fresh_course(course, tmp_path / "cold"), [
+        "reference", *(n for n in cases if full_corpus() or n in REGRADED_COLD)])
     rows = grade_course(course, lab, workers=2, limits=limits, quiet=True)
+    if burn is not None:
+        rows += grade_course(burn, lab, workers=2, limits=SHORT_LIMITS, quiet=True)
     cold_rows = grade_course(cold, lab, workers=2, limits=limits, quiet=True, template=False)
     assert "template: the interpreter" in (course / ".cobotlab" / "last_run.log").read_text()
     started_cold = {r["student_id"]: (r["score"], r["flags"]) for r in cold_rows}
@@ -483,9 +504,10 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
         for wanted in case["flags"]:
             assert any(f.startswith(wanted) for f in flags), (name, wanted, row["flags"])
     secret = load_secret(course)
-    for path in [course / "grades.csv", *(course / "feedback_cobotlab").rglob("*.html"),
-                 *(course / "feedback_cobotlab").rglob("*.json")]:   # nbgrader's section too
-        assert secret not in path.read_text(), path
+    for graded in filter(None, (course, burn)):
+        for path in [graded / "grades.csv", *(graded / "feedback_cobotlab").rglob("*.html"),
+                     *(graded / "feedback_cobotlab").rglob("*.json")]:   # nbgrader's section
+            assert secret not in path.read_text(), path
 
 
 def page_attack(where: str, base: tuple[str, ...] = (), log: bool = True) -> str:

@@ -243,13 +243,22 @@ def released(tmp_path_factory):
     return kit.released_course(tmp_path_factory.mktemp("released"), ASSIGNMENT)
 
 
+# The case of the corpus whose attack crosses the cluster's wire: its forged reply and
+# 400-digit answers reach this process's validation from a Dask task. An attack that stays
+# inside the sandbox meets the same Worker there as in a local run: reply_flood (refused from
+# its header by tests/test_grading_sandbox.py) cost this file 17 s of CPU (66 against 49),
+# graded locally and on the cluster, and met nothing of the cluster; it is graded here too in
+# the full corpus (COBOTLAB_FULL_CORPUS=1, benchmarks/adversarial_corpus.py).
+CLUSTER_CASES = ("huge_values", "reply_flood") if kit.full_corpus() else ("huge_values",)
+
+
 def _submit_class(course):
     solutions = kit.solution_sources(ASSIGNMENT, FUNCTIONS)
     kit.submit(course, ASSIGNMENT, "reference", replace=solutions)
     kit.submit(course, ASSIGNMENT, "blank")
     kit.submit(course, ASSIGNMENT, "wrong", replace={
         **solutions, "invert_pose": solutions["invert_pose"].replace("-R.T @ t", "-t")})
-    for name in ("reply_flood", "huge_values"):
+    for name in CLUSTER_CASES:
         case = kit.corpus(ASSIGNMENT)[name]
         kit.submit(course, ASSIGNMENT, name, replace=case["replace"], extra=case["extra"])
 
@@ -338,18 +347,17 @@ def test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies(released, tmp_p
 
     rows = outcome["rows"]
     ids = [r["student_id"] for r in rows]
-    assert sorted(ids) == sorted({"reference", "blank", "wrong", "reply_flood",
-                                  "huge_values"}) == sorted(
+    assert sorted(ids) == sorted({"reference", "blank", "wrong", *CLUSTER_CASES}) == sorted(
         r["student_id"] for r in local_rows), "one row per submission"
     by_id = {r["student_id"]: r for r in rows}
-    # the same scores and flags as the local run, the killed worker's submission too. Only
-    # `timed_out:` may differ: reply_flood builds 64 MB replies close to its 3 s CPU limit,
-    # so on a loaded machine a function of it times out in one run and not the other (it
-    # scores 0 either way).
+    # the same scores and flags as the local run, the killed worker's submission too (but
+    # `timed_out:`: on a loaded machine a call close to its CPU limit may time out in one run
+    # and not the other)
     assert {r["student_id"]: _comparable(r) for r in local_rows} == \
         {s: _comparable(r) for s, r in by_id.items()}
     assert by_id["reference"]["score"] == 10.0 and by_id["blank"]["score"] == 0.0
-    assert by_id["reply_flood"]["score"] == 0.0
+    if "reply_flood" in by_id:
+        assert by_id["reply_flood"]["score"] == 0.0
     # 400-digit answers and a forged reply cost the student, never the grader (no
     # grader_error on the worker's side, nor in this process's validation of its reply)
     assert by_id["huge_values"]["score"] == 0.0

@@ -9,11 +9,11 @@ Two installs are made outside the repository, each in a fresh virtual environmen
 
 The libraries both need are this environment's, hard-linked into the new one (no download,
 a few seconds; pip installs cobotlab itself). In the regular install the whole course runs
-from a temporary folder with no checkout in reach: ``cobotlab course init``, ``cobotlab labs
-student``, ``nbgrader generate_assignment``, ``cobotlab grade`` and the demo. In both, marker
-files are planted in solutions/, the specs, autograder/ beside the checks, the course, the
-source notebook and the secret, and a probe run in the grading worker's view and in
-nbgrader's kernel view must neither read nor import any of them.
+from a temporary folder with no checkout in reach: ``cobotlab course init`` (docs/authoring.md's
+steps), ``cobotlab labs student``, ``nbgrader generate_assignment``, ``cobotlab grade`` and the
+demo. In both, marker files are planted in solutions/, the specs, autograder/ beside the
+checks, the course, the source notebook and the secret, and a probe run in the grading
+worker's view and in nbgrader's kernel view must neither read nor import any of them.
 """
 
 from __future__ import annotations
@@ -134,16 +134,15 @@ def editable(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def regular_course(regular, tmp_path_factory) -> Path:
-    """A course that `cobotlab course init` of the regular install made, in a folder of its
-    own; each test works on a copy (kit.fresh_course: its own path, the same files). One
-    `course init` (several seconds: it draws every built-in lab's practice problems) for
-    the three tests below that need a course, not one each; `course init` from an editable
-    install (the project's own .venv) is run as written by tests/test_instructor_docs.py."""
-    env_dir, env = regular
-    cwd = tmp_path_factory.mktemp("regular-course")
-    run([str(env_dir / "bin" / "cobotlab"), "course", "init", "course"], env=env, cwd=cwd)
-    return cwd / "course"
+def regular_course() -> Path:
+    """A course as `course init` lays it out: the run's one (course_kit.initialized_master;
+    nothing in a course names the install that made it); each test works on a copy
+    (kit.fresh_course: its own path, the same files). `cobotlab course init` of the regular
+    install itself runs as docs/authoring.md writes it, in
+    test_the_authoring_page_runs_as_written_from_a_regular_install: one of its own here cost
+    11.7 s of CPU (it draws every built-in lab's practice problems). From an editable
+    install (the project's own .venv) it runs as written by tests/test_instructor_docs.py."""
+    return kit.initialized_master()
 
 
 def where(env_dir: Path, env: dict, cwd: Path) -> dict[str, str]:
@@ -174,7 +173,7 @@ def test_a_regular_install_runs_a_course(regular, regular_course, tmp_path):
         assert origin.startswith(str(env_dir)), (name, origin)
         assert not origin.startswith((str(ROOT), site)), (name, origin)
 
-    course = kit.fresh_course(regular_course, tmp_path)   # `cobotlab course init course`
+    course = kit.fresh_course(regular_course, tmp_path)   # as `cobotlab course init` makes it
     assert (course / "source" / "lab0_frames" / "lab0_frames.ipynb").is_file()
     run([str(bin_dir / "cobotlab"), "labs", "student", "student_labs"], env=env, cwd=tmp_path)
     released = (tmp_path / "student_labs" / "lab0_frames" / "lab0_frames.ipynb").read_text()

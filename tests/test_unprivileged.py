@@ -5,7 +5,7 @@ that user (``cobotlab-ta``, created once and reused), gives it a Python it can e
 runs the real command line as it (``setpriv --reuid --regid --init-groups``):
 
 * **with user namespaces** (this machine's default): lab 0 adversarial cases through
-  ``cobotlab grade`` on a course the user laid out and owns must score as they do for root
+  ``cobotlab grade`` on a course the user released and owns must score as they do for root
   (each case's score bounds and flags, the reference full marks, a blank 0), under
   bubblewrap's user-namespace path (no root to drop from: ``--unshare-user``);
 * **without** (``user.max_user_namespaces`` set to 0 in a user namespace of the user's own,
@@ -173,6 +173,7 @@ class Instructor:
         self.env_dir = base / "env"
         self.home = base / "home"
         self.work = base / "work"
+        self.released: Path | None = None   # the user's released course (the fixture's)
         self.env = {"HOME": str(self.home), "USER": USER, "LOGNAME": USER, "LANG": "C.UTF-8",
                     "PATH": f"{self.env_dir / 'bin'}:/usr/bin:/bin",
                     "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
@@ -227,10 +228,14 @@ def ta(tmp_path_factory) -> Instructor:
                         "autograder; print(sys.executable); print(autograder.__file__)"])
         assert found.stdout.splitlines() == [str(me.env_dir / "bin" / "python"),
                                              str(site / "autograder" / "__init__.py")]
-        # the course, laid out and released by the user, as an instructor does
-        me.cobotlab("course", "init", "released")
+        # the course: the run's one `course init` (course_kit.initialized_master), given to
+        # the user, who releases lab 0 as an instructor does. `course init` run by an
+        # unprivileged account from a regular install is docs/hub.md's step, run as written
+        # by tests/test_hub_term.py's grading account; one more here cost 11.7 s of CPU.
+        me.released = kit.fresh_course(kit.initialized_master(), me.work / "init")
+        _give(me.work / "init", user)
         me.run(["python", "-m", "nbgrader", "generate_assignment", ASSIGNMENT],
-               cwd=me.work / "released")
+               cwd=me.released)
         yield me
     finally:
         shutil.rmtree(base, ignore_errors=True)
@@ -272,7 +277,7 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     if not kit.full_corpus():
         notebook = sorted({*KERNEL_CASES, *SANDBOX_CASES})
     names = sorted(set(notebook) | set(FLOW_CASES))
-    course = ta.course(ta.work / "released", "course")
+    course = ta.course(ta.released, "course")
     folders = _hand_in(ta, course, cases, names)
     assert os.stat(course).st_uid == ta.user.pw_uid
 
@@ -317,7 +322,7 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
 
 @pytest.mark.timeout(300)
 def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
-    course = ta.course(ta.work / "released", "fallback")
+    course = ta.course(ta.released, "fallback")
     cases = kit.corpus(ASSIGNMENT)
     _hand_in(ta, course, cases, ["geometry_invert"])
     done = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", userns=False)
@@ -387,7 +392,7 @@ def test_ctrl_c_stops_every_process_in_the_fallback(ta, option, runner):
     """tests/test_grade_cli.py's Ctrl-C test, as the user and without user namespaces: no
     PID namespace and no cgroup to kill, nbgrader's kernel leads a session of its own, and
     the notebook's child another."""
-    course = ta.course(ta.work / "released", f"ctrl-c-{runner}")
+    course = ta.course(ta.released, f"ctrl-c-{runner}")
     kit.submit(course, ASSIGNMENT, "sleeper", extra=SLEEPER)
     _give(course / "submitted", ta.user)
     argv = [ta.env_dir / "bin" / "cobotlab", "grade", course, ASSIGNMENT, "--no-progress",
