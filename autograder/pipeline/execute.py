@@ -363,7 +363,8 @@ def _start_worker(cells, limits: Limits, run: Execution, skip: set[int],
         except CellHang as exc:
             setup = dataclasses.replace(setup, first=False)
             skip.add(exc.index)
-            run.notes.append(cell_error_note(f"{exc} (skipped from then on)"))
+            run.notes.append(cell_error_note(f"{exc} (skipped from then on)",
+                                             Place.whole_cell(exc.index)))
             continue
         # A cell stopped by its timer would only cost the same seconds again next restart.
         skip.update(r["index"] for r in worker.load_report
@@ -378,7 +379,8 @@ def _note_load(run: Execution, report: list[dict], tests: set[int]) -> None:
               and not c.get("skipped") and c.get("index") not in tests]
     run.notes.append(f"notebook loaded: {len(report)} code cells, {len(failed)} raised")
     for c in failed[:5]:
-        run.notes.append(cell_error_note(str(c.get("error"))[:200], str(c.get("where") or "")))
+        run.notes.append(cell_error_note(str(c.get("error"))[:200],
+                                         Place.claimed(c.get("place"))))
     chars = max([c.get("output_chars", 0) for c in report if isinstance(c, dict)
                  and isinstance(c.get("output_chars"), int)] or [0])
     if chars > 100_000:

@@ -128,7 +128,8 @@ WORKER_START_S = 60.0
 
 
 class CellHang(WorkerFailure):
-    """A notebook cell hung past its hard deadline while loading (``index`` says which)."""
+    """A notebook cell hung past its hard deadline while loading: ``index`` says which (the
+    message does not: a note writes the cell in from ``index``)."""
 
     def __init__(self, index: int, message: str):
         super().__init__(message)
@@ -342,7 +343,7 @@ class Worker:
                                       limits=(cpu, wall, f"cell {index}"))
             except WorkerFailure as exc:
                 budget.spend(0.0, time.monotonic() - cell_started)
-                raise CellHang(index, f"cell {index}: {exc}") from None
+                raise CellHang(index, str(exc)) from None
             elapsed = time.monotonic() - cell_started
             budget.spend(_reported_cpu(reply, elapsed), elapsed)
             self.load_report.append(dict(reply, index=index, skipped=False))
@@ -562,13 +563,10 @@ class Worker:
         if reply.get("ok") is True and "value" in reply:
             return checks.TrialOutcome(value=reply["value"], **timing)
         error = reply.get("error")
-        where = reply.get("where")
-        where = where[:60] if isinstance(where, str) else ""
+        # the words only: the line it stopped at travels typed (failure.place), and the
+        # feedback writes it in, renumbered for the student
         text = str(error)[:400] if error else "the call failed"
-        if where:
-            text += f" ({where})"
-        return checks.TrialOutcome(error=text, failure=_reported_failure(reply),
-                                   **timing)
+        return checks.TrialOutcome(error=text, failure=_reported_failure(reply), **timing)
 
     @property
     def alive(self) -> bool:
