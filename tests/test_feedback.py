@@ -27,8 +27,8 @@ from autograder.outcomes import (
     student_words,
 )
 from autograder.pipeline.cells import CellOrigin, extract_code
-from autograder.pipeline.execute import grade_notebook
 from autograder.pipeline.execution import cell_error_note
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.score import SubmissionGrade
 from autograder.pipeline.worker import Limits
 

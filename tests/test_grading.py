@@ -16,8 +16,9 @@ from autograder import checks
 from autograder.inside import wire
 from autograder.outcomes import Failed, Place
 from autograder.pipeline.cells import extract_code, scan_for_tampering
-from autograder.pipeline.execute import NotebookRunner, grade_notebook
+from autograder.pipeline.notebook_runner import NotebookRunner
 from autograder.pipeline.problems import problem_rng
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.worker import (
     Limits,
     Worker,
@@ -403,7 +404,7 @@ def test_without_bubblewrap_the_rlimits_fallback_still_grades_and_says_so(tmp_pa
     import sys
 
     path = _notebook(tmp_path, REFERENCE)
-    script = ("from autograder.pipeline.execute import grade_notebook\n"
+    script = ("from autograder.pipeline.run_submission import grade_notebook\n"
               "from autograder.pipeline.worker import Limits\n"
               f"g = grade_notebook({str(path)!r}, 'lab0_frames', 'a', {SECRET!r}, 'n',\n"
               "    Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30))\n"
