@@ -230,7 +230,7 @@ def _reported_failure(reply: dict) -> Failure:
     """The typed failure a call's reply reports. The worker is untrusted: the kinds it may
     claim are those that only cost the submission (a raise, a time-out, no such function,
     an unusable value); an exception's type name is what the code raised, capped; its
-    place is the typed ``place``, never read out of the reply's ``where`` words."""
+    place is the typed ``place`` (no reply holds it in words)."""
     kind = _REPORTED.get(reply.get("failure"), Failed.RAISED)
     exception = reply.get("exception")
     exception = exception[:80] if kind is Failed.RAISED and isinstance(exception, str) else ""
