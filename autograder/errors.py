@@ -33,18 +33,19 @@ class ProblemError:
     call gave no value, None when the scoring wrote the message (an unusable answer, a
     degenerate input that did not raise, a classic mistake); ``leads``: put before the
     other lines (the classic mistake an answer looks like, why right answers earned
-    nothing)."""
+    nothing); ``place``: the student's line the call stopped at, never in ``message``'s
+    words (given: the scoring's words about a call that raised elsewhere than it must, e.g.
+    on a degenerate input; else the failure's)."""
 
     label: str
     message: str
     failure: Failure | None = None
     leads: bool = False
+    place: Place | None = None
 
-    @property
-    def place(self) -> Place | None:
-        """The student's line the call stopped at, when its failure says (never the
-        scoring's words)."""
-        return self.failure.place if self.failure is not None else None
+    def __post_init__(self):
+        if self.place is None and self.failure is not None:
+            object.__setattr__(self, "place", self.failure.place)
 
 
 @dataclass(frozen=True)

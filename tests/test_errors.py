@@ -63,3 +63,18 @@ def test_the_same_words_at_two_places_are_two_groups_and_two_lines_each_placed()
         "on a a problem: KeyError: 'x' (cell 3, line 4)",
         "on a b problem: KeyError: 'x' (cell 3, line 4)",
         "on a c problem: KeyError: 'x' (cell 3, line 9)", "on a d problem: KeyError: 'x'"]
+
+
+def test_the_scorings_words_about_a_call_that_stopped_at_a_line_keep_its_place():
+    """A degenerate input that raised the wrong exception is the scoring's verdict (no
+    failure behind it, so it counts as no raise of the student's), said at the call's line."""
+    said = ProblemError("collinear", "expected ValueError on this degenerate input, got "
+                        "NotImplementedError", place=Place(6, 4))
+    assert said.failure is None and said.place == Place(6, 4)
+    [group] = error_groups([said, said])
+    assert (group.count, group.failure, group.place) == (2, None, Place(6, 4))
+    assert error_lines([said]) == ["on a collinear problem: expected ValueError on this "
+                                   "degenerate input, got NotImplementedError (cell 6, line 4)"]
+    # a failure's own place is the default; a given one stands
+    assert ProblemError("a", "x", HUNG).place == Place(2, 5)
+    assert ProblemError("a", "x", HUNG, place=Place(0, 1)).place == Place(0, 1)
