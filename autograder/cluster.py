@@ -9,7 +9,7 @@ and moves the data.
 - **One task per frozen submission.** The task carries the frozen notebook's bytes (never a
   path on this machine), the assignment, the student id, the problems' inputs and the
   limits (:func:`task_payload`); on its worker it runs
-  :func:`autograder.pipeline.execute.execute_notebook`, the same bubblewrap sandbox as a local run,
+  :func:`autograder.pipeline.run_submission.execute_notebook`, the same bubblewrap sandbox as a local run,
   and returns the :class:`~autograder.pipeline.execution.Execution` as one JSON text
   (:mod:`autograder.executions`).
 - **The cluster never holds the secret.** Problems are drawn here; a task carries only the
@@ -47,9 +47,9 @@ from urllib.parse import urlsplit
 
 from autograder import checks, executions, registry, sandbox
 from autograder.freeze import printable
-from autograder.pipeline.execute import execute_notebook
 from autograder.pipeline.execution import Execution
 from autograder.pipeline.problems import Problems
+from autograder.pipeline.run_submission import execute_notebook
 from autograder.pipeline.worker import GraderError, Limits
 
 __all__ = ["ClusterGrader", "connect", "execute_task", "spec_digest", "task_payload"]
@@ -145,7 +145,7 @@ class ClusterGrader:
     """Grades submissions on the Dask cluster behind ``client`` (see the module docstring).
 
     :meth:`execute_notebook` has the signature of
-    :func:`autograder.pipeline.execute.execute_notebook`, so
+    :func:`autograder.pipeline.run_submission.execute_notebook`, so
     :func:`autograder.pipeline.pipeline.grade_course` calls it in place of a local sandbox.
     ``owned``: a cluster this object started (a dask-gateway cluster), shut down by
     :meth:`close`.
@@ -198,7 +198,7 @@ class ClusterGrader:
     def execute_notebook(self, notebook_paths, problems: Problems,
                          limits: Limits = Limits(),
                          run_tests: bool = False) -> Execution:
-        """Run one submission on a worker (:func:`autograder.pipeline.execute.execute_notebook`
+        """Run one submission on a worker (:func:`autograder.pipeline.run_submission.execute_notebook`
         there); a failure raises (the caller's retry, then no score). The task carries the
         problems' inputs, never the secret: this process scores what comes back."""
         paths = [notebook_paths] if isinstance(notebook_paths, (str, Path)) else \

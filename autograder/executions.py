@@ -7,10 +7,11 @@ run scored). Reading one back validates everything: the functions are the lab's,
 every string is capped, every count and time is a bounded number, every value passes
 :func:`autograder.inside.wire.decode`, a failure's place is ``[cell, line]`` within
 :class:`~autograder.outcomes.Place`'s bounds. What fails is refused
-(:class:`ExecutionRefused`), never half-read. An execution kept before failures had a typed
-place (its failures carry ``where``, words) is refused too, with a message saying to run
-the student code again (``cobotlab grade`` without ``--rescore``): its words are not parsed
-back into a place.
+(:class:`ExecutionRefused`), never half-read. A failure's place and a note's travel typed
+only, never in their words. An execution kept in an older :data:`FORMAT` (format 1 wrote
+a failure's place into its message too, and notes held theirs in words only) is refused,
+with a message saying to run the student code again (``cobotlab grade`` without
+``--rescore``): its words are not parsed back into a place.
 
 The problems' inputs travel the same way (:func:`problems_to_wire`): a cluster task carries
 them instead of the secret. A function graded in one call gets its inputs only; a closed
@@ -27,15 +28,38 @@ import math
 from autograder import checks
 from autograder.freeze import printable
 from autograder.inside import wire
-from autograder.outcomes import Cause, Failed, Failure, Note, Place, TrialOutcome, student_words
+from autograder.outcomes import (
+    Cause,
+    Failed,
+    Failure,
+    Note,
+    Place,
+    TrialOutcome,
+    note_place,
+    student_words,
+)
 from autograder.pipeline.cells import CellOrigin
 from autograder.pipeline.execution import CellRun, Execution, FunctionRun
 from autograder.pipeline.problems import KernelTrials, Problems
 
-__all__ = ["FORMAT", "ExecutionRefused", "file_key", "to_wire", "from_wire", "problems_to_wire",
-           "problems_from_wire", "inputs_digest"]
+__all__ = ["FORMAT", "ExecutionRefused", "older_format", "file_key", "to_wire", "from_wire",
+           "problems_to_wire", "problems_from_wire", "inputs_digest"]
 
-FORMAT = 1
+# 2: a failure's place is only typed (format 1 also wrote it into the error's words, which
+# a renderer would now write in a second time) and notes carry their place.
+FORMAT = 2
+
+
+def older_format(found) -> str:
+    """Why an execution kept in format ``found`` is not read, and what to do instead. One
+    of format 1 holds its places in its messages' words, which are not parsed back into a
+    place; any other was kept by another version of cobotlab."""
+    why = ("by an older cobotlab, which wrote a failure's place into its message" if found == 1
+           else "by another version of cobotlab")
+    return (f"an execution kept in format {printable(found, 20)}, not {FORMAT} ({why}); run "
+            "the student code again with this cobotlab: `cobotlab grade` without --rescore "
+            "(with --replay <nonce> for a `cobotlab grade --fresh` run's problems), or the "
+            "shard job again")
 
 
 class ExecutionRefused(ValueError):
@@ -116,9 +140,10 @@ def _failure_from_wire(data, what: str) -> Failure | None:
 
 
 def _place(data: dict, what: str) -> Place | None:
-    """A failure's ``place``: null, or ``[cell, line]`` of non-negative integers within
-    :class:`Place`'s bounds. A failure with a ``where`` and no ``place`` was kept by a
-    cobotlab that wrote the place as words, which are not read back: it is refused."""
+    """A failure's, a cell run's or a note's ``place``: null, or ``[cell, line]`` of
+    non-negative integers within :class:`Place`'s bounds (``line`` null: the whole cell).
+    One without a ``place`` was kept by a cobotlab that wrote the place as words, which
+    are not read back: it is refused."""
     if "place" not in data:
         raise ExecutionRefused(
             f"{what} has no place (kept by an older cobotlab, which wrote it as words); "
@@ -130,7 +155,8 @@ def _place(data: dict, what: str) -> Place | None:
     value = _items(value, 2, f"{what}.place")
     if len(value) != 2:
         raise ExecutionRefused(f"{what}.place is not [cell, line]")
-    cell, line = _count(value[0], f"{what}.place.cell"), _count(value[1], f"{what}.place.line")
+    cell = _count(value[0], f"{what}.place.cell")
+    line = None if value[1] is None else _count(value[1], f"{what}.place.line")
     try:
         return Place(cell, line)
     except ValueError as exc:   # a count, but out of Place's bounds
@@ -185,7 +211,7 @@ def to_wire(execution: Execution) -> dict:
         "kernel_tests": list(execution.kernel_tests),
         "kernel_runs": {name: _run_to_wire(r) for name, r in execution.kernel_runs.items()},
         "suspicious": list(execution.suspicious), "sandbox_flags": list(execution.sandbox_flags),
-        "notes": [[str(n), student_words(n)] for n in execution.notes],
+        "notes": [_note_to_wire(n) for n in execution.notes],
         "cell_origins": [[o.notebook, o.position, o.prompt] for o in execution.cell_origins],
         "cell_runs": [_cell_run_to_wire(r) for r in execution.cell_runs],
         "seconds": execution.seconds,
@@ -193,12 +219,19 @@ def to_wire(execution: Execution) -> dict:
     }
 
 
+def _note_to_wire(note) -> list:
+    place = note_place(note)
+    return [str(note), student_words(note), None if place is None else place.to_wire()]
+
+
 def _note(data) -> Note:
-    data = _items(data, 2, "notes")
-    if len(data) != 2:
-        raise ExecutionRefused("a note is not [text, what a student reads]")
+    """A kept note: ``[text, what a student reads or null, place or null]``."""
+    data = _items(data, 3, "notes")
+    if len(data) != 3:
+        raise ExecutionRefused("a note is not [text, what a student reads, place]")
     shown = None if data[1] is None else _text(data[1], 1000, "notes")
-    return Note(_text(data[0], 1000, "notes"), for_student=shown)
+    return Note(_text(data[0], 1000, "notes"), for_student=shown,
+                place=_place({"place": data[2]}, "notes"))
 
 
 def _origin(data, notebooks, what: str) -> CellOrigin:
@@ -242,8 +275,7 @@ def from_wire(data, assignment: str, student_id: str, notebooks=None) -> Executi
     ``notebooks``: the names of the submission's notebooks, when known."""
     data = _mapping(data, "the execution")
     if data.get("format") != FORMAT:
-        raise ExecutionRefused(f"an execution of format {printable(data.get('format'), 20)}, "
-                               f"not {FORMAT}")
+        raise ExecutionRefused(older_format(data.get("format")))
     if data.get("student_id") != student_id or data.get("assignment") != assignment:
         raise ExecutionRefused("the execution is another submission's")
     specs = checks.SPECS[assignment]

@@ -5,7 +5,8 @@ numbers in a :class:`~autograder.pipeline.score.SubmissionGrade` only: per funct
 a coloured verdict, per check how many problems were within tolerance and the worst error
 against that tolerance in its unit, and each distinct error once with the number of problems
 it happened on. Cells are numbered as the student sees them (``In [n]`` after Restart and
-Run All), not as the grader counted them.
+Run All), not as the grader counted them: an error's or a note's place is typed
+(:class:`~autograder.outcomes.Place`), never in its words, and written in here.
 
 What the page never holds: the secret, hidden-test code, problem inputs or true answers
 (only error magnitudes), or anything from the submission that is not escaped and capped:
@@ -16,13 +17,12 @@ from __future__ import annotations
 
 import html
 import math
-import re
 from collections import Counter
 
 from autograder.checks import CheckResult, FunctionResult, voided_sentence
 from autograder.errors import ErrorGroup
 from autograder.freeze import printable
-from autograder.outcomes import Failed, Place, student_words
+from autograder.outcomes import Failed, Place, note_place, placed, student_words
 from autograder.page_policy import POLICY_META
 from autograder.pipeline.cells import CellOrigin
 from autograder.pipeline.score import SubmissionGrade
@@ -64,12 +64,6 @@ _VERDICTS = {
     "not_graded": ("missing", "not graded"),
 }
 
-# The grader's cell references in the words of a message or note, renumbered for display
-# (what is decided about a failure's place comes from its typed Failure.place instead).
-_WHERE = re.compile(r"\(cell (\d+), line (\d+)\)")
-_HUNG_CELL = re.compile(r"^cell (\d+): ")
-
-
 def _esc(text, limit: int = MAX_TEXT) -> str:
     return html.escape(printable(text, limit))
 
@@ -84,9 +78,16 @@ def _cell_name(index: int, origins: list[CellOrigin]) -> str:
 
 
 def line_name(place: Place, origins: list[CellOrigin]) -> str:
-    """``place`` as the student names it: "cell In [n], line m" (the notebook first when
-    several)."""
-    return f"{_cell_name(place.cell, origins)}, line {place.line}"
+    """``place`` as the student names it: "cell In [n], line m", or "cell In [n]" for a
+    whole cell (the notebook first when several)."""
+    cell = _cell_name(place.cell, origins)
+    return cell if place.line is None else f"{cell}, line {place.line}"
+
+
+def student_placed(words: str, place: Place | None, origins: list[CellOrigin]) -> str:
+    """``words`` with ``place`` written in as the student names its cell (see
+    :func:`autograder.outcomes.placed`)."""
+    return placed(words, place, lambda index: _cell_name(index, origins))
 
 
 def _in_one_notebook(place: Place | None, origins: list[CellOrigin]) -> bool:
@@ -94,12 +95,6 @@ def _in_one_notebook(place: Place | None, origins: list[CellOrigin]) -> bool:
     sentence names the line only then (it says "the released notebook", one notebook)."""
     return place is not None and 0 <= place.cell < len(origins) \
         and len({o.notebook for o in origins}) == 1
-
-
-def student_location(text: str, origins: list[CellOrigin]) -> str:
-    """``text`` with the grader's "cell N" references renumbered as the student's cells."""
-    text = _WHERE.sub(lambda m: f"({_cell_name(int(m[1]), origins)}, line {m[2]})", text)
-    return _HUNG_CELL.sub(lambda m: f"{_cell_name(int(m[1]), origins)}: ", text)
 
 
 def function_verdict(f: FunctionResult) -> str:
@@ -158,8 +153,8 @@ def error_lines(f: FunctionResult, origins: list[CellOrigin]) -> list[str]:
     for g in groups:
         if g.failure is not None and g.failure.is_time_out:
             continue
-        # messages that read the same once the cells are renumbered are one line
-        shown = student_location(printable(g.message, MAX_TEXT), origins)
+        # messages that read the same once their places are named are one line
+        shown = student_placed(printable(g.message, MAX_TEXT), g.place, origins)
         merged[shown] += g.count
         labels = kinds.setdefault(shown, [])
         labels.extend(label for label in g.labels if label not in labels)
@@ -279,7 +274,8 @@ def _notebook_notes(grade: SubmissionGrade) -> list[str]:
         words = student_words(note)
         if words is None:
             continue
-        merged[student_location(printable(words.strip(), MAX_TEXT), grade.cell_origins)] += 1
+        merged[student_placed(printable(words.strip(), MAX_TEXT), note_place(note),
+                              grade.cell_origins)] += 1
     lines = [f"{note} (in {n} cells)" if n > 1 else note
              for note, n in sorted(merged.items(), key=lambda item: -item[1])[:MAX_LINES]]
     if len(merged) > MAX_LINES:

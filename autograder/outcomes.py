@@ -7,8 +7,9 @@ skipped, a ``timed_out:<function>`` flag, the feedback's "Timed out" line) from
 ``failure.kind``, so rewording a message changes what students read and nothing else.
 ``error`` stays the text the feedback shows. In the same way a :class:`Flag` says which
 graded function it is about, a :class:`Note` whether a student may read it, and a
-:class:`Place` which line of the student's code a failure stopped at (the feedback names it
-as the student's cell from the numbers, never from the words of the message).
+:class:`Place` which line of the student's code a failure or a note is about: no message
+holds it in words; each renderer writes it in at the end (:func:`placed`), the feedback as
+the student's ``In [n]``, the run log as the grader's cell index.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Failed", "Cause", "Place", "Failure", "raised", "TrialOutcome", "Flag", "Note"]
+__all__ = ["Failed", "Cause", "Place", "Failure", "raised", "TrialOutcome", "Flag", "Note",
+           "placed", "grader_cell", "student_words", "note_place", "instructor_words"]
 
 
 class Failed(str, enum.Enum):
@@ -52,14 +54,17 @@ MAX_LINE = 10**6
 class Place:
     """A line of the student's code as the grader ran it: ``cell``, the grader's index of
     the code cell (0-based, the order of ``Execution.cell_origins``, not the student's
-    ``In [n]``); ``line``, 1-based within that cell."""
+    ``In [n]``); ``line``, 1-based within that cell, or None for the cell as a whole (one
+    that hung: no line is known)."""
 
     cell: int
-    line: int
+    line: int | None = None
 
     def __post_init__(self):
         for name, low, high in (("cell", 0, MAX_CELLS - 1), ("line", 1, MAX_LINE)):
             value = getattr(self, name)
+            if name == "line" and value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ValueError(f"Place.{name} = {value!r} is not an integer within "
                                  f"{low}..{high}; give the cell's index and the line's number")
@@ -69,16 +74,42 @@ class Place:
         """The place a worker's reply claims (``[cell, line]``), or None when it claims none
         or one that is no place: the worker is untrusted, and a wrong place costs only the
         submission's own feedback its line number."""
-        if not isinstance(value, (list, tuple)) or len(value) != 2:
+        if not isinstance(value, (list, tuple)) or len(value) != 2 or value[1] is None:
             return None
         try:
             return cls(*value)
         except ValueError:
             return None
 
-    def to_wire(self) -> list[int]:
-        """The place as the worker's reply and a kept execution carry it: ``[cell, line]``."""
+    @classmethod
+    def whole_cell(cls, index: int) -> Place | None:
+        """The whole of code cell ``index`` (one that hung), or None past the bounds (a
+        notebook of more cells than a place can name loses only that note's cell)."""
+        return cls(index) if 0 <= index < MAX_CELLS else None
+
+    def to_wire(self) -> list:
+        """The place as the worker's reply and a kept execution carry it: ``[cell, line]``
+        (``line`` null for a whole cell)."""
         return [self.cell, self.line]
+
+
+def grader_cell(index: int) -> str:
+    """The grader's own name of code cell ``index`` ("cell 4"), as the instructor's log and
+    ``labs verify`` show it; the student's feedback names it ``In [n]`` instead
+    (:func:`autograder.feedback.line_name`)."""
+    return f"cell {index}"
+
+
+def placed(words: str, place: Place | None, cell_name=grader_cell) -> str:
+    """``words`` with ``place`` written in, its cell named by ``cell_name`` (an index ->
+    words): "words (cell 4, line 7)" for a line, "cell 4: words" for a whole cell, the words
+    alone without a place. The one place where a place becomes text: every renderer (the
+    feedback page, the run log, ``labs verify``) composes it here, at the end."""
+    if place is None:
+        return words
+    if place.line is None:
+        return f"{cell_name(place.cell)}: {words}"
+    return f"{words} ({cell_name(place.cell)}, line {place.line})"
 
 
 @dataclass(frozen=True)
@@ -166,13 +197,16 @@ def about_function(flag: str) -> str | None:
 class Note(str):
     """A note on a grade, for the instructor's run log; ``for_student``: the words a student
     reads in their feedback (about running their own notebook), None when it is the
-    instructor's only (the grader's retries, its sandbox, nbgrader's cross-check)."""
+    instructor's only (the grader's retries, its sandbox, nbgrader's cross-check);
+    ``place``: the student's cell or line it is about, which neither text holds (each
+    renderer writes it in with :func:`placed`, in its reader's numbering)."""
 
     for_student: str | None
+    place: Place | None
 
-    def __new__(cls, text: str, for_student: str | None = None):
+    def __new__(cls, text: str, for_student: str | None = None, place: Place | None = None):
         self = super().__new__(cls, text)
-        self.for_student = for_student
+        self.for_student, self.place = for_student, place
         return self
 
 
@@ -180,3 +214,13 @@ def student_words(note: str) -> str | None:
     """What a student reads of ``note`` (None: nothing; a plain string is the instructor's)."""
     return note.for_student if isinstance(note, Note) else None
 
+
+def note_place(note: str) -> Place | None:
+    """The place ``note`` is about (None: none; a plain string is about no place)."""
+    return note.place if isinstance(note, Note) else None
+
+
+def instructor_words(note: str) -> str:
+    """``note`` as the instructor's run log shows it: its text, its place written in with the
+    grader's cell numbers."""
+    return placed(str(note), note_place(note))

@@ -23,7 +23,7 @@ The Monte Carlo itself is :mod:`autograder.fairness` (draws, scoring, margins, i
 calls are in-process (``fairness.in_process``, the grader's own scoring): the sandbox
 changes where code runs, not what it scores. ``--sandboxed`` shows it: the notebook's
 reference also runs as the grader runs a submission, in the sandboxed worker through
-:class:`autograder.pipeline.execute.NotebookRunner` (the one call loop of the grader and of
+:class:`autograder.pipeline.notebook_runner.NotebookRunner` (the one call loop of the grader and of
 ``cobotlab labs verify``), as a variant of its own on the same draws.
 
     .venv/bin/python benchmarks/grading_fairness.py --quick              # ~2 min, 300 draws
@@ -776,7 +776,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--sandboxed", action="store_true",
                         help="also run the notebook's reference in the grader's sandboxed "
-                             "worker (autograder.pipeline.execute.NotebookRunner), a variant of its own")
+                             "worker (autograder.pipeline.notebook_runner.NotebookRunner), a variant of its own")
     args = parser.parse_args(argv)
     draws = 300 if args.quick else args.draws
     labs = [x for x in args.labs.split(",") if x] or list(LABS)

@@ -61,7 +61,7 @@ from autograder.inside import wire
 from autograder.nbgrader_cells import cell_role, nbgrader_metadata
 from autograder.pipeline import worker
 from autograder.pipeline.cells import cell_source, extract_code
-from autograder.pipeline.execute import NotebookRunner
+from autograder.pipeline.notebook_runner import NotebookRunner
 from autograder.pipeline.problems import problem_rng
 from autograder.pipeline.worker import GraderError, Limits, WorkerSetup
 from autograder.spec_types import FunctionSpec, Trial
@@ -346,7 +346,7 @@ def reference_notebook(source: Path) -> dict:
 
 class SandboxedReference:
     """The reference notebook loaded once in the grader's bubblewrap worker, called through
-    the grader's own :class:`autograder.pipeline.execute.NotebookRunner`; a worker that dies
+    the grader's own :class:`autograder.pipeline.notebook_runner.NotebookRunner`; a worker that dies
     (a limit, a crash) is started again for the next problem."""
 
     def __init__(self, source: Path, limits: Limits):

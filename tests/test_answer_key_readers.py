@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from autograder import checks, sandbox
-from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.worker import Limits
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -26,9 +26,9 @@ from nbgrader.api import Gradebook
 
 from autograder import checks, cluster, executions, registry, sandbox
 from autograder.inside import wire
-from autograder.outcomes import Place
+from autograder.outcomes import Place, note_place, student_words
 from autograder.pipeline.cells import CellOrigin
-from autograder.pipeline.execution import CellRun, Execution, FunctionRun
+from autograder.pipeline.execution import CellRun, Execution, FunctionRun, cell_error_note
 from autograder.pipeline.pipeline import grade_course
 from autograder.pipeline.problems import draw_problems
 from autograder.pipeline.score import score_execution
@@ -104,7 +104,9 @@ def _execution() -> Execution:
     """A real execution: the reference of lab 0 run in this process on one student's
     problems (the cluster's reply carries exactly this)."""
     problems = draw_problems(ASSIGNMENT, "ada", SECRET, None)
-    ex = Execution("ada", ASSIGNMENT, suspicious=["suspicious_x"], notes=["n"])
+    ex = Execution("ada", ASSIGNMENT, suspicious=["suspicious_x"],
+                   notes=["n", cell_error_note("KeyError: 'frames'", Place(1, 4)),
+                          cell_error_note("timed out after 40 s", Place(0))])
     for spec in checks.SPECS[ASSIGNMENT]:
         answer = spec.code_mistakes[0].func if spec.name == "compose_chain" else None
         outcomes = []
@@ -113,7 +115,7 @@ def _execution() -> Execution:
             outcomes.append(checks.TrialOutcome(value=value, seconds=0.01, cpu_seconds=0.01))
         ex.functions.append(FunctionRun(spec.name, outcomes))
     ex.functions[0].outcomes[0] = checks.TrialOutcome(
-        error="timed out (cell 1, line 2)", failure=checks.Failure(
+        error="timed out", failure=checks.Failure(
             checks.Failed.TIMED_OUT, place=Place(1, 2)))
     ex.cell_origins = [CellOrigin(f"{ASSIGNMENT}.ipynb", 3, 1),
                        CellOrigin(f"{ASSIGNMENT}.ipynb", 5, 2)]
@@ -143,6 +145,10 @@ def test_an_execution_round_trips_and_scores_the_same():
     assert (back.cell_runs[1].exception, back.cell_runs[1].place) == ("KeyError", Place(1, 4))
     assert back.functions[0].outcomes[0].failure.kind is checks.Failed.TIMED_OUT
     assert back.functions[0].outcomes[0].failure.place == Place(1, 2)
+    assert back.notes == ex.notes and [note_place(n) for n in back.notes] == [
+        None, Place(1, 4), Place(0)]
+    assert [student_words(n) for n in back.notes] == [None, "KeyError: 'frames'",
+                                                      "timed out after 40 s"]
     assert before.kernel_checks == after.kernel_checks == {"invert_pose": None}
 
 
@@ -197,6 +203,12 @@ def _tampered(edit):
     (lambda d: d["kernel_runs"].update(compose_chain=d["kernel_runs"]["invert_pose"]),
      "no test cell called"),
     (lambda d: d.update(format=0), "format"),
+    # kept in format 1, whose messages held their places in words: refused, naming the fix
+    (lambda d: d.update(format=1), "format 1, not 2 .by an older cobotlab.*run the student "
+     "code again.*`cobotlab grade` without --rescore"),
+    (lambda d: d["notes"][1].pop(), r"not \[text, what a student reads, place\]"),
+    (lambda d: d["notes"][1].__setitem__(2, "cell 1, line 4"), "notes.place is not a list"),
+    (lambda d: d["notes"][1].__setitem__(2, [1, -4]), "notes.place.line is not a count"),
     (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[-1, 2]),
      "place.cell is not a count"),
     (lambda d: d["functions"][0]["outcomes"][0]["failure"].update(place=[1, True]),
@@ -229,7 +241,7 @@ def test_replies_that_do_not_add_up_are_refused(edit, why):
 
 def test_strings_are_capped():
     data = _tampered(lambda d: d.update(suspicious=["x" * 10_000],
-                                        notes=[["y" * 10_000, "z" * 10_000]]))
+                                        notes=[["y" * 10_000, "z" * 10_000, None]]))
     back = _decode(data)
     assert len(back.suspicious[0]) == 200 and len(back.notes[0]) == 1000
     assert len(back.notes[0].for_student) == 1000

@@ -34,7 +34,7 @@ def test_groups_count_each_message_with_its_first_failure_and_its_shown_labels()
     groups = error_groups(errors)
     assert [g.message for g in groups] == ["returned NaN", "timed out", "skipped"]
     assert groups[0] == ErrorGroup("returned NaN", 2, BOOM, ("e1",))
-    assert groups[1] == ErrorGroup("timed out", 1, HUNG, ("e1",))
+    assert groups[1] == ErrorGroup("timed out", 1, HUNG, ("e1",), Place(2, 5))
     # only the problems of the first lines are named: p0..p2 made lines 3-5, e2 none
     assert groups[2] == ErrorGroup("skipped", 6, SKIP, ("p0", "p1", "p2"))
 
@@ -44,3 +44,37 @@ def test_past_the_cap_a_new_message_is_not_counted_but_old_ones_still_are():
     errors.append(ProblemError("x", "distinct 0"))
     groups = error_groups(errors)
     assert len(groups) == pe.MAX_GROUPS and groups[0].count == 2
+
+
+def test_the_same_words_at_two_places_are_two_groups_and_two_lines_each_placed():
+    """The place is typed: the groups split by it, and only the lines write it in (with the
+    grader's cell numbers, as ``labs verify`` shows them)."""
+    at = [Failure(Failed.RAISED, exception="KeyError", place=Place(3, line))
+          for line in (4, 9)]
+    errors = [ProblemError("a", "KeyError: 'x'", at[0]), ProblemError("b", "KeyError: 'x'", at[0]),
+              ProblemError("c", "KeyError: 'x'", at[1]),
+              ProblemError("d", "KeyError: 'x'", raised("KeyError"))]     # no place known
+    groups = error_groups(errors)
+    assert [(g.message, g.place, g.count) for g in groups] == [
+        ("KeyError: 'x'", Place(3, 4), 2), ("KeyError: 'x'", Place(3, 9), 1),
+        ("KeyError: 'x'", None, 1)]
+    assert [g.labels for g in groups] == [("a", "b"), ("c",), ("d",)]
+    assert error_lines(errors) == [
+        "on a a problem: KeyError: 'x' (cell 3, line 4)",
+        "on a b problem: KeyError: 'x' (cell 3, line 4)",
+        "on a c problem: KeyError: 'x' (cell 3, line 9)", "on a d problem: KeyError: 'x'"]
+
+
+def test_the_scorings_words_about_a_call_that_stopped_at_a_line_keep_its_place():
+    """A degenerate input that raised the wrong exception is the scoring's verdict (no
+    failure behind it, so it counts as no raise of the student's), said at the call's line."""
+    said = ProblemError("collinear", "expected ValueError on this degenerate input, got "
+                        "NotImplementedError", place=Place(6, 4))
+    assert said.failure is None and said.place == Place(6, 4)
+    [group] = error_groups([said, said])
+    assert (group.count, group.failure, group.place) == (2, None, Place(6, 4))
+    assert error_lines([said]) == ["on a collinear problem: expected ValueError on this "
+                                   "degenerate input, got NotImplementedError (cell 6, line 4)"]
+    # a failure's own place is the default; a given one stands
+    assert ProblemError("a", "x", HUNG).place == Place(2, 5)
+    assert ProblemError("a", "x", HUNG, place=Place(0, 1)).place == Place(0, 1)

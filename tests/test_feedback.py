@@ -16,10 +16,19 @@ from autograder import checks
 from autograder.checks import CheckResult, FunctionResult
 from autograder.errors import ProblemError
 from autograder.feedback import error_lines, feedback_html, function_verdict
-from autograder.outcomes import Cause, Failed, Failure, Place, raised
+from autograder.outcomes import (
+    Cause,
+    Failed,
+    Failure,
+    Place,
+    instructor_words,
+    note_place,
+    raised,
+    student_words,
+)
 from autograder.pipeline.cells import CellOrigin, extract_code
-from autograder.pipeline.execute import grade_notebook
 from autograder.pipeline.execution import cell_error_note
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.score import SubmissionGrade
 from autograder.pipeline.worker import Limits
 
@@ -53,14 +62,15 @@ def _section(page: str, name: str) -> str:
 
 
 def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees_it():
-    message = "ZeroDivisionError: division by zero (cell 2, line 5)"
+    message = "ZeroDivisionError: division by zero"
+    at = Failure(Failed.RAISED, exception="ZeroDivisionError", place=Place(2, 5))
     f = FunctionResult(
         "pose_from_rotvec", 2.0, 4.0,
         [_check(n_full=5, n=8, worst=float("inf"), describe="the rotation block of the pose")],
-        errors=[f"on a {label} problem: {message}" for label in ("zero rotation", "tiny rotation",
-                                                                  "half turn")],
+        errors=[f"on a {label} problem: {message} (cell 2, line 5)"
+                for label in ("zero rotation", "tiny rotation", "half turn")],
         n_problems=8, n_failed=3,
-        problem_errors=tuple(ProblemError(label, message) for label in (
+        problem_errors=tuple(ProblemError(label, message, at) for label in (
             "zero rotation", "tiny rotation", "half turn")))
     # the grader's cell 2 is the student's In [7] (magic and hidden cells were dropped)
     page = feedback_html(_grade(f, origins=_origins(1, 4, 7)))
@@ -74,9 +84,9 @@ def test_one_line_per_distinct_error_with_its_count_and_cell_as_the_student_sees
 
 def test_notebook_notes_are_deduplicated_with_a_count():
     notes = ["notebook loaded: 9 code cells, 3 raised"] + \
-        [cell_error_note("NotImplementedError", "cell 3, line 4")] * 3 + \
-        [cell_error_note("cell 5: timed out after 22 s (skipped from then on)"),
-         cell_error_note("KeyError: 'x'", ""),
+        [cell_error_note("NotImplementedError", Place(3, 4))] * 3 + \
+        [cell_error_note("timed out after 22 s (skipped from then on)", Place(5)),
+         cell_error_note("KeyError: 'x'"),
          "nbgrader's scratch gradebook is unreadable (hidden_test cells)"]
     page = feedback_html(_grade(notes=notes, origins=_origins(1, 2, 3, 5, 6, 8)))
     assert page.count("NotImplementedError") == 1
@@ -84,6 +94,26 @@ def test_notebook_notes_are_deduplicated_with_a_count():
     assert "cell In [8]: timed out" in page
     assert "KeyError: 'x'" in page.replace("&#x27;", "'") and "()" not in page
     assert "hidden_test" not in page  # nbgrader's notes are the instructor's, not the student's
+
+
+def test_a_place_is_written_in_from_its_type_never_read_out_of_the_words():
+    """Renumbering comes from the typed place: words that look like a place (the student
+    wrote them) are shown as written, and the same words at two lines are two lines."""
+    forged = "ValueError: see (cell 0, line 1)"
+    at = [Failure(Failed.RAISED, exception="ValueError", place=Place(1, line)) for line in (2, 6)]
+    f = FunctionResult("invert_pose", 0.0, 3.0, [_check(n_full=0, worst=float("inf"))],
+                       n_problems=6, n_failed=6, problem_errors=(
+                           *[ProblemError("a", forged, at[0])] * 4,
+                           *[ProblemError("b", forged, at[1])] * 2))
+    lines = error_lines(f, _origins(3, 8))
+    assert lines == ["ValueError: see (cell 0, line 1) (cell In [8], line 2) (on 4 of 6 "
+                     "problems: a)",
+                     "ValueError: see (cell 0, line 1) (cell In [8], line 6) (on 2 of 6 "
+                     "problems: b)"]
+    hung = [cell_error_note("cell 0: timed out", Place(1)), cell_error_note("(cell 1, line 1)")]
+    page = feedback_html(_grade(notes=hung, origins=_origins(3, 8)))
+    assert "cell In [8]: cell 0: timed out" in page and "(cell 1, line 1)" in page
+    assert "In [3]" not in page
 
 
 def test_an_unwritten_function_is_not_implemented_not_a_method_hint():
@@ -146,7 +176,7 @@ def test_student_text_is_escaped_and_capped():
                        errors=[f"on a random problem: {hostile}"], n_problems=6, n_failed=6,
                        problem_errors=tuple(ProblemError("random", f"{i} {hostile}")
                                             for i in range(20)))
-    notes = [cell_error_note(hostile, "cell 0, line 1"),
+    notes = [cell_error_note(hostile, Place(0, 1)),
              cell_error_note("\x1b[31m</code>")]
     grade = SubmissionGrade("<b>bob</b>", "lab0_frames", [f], [], notes)
     page = feedback_html(grade)
@@ -267,5 +297,31 @@ def test_page_of_a_real_hang_a_forbidden_routine_and_a_hostile_message(tmp_path)
     crash = _section(page, "compose_chain")
     assert "<img" not in page and "ValueError: &lt;img src=x" in crash
     assert f"(cell In [3], line 2) (on {n} of {n} problems" in crash
+    # the place came typed from the worker: the message holds the words only, the instructor's
+    # lines write it in with the grader's cell index (compose_chain is cell 2 of 4)
+    [group] = grade.functions[1].error_groups
+    assert "(cell" not in group.message and group.place == Place(2, 2)
+    assert grade.functions[1].errors[0].endswith("(cell 2, line 2)")
     assert "this check measures" not in crash  # every problem raised: the error is the story
     assert "cv2.Rodrigues" in _section(page, "pose_from_rotvec")
+
+
+def test_a_cell_that_hangs_past_its_backstop_is_named_from_its_typed_cell(tmp_path):
+    """A cell that blocks the worker's own timers is killed by the grader's backstop
+    (:class:`CellHang`): its note carries the cell as a place, not in its words, and the
+    page names the student's ``In [n]`` before them (the run log the grader's index)."""
+    cells = ["x = 1",
+             "import signal, time\nsignal.pthread_sigmask(signal.SIG_BLOCK, "
+             "{signal.SIGALRM, signal.SIGPROF})\ntime.sleep(60)",
+             "y = 2"]
+    nb = {"cells": [{"cell_type": "code", "metadata": {}, "outputs": [], "source": c}
+                    for c in cells], "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
+    path = tmp_path / "lab0_frames.ipynb"
+    path.write_text(json.dumps(nb))
+    limits = Limits(cell_timeout_s=0.5, call_timeout_s=1, load_timeout_s=30, wall_factor=1)
+    grade = grade_notebook([path], "lab0_frames", "cy", SECRET, None, limits)
+    [hung] = [n for n in grade.notes if note_place(n) is not None]
+    assert note_place(hung) == Place(1) and "cell" not in student_words(hung)
+    assert instructor_words(hung).startswith("cell 1: ")
+    page = feedback_html(grade)
+    assert re.search(r"cell In \[2\]: timed out after [\d.]+ s \(skipped from then on\)", page)

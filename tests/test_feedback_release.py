@@ -25,6 +25,7 @@ from autograder.course import _CONFIG
 from autograder.errors import ProblemError
 from autograder.feedback import feedback_html, feedback_section
 from autograder.nbgrader_hooks import AddCobotlabFeedback, HideHiddenTests
+from autograder.outcomes import Place
 from autograder.pipeline.execution import cell_error_note
 from autograder.pipeline.score import SubmissionGrade
 
@@ -117,7 +118,7 @@ def test_a_class_partly_outside_the_exchange_is_named_with_the_way_out(tmp_path)
 
 def test_the_section_is_the_students_page_without_instructor_notes_scoped():
     grade = _grade(flags=["suspicious_secret_probe"], notes=[
-        cell_error_note("NameError: name 'x' is not defined", "cell 0, line 1"),
+        cell_error_note("NameError: name 'x' is not defined", Place(0, 1)),
         "graded after 1 grader error(s), each retried in a fresh sandbox: WorkerFailure: "
         "the memory limit of the template",
         "no cgroup for this submission (unreadable cgroup.procs): per-process limits only",

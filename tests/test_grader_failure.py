@@ -16,8 +16,8 @@ from nbgrader.api import Gradebook, MissingEntry
 
 from autograder import checks, sandbox
 from autograder.pipeline import execute, worker
-from autograder.pipeline.execute import execute_notebook
 from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.run_submission import execute_notebook
 from autograder.pipeline.worker import worker_jail
 from cobotlab.cli import NOT_GRADED_EXIT, main
 

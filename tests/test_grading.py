@@ -16,8 +16,9 @@ from autograder import checks
 from autograder.inside import wire
 from autograder.outcomes import Failed, Place
 from autograder.pipeline.cells import extract_code, scan_for_tampering
-from autograder.pipeline.execute import NotebookRunner, grade_notebook
+from autograder.pipeline.notebook_runner import NotebookRunner
 from autograder.pipeline.problems import problem_rng
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.worker import (
     Limits,
     Worker,
@@ -403,7 +404,7 @@ def test_without_bubblewrap_the_rlimits_fallback_still_grades_and_says_so(tmp_pa
     import sys
 
     path = _notebook(tmp_path, REFERENCE)
-    script = ("from autograder.pipeline.execute import grade_notebook\n"
+    script = ("from autograder.pipeline.run_submission import grade_notebook\n"
               "from autograder.pipeline.worker import Limits\n"
               f"g = grade_notebook({str(path)!r}, 'lab0_frames', 'a', {SECRET!r}, 'n',\n"
               "    Limits(cell_timeout_s=5, call_timeout_s=3, load_timeout_s=30))\n"
@@ -650,8 +651,8 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
 def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
     """A failure's place is the worker's ``[cell, line]``, never read out of its words; a
     claim that is no place (the worker is untrusted) leaves the failure without one."""
-    reply = {"ok": False, "error": "ValueError: x", "where": "cell 9, line 9",
-             "failure": "raised", "exception": "ValueError", "place": claimed}
+    reply = {"ok": False, "error": "ValueError: x", "failure": "raised",
+             "exception": "ValueError", "place": claimed}
     failure = _reported_failure(reply)
     assert failure.place == (None if place is None else Place(*place))
     with pytest.raises(ValueError, match="Place.line"):
@@ -660,19 +661,20 @@ def test_a_workers_claimed_place_is_typed_or_nothing(claimed, place):
 
 def test_the_worker_reports_the_place_of_a_cell_it_ran_and_no_other():
     """The place is looked up from the cells the worker compiled: a "<cell ...>" file name
-    the student's code makes up itself gives the words, but no place."""
+    the student's code makes up itself gives no place; and the reply holds no place in
+    words (the grader writes them from the place)."""
     from autograder.inside import worker
 
     namespace: dict = {}
     exec(compile("def f():\n    x = 1\n    raise ValueError('no')", worker._cell_file(3),
                  "exec"), namespace)
     made_up = compile("raise KeyError('k')", "<cell forged>", "exec")
-    for call, place, where in ((namespace["f"], [3, 3], "cell 3, line 3"),
-                               (lambda: exec(made_up, {}), None, "cell forged, line 1")):
+    for call, place in ((namespace["f"], [3, 3]), (lambda: exec(made_up, {}), None)):
         try:
             call()
         except Exception as exc:  # noqa: BLE001 - the test's own raise
             reply = worker._failure(exc)
-        assert reply["place"] == place and reply["where"] == where
+        assert reply["place"] == place and "where" not in reply
+        assert "cell" not in reply["error"]
         assert (reply["exception"], reply["message"]) == (
             ("ValueError", "no") if place else ("KeyError", "'k'"))

@@ -161,3 +161,31 @@ def test_a_submission_handed_in_again_is_refused_by_name(graded, monkeypatch, ca
         assert "ref (" not in err and "blank (" not in err
     finally:
         notebook.write_text(text)
+
+
+def test_an_execution_kept_by_an_older_cobotlab_is_refused_naming_the_fix(graded, monkeypatch,
+                                                                          capsys):
+    """Format 1 wrote a failure's place into its message's words: rescoring it would write
+    the place in twice, and its words are not parsed back, so it is refused by name with
+    what grades it again (running the student code), and nothing is recorded."""
+    from autograder.pipeline.rescore import kept_path
+
+    course, _ = graded
+    registry.use_course(course)
+    kept = course / ".cobotlab" / kept_path(LAB, "biased")
+    text = kept.read_text()
+    data = json.loads(text)
+    data["format"] = data["execution"]["format"] = 1
+    kept.write_text(json.dumps(data))
+    try:
+        _no_student_code(monkeypatch)
+        before = (course / "grades.csv").read_bytes()
+        assert main(["grade", str(course), LAB, "--rescore", "--no-progress"]) == 2
+        err = " ".join(capsys.readouterr().err.split())
+        assert "biased (an execution kept in format 1, not 2 (by an older cobotlab" in err
+        assert "run the student code again with this cobotlab: `cobotlab grade` without " \
+               "--rescore" in err
+        assert "ref (" not in err and "blank (" not in err
+        assert (course / "grades.csv").read_bytes() == before
+    finally:
+        kept.write_text(text)

@@ -15,7 +15,7 @@ import pytest
 from test_grading_sandbox import LIMITS, PROBES, ROOT, _probe_source
 
 from autograder import sandbox
-from autograder.pipeline.execute import grade_notebook
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.worker import Limits, Worker, WorkerSetup
 from autograder.template import Template, leading_cells
 

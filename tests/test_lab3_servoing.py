@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from autograder import checks
-from autograder.pipeline.execute import grade_notebook
 from autograder.pipeline.pipeline import grade_course
+from autograder.pipeline.run_submission import grade_notebook
 from autograder.pipeline.worker import Limits
 from autograder.secret import load_secret
 from solutions import servoing as S

@@ -14,9 +14,9 @@ Requests: ``{"op": "cell", "index": i, "source": src, "timeout": s, "wall": w}``
 notebook cell in the shared namespace, stopped after ``s`` CPU seconds or ``w`` wall-clock
 seconds (an exception or timeout ends that cell only); the reply carries the first few KB
 the cell wrote to stdout and to stderr; a failed cell or call's reply says where the
-student's code stopped, in words (``"where"``) and as ``"place": [cell index, line]`` (null
-when no cell of the notebook was on the stack), and a raise's ``"exception"`` (its type's
-name) and ``"message"`` (``str(exc)``, capped);
+student's code stopped as ``"place": [cell index, line]`` (null when no cell of the notebook
+was on the stack; never in words, which the grader writes from the place), and a raise's
+``"exception"`` (its type's name) and ``"message"`` (``str(exc)``, capped);
 ``{"op": "forbid", "names": [...]}``, sent before any student code, takes hold of the
 routines graded functions must not call (:class:`autograder.inside.tripwire.Guard`);
 ``{"op": "call", "name": f, "args": [...], "timeout": s, "wall": w, "forbidden": [...],
@@ -199,8 +199,7 @@ def _failure(exc: BaseException) -> dict:
     the grader then charges it to the submission without judging starvation (the one claim
     it takes from the worker, since it can only cost the submission that makes it)."""
     frame = _student_frame(exc)
-    reply = {"ok": False, "error": _describe(exc), "where": _where(frame),
-             "place": _place(frame)}
+    reply = {"ok": False, "error": _describe(exc), "place": _place(frame)}
     if isinstance(exc, _Timeout):
         reply["failure"] = "timed_out"
         if exc.by_cpu:
@@ -232,13 +231,9 @@ def _student_frame(exc: BaseException):
     return None
 
 
-def _where(frame) -> str:
-    """The student's own line that raised, in words, e.g. "cell 4, line 7"."""
-    return f"{frame.filename.strip('<>')}, line {frame.lineno}" if frame is not None else ""
-
-
 def _place(frame) -> list[int] | None:
-    """The same line as ``[cell index, line]`` (a typed place for the grader), or None."""
+    """The student's own line that raised as ``[cell index, line]`` (a typed place for the
+    grader), or None."""
     if frame is None or frame.filename not in _CELL_FILES or not frame.lineno:
         return None
     return [_CELL_FILES[frame.filename], frame.lineno]

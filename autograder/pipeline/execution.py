@@ -70,8 +70,8 @@ class Execution:
         "start_s": 0.0, "shared_s": 0.0, "cells_s": 0.0, "hidden_s": 0.0, "peak_mb": None})
 
 
-def cell_error_note(error: str, where: str | None = None) -> Note:
-    """The note of a notebook cell that failed while loading: ``error`` and, when given,
-    the student's line it stopped at ("cell 4, line 7"); the student reads it too."""
-    text = f"  cell error: {error}" + (f" ({where})" if where is not None else "")
-    return Note(text, for_student=f"{error} ({where})" if where else error)
+def cell_error_note(error: str, place: Place | None = None) -> Note:
+    """The note of a notebook cell that failed while loading: ``error``'s words, and the
+    ``place`` it stopped at (a line, or the whole cell when it hung), which the run log and
+    the feedback write in, each in its reader's numbering; the student reads it too."""
+    return Note(f"  cell error: {error}", for_student=error, place=place)

@@ -34,7 +34,7 @@ from autograder.feedback_release import (
 )
 from autograder.freeze import printable
 from autograder.grade_options import GradeOptions
-from autograder.outcomes import about_function
+from autograder.outcomes import about_function, instructor_words
 from autograder.pipeline.begin import GradeRun
 from autograder.pipeline.execute import Executed
 from autograder.pipeline.nbgrader_results import LEDGER, cell_to_function, load_ledger, source_cells
@@ -290,7 +290,7 @@ def end_run(run: GradeRun, rows, grades, executed: dict[str, Executed]) -> None:
            *run.notes, ""]
     for g in grades:
         log.append(f"{printable(g.student_id, 2000)}: "
-                   + " | ".join(printable(n) for n in g.notes))
+                   + " | ".join(printable(instructor_words(n)) for n in g.notes))
         nb = executed[g.student_id].nbgrader if g.student_id in executed else None
         if nb is not None and nb.log:
             log.append("  nbgrader: " + nb.log[-1500:])
@@ -331,7 +331,7 @@ def print_summary(grades, assignment: str, elapsed: float, run_notes,
         if g.flags:
             text += "   FLAGS: " + ", ".join(printable(f, 80) for f in g.flags)
         score = f"{g.score:>5g} / {g.max_score:<3g}" if g.graded else f"{'NOT GRADED':>11}"
-        print(f"{name:<{width}}  {score}  {text if g.graded else g.notes[-1]}")
+        print(f"{name:<{width}}  {score}  {text if g.graded else instructor_words(g.notes[-1])}")
     ungraded = [n for n, g in zip(names, grades) if not g.graded]
     if ungraded:
         print(f"NOT GRADED ({len(ungraded)}): {', '.join(ungraded)}: the grader failed on every "

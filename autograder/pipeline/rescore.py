@@ -108,8 +108,10 @@ def use_kept(run: GradeRun, problems: DrawnProblems, sub: freeze.Frozen,
     outcome per problem."""
     try:
         kept = json.loads(data)
-        if not isinstance(kept, dict) or kept.get("format") != executions.FORMAT:
-            return "its kept execution is of another format"
+        if not isinstance(kept, dict):
+            return "its kept execution is not an object"
+        if kept.get("format") != executions.FORMAT:
+            return executions.older_format(kept.get("format"))
         if kept.get("submission") != done.submission:
             return "submitted again since it was graded"
         nonce = kept.get("nonce")

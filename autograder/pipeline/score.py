@@ -36,7 +36,7 @@ class SubmissionGrade:
     flags: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
-    # Where each code cell the worker ran ("cell N" in errors: its index here) sits in the
+    # Where each code cell the worker ran (a Place's ``cell``: its index here) sits in the
     # notebook, so feedback can number cells as the student sees them.
     cell_origins: list[CellOrigin] = field(default_factory=list)
     # With ``run_tests``: what each cell did on the first load (nbgrader's view of the run),

@@ -128,7 +128,8 @@ WORKER_START_S = 60.0
 
 
 class CellHang(WorkerFailure):
-    """A notebook cell hung past its hard deadline while loading (``index`` says which)."""
+    """A notebook cell hung past its hard deadline while loading: ``index`` says which (the
+    message does not: a note writes the cell in from ``index``)."""
 
     def __init__(self, index: int, message: str):
         super().__init__(message)
@@ -229,7 +230,7 @@ def _reported_failure(reply: dict) -> Failure:
     """The typed failure a call's reply reports. The worker is untrusted: the kinds it may
     claim are those that only cost the submission (a raise, a time-out, no such function,
     an unusable value); an exception's type name is what the code raised, capped; its
-    place is the typed ``place``, never read out of the reply's ``where`` words."""
+    place is the typed ``place`` (no reply holds it in words)."""
     kind = _REPORTED.get(reply.get("failure"), Failed.RAISED)
     exception = reply.get("exception")
     exception = exception[:80] if kind is Failed.RAISED and isinstance(exception, str) else ""
@@ -342,7 +343,7 @@ class Worker:
                                       limits=(cpu, wall, f"cell {index}"))
             except WorkerFailure as exc:
                 budget.spend(0.0, time.monotonic() - cell_started)
-                raise CellHang(index, f"cell {index}: {exc}") from None
+                raise CellHang(index, str(exc)) from None
             elapsed = time.monotonic() - cell_started
             budget.spend(_reported_cpu(reply, elapsed), elapsed)
             self.load_report.append(dict(reply, index=index, skipped=False))
@@ -562,13 +563,10 @@ class Worker:
         if reply.get("ok") is True and "value" in reply:
             return checks.TrialOutcome(value=reply["value"], **timing)
         error = reply.get("error")
-        where = reply.get("where")
-        where = where[:60] if isinstance(where, str) else ""
+        # the words only: the line it stopped at travels typed (failure.place), and the
+        # feedback writes it in, renumbered for the student
         text = str(error)[:400] if error else "the call failed"
-        if where:
-            text += f" ({where})"
-        return checks.TrialOutcome(error=text, failure=_reported_failure(reply),
-                                   **timing)
+        return checks.TrialOutcome(error=text, failure=_reported_failure(reply), **timing)
 
     @property
     def alive(self) -> bool:
