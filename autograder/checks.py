@@ -407,9 +407,11 @@ def _measured_or_error(spec: FunctionSpec, trial: Trial,
     if trial.raises is not None:
         if outcome.has_raised(trial.raises):
             return {c.name: 0.0 for c in spec.checks}, None
-        # the message is the scoring's, whatever the call did: no failure behind it
+        # the message is the scoring's, whatever the call did: no failure behind it, but
+        # the line the call raised at, where it raised, is the student's to see
         return None, ProblemError(trial.label, f"expected {trial.raises} on this degenerate "
-                                  f"input, got {outcome.error or 'a return value'}")
+                                  f"input, got {outcome.error or 'a return value'}",
+                                  place=outcome.failure.place if outcome.failure else None)
     if outcome.error is not None:
         return None, ProblemError(trial.label, outcome.error, outcome.failure)
     measured, message = _measured(spec, outcome.value, trial)
