@@ -78,3 +78,20 @@ def test_the_scorings_words_about_a_call_that_stopped_at_a_line_keep_its_place()
     # a failure's own place is the default; a given one stands
     assert ProblemError("a", "x", HUNG).place == Place(2, 5)
     assert ProblemError("a", "x", HUNG, place=Place(0, 1)).place == Place(0, 1)
+
+
+def test_a_degenerate_input_answered_with_the_wrong_exception_is_placed_at_its_raise():
+    """checks writes the verdict's words itself, and takes the place from the call's typed
+    failure: the student sees the line that raised the wrong exception."""
+    from autograder import checks
+    from autograder.outcomes import Failed, Failure, TrialOutcome
+    from autograder.spec_types import Trial
+
+    trial = Trial(args=(), truth=None, tol={}, label="collinear", raises="ValueError")
+    raised = TrialOutcome(error="NotImplementedError",
+                          failure=Failure(Failed.RAISED, "NotImplementedError",
+                                          place=Place(7, 4)))
+    _, said = checks._measured_or_error(None, trial, raised)
+    assert said.failure is None and said.place == Place(7, 4)
+    _, returned = checks._measured_or_error(None, trial, TrialOutcome(value=1.0))
+    assert returned.place is None and returned.message.endswith("got a return value")
