@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 
 from autograder import checks, fairness, families
+from autograder.families.base import Problem, answer_truth
 from autograder.outcomes import TrialOutcome
 from autograder.spec_types import FunctionSpec, Trial
 
@@ -62,10 +63,13 @@ class FamilyGate:
     def add(self, trials: list[Trial]) -> None:
         """Score each family's answer on one draw's problems (where it applies)."""
         started = time.perf_counter()
+        # one Problem per trial, shared by every family: the reference's answers on it (a
+        # stack's items alone, a call each) are computed once, not once per family
+        problems = [self._problem(trial) for trial in trials]
         for family, score in zip(families.FAMILIES, self.scores):
             kept, outcomes = [], []
-            for trial in trials:
-                answer = self._predict(family, trial)
+            for trial, problem in zip(trials, problems):
+                answer = self._predict(family, problem)
                 if answer is not None:
                     kept.append(trial)
                     outcomes.append(TrialOutcome(value=answer))
@@ -78,10 +82,15 @@ class FamilyGate:
         self.draws += 1
         self.seconds += time.perf_counter() - started
 
-    def _predict(self, family, trial: Trial):
+    def _problem(self, trial: Trial) -> Problem | None:
         if self.spec.drive is not None or trial.raises is not None:
             return None   # a closed loop's answer is its loop; a degenerate input must raise
-        return family.predict(self.spec, trial)
+        return Problem(self.spec, trial, answer_truth(trial))
+
+    @staticmethod
+    def _predict(family, problem: Problem | None):
+        found = family.predictions(problem) if problem is not None else []
+        return found[0].answer if found else None
 
     def status(self, score: FamilyScore) -> str:
         """:data:`APPLIES`, :data:`NOT_APPLICABLE`, or :data:`NO_REFERENCE` (an input-side

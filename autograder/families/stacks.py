@@ -110,7 +110,15 @@ def reduction(problem: Problem, min_items: int = 3) -> Reduction | None:
     """How the reference's answer on ``problem`` is made of its answers on each item alone
     (the stacks of the most items cut to one item each), or None: no stack of at least
     ``min_items`` items, an answer that is no scalar or vector or that lists the items one
-    by one, or no power and divisor that rebuild it."""
+    by one, or no power and divisor that rebuild it. Cached on the problem (the statistic
+    families each ask for it)."""
+    key = ("reduction", min_items)
+    if key not in problem.cache:
+        problem.cache[key] = _reduction(problem, min_items)
+    return problem.cache[key]
+
+
+def _reduction(problem: Problem, min_items: int) -> Reduction | None:
     args = tuple(problem.trial.args)
     n = longest(args)
     whole = problem.right_answer()
@@ -127,7 +135,9 @@ def reduction(problem: Problem, min_items: int = 3) -> Reduction | None:
         if value is None or value.shape != whole.shape:
             return None
         items.append(value)
-    found = Reduction(np.stack(items), 1, n)
+    stacked = np.stack(items)
+    stacked.setflags(write=False)   # shared through the problem's cache by every family
+    found = Reduction(stacked, 1, n)
     for power in (1, 2):
         if power == 2 and np.any(found.items < 0):
             continue
