@@ -383,24 +383,3 @@ def test_practice_data_names_what_the_grader_names():
         stored = replace(t, mistakes=practice.precomputed_mistakes(spec, t))
         value = func(*t.args)
         assert checks._mistake_hint(spec, value, stored) == checks._mistake_hint(spec, value, t)
-
-
-def test_not_a_rotation_says_how_the_block_fails():
-    """Columns orthogonal but not unit (an axis never normalised) and columns not orthogonal
-    (a formula or product gone wrong) get different words; neither is told that an SVD
-    projection is the fix of a block built by a formula."""
-    from autograder.families import not_rotation, not_rotation_name
-
-    truth = np.eye(4)
-    truth[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
-    unnormalised = truth.copy()
-    unnormalised[:3, 2] *= 1.7
-    sheared = truth.copy()
-    sheared[:3, 0] += 0.2 * truth[:3, 1]
-    unit = not_rotation_name(unnormalised, truth)
-    skew = not_rotation_name(sheared, truth)
-    assert unit.family == skew.family == "not a rotation"
-    assert "not unit vectors" in unit.words and "1.7" in unit.words
-    assert "SVD" not in unit.words
-    assert skew.words == not_rotation.NOT_ORTHOGONAL
-    assert not_rotation_name(truth, truth) is None

@@ -189,6 +189,5 @@ def mirrored_name(value, truth) -> MistakeName | None:
 def not_rotation_name(value, truth) -> MistakeName | None:
     """The not-a-rotation family's name when ``value``'s rotation block is not orthonormal
     (see :func:`autograder.families.not_rotation.not_orthonormal`), else None."""
-    if not not_rotation.not_orthonormal(value, truth):
-        return None
-    return MistakeName(not_rotation.NOT_ROTATION.name, not_rotation.words(value, truth))
+    return not_rotation.NOT_ROTATION.label() \
+        if not_rotation.not_orthonormal(value, truth) else None

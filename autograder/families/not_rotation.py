@@ -23,18 +23,9 @@ from autograder.families.base import (
     is_rotation,
 )
 
-NOT_ORTHONORMAL = ("its rotation block is not a rotation (R^T R is not the identity): check "
-                   "the step that builds it (a unit axis, every term of the formula, @ not *); "
-                   "project a fitted matrix onto SO(3) with an SVD (U V^T, with det +1)")
-# The two ways a block fails tell a student different things: columns that are orthogonal
-# but not of unit length point at a vector never normalised; columns that are not
-# orthogonal at a formula or product gone wrong. An SVD projection would hide either bug,
-# so it is offered only for a fitted matrix.
-NOT_UNIT = ("its rotation block's columns are orthogonal but not unit vectors (lengths {lengths}): "
-            "normalise the axis or vector it is built from (divide it by its norm)")
-NOT_ORTHOGONAL = ("its rotation block's columns are not orthogonal (R^T R is not the identity): "
-                  "check the formula or product that builds it (every term, @ not *); "
-                  "project a fitted matrix onto SO(3) with an SVD (U V^T, with det +1)")
+NOT_ORTHONORMAL = ("its rotation block is not a rotation (R^T R is not the identity): "
+                   "project it onto SO(3) with an SVD (U V^T, with det +1), or check the "
+                   "formula that builds it (Rodrigues' needs a unit axis and all three terms)")
 
 # R^T R this far from I is no float rounding (float32 arithmetic lands near 1e-7) and
 # beyond what geometry's own validation re-orthonormalises silently (DESIGN.md: 1e-6).
@@ -60,19 +51,6 @@ def not_orthonormal(value, truth) -> bool:
     if R is None:
         return False
     return bool(np.abs(R.T @ R - np.eye(3)).max() > GRAM_TOL)
-
-
-def words(value, truth) -> str:
-    """What is wrong with ``value``'s rotation block (a pose or rotation answering ``truth``),
-    read from the block itself: columns of the wrong length, or not orthogonal."""
-    R = _block(value, truth)
-    if R is None:
-        return NOT_ORTHONORMAL
-    lengths = np.linalg.norm(R, axis=0)
-    unit_columns = R / np.where(lengths > 0, lengths, 1.0)
-    if np.abs(unit_columns.T @ unit_columns - np.eye(3)).max() <= GRAM_TOL:
-        return NOT_UNIT.format(lengths=", ".join(f"{n:.3g}" for n in lengths))
-    return NOT_ORTHOGONAL
 
 
 def _scaled_block(problem: Problem) -> list[Prediction]:
