@@ -59,9 +59,12 @@ demo: $(STAMP)
 # regular install. Where the environment sets PYTHONDONTWRITEBYTECODE (this machine does),
 # each of the suite's several hundred interpreters (grading workers, kernels, the CLI)
 # otherwise compiled the modules it imports anew: about 0.1 s of CPU each.
+# Without PYTHONDONTWRITEBYTECODE for pytest itself: each xdist worker otherwise rewrote every
+# test module's asserts anew (about 12 s of CPU a worker, 5 s with pytest's cache). The
+# grading workers set it again for themselves (their sandbox is read-only).
 test: $(STAMP) system-packages hub-proxy
 	$(PY) -m compileall -q robots sim_backends autograder solutions cobotlab
-	$(PY) -m pytest -n 3 --dist loadfile --no-loadscope-reorder -q
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -n 3 --dist loadfile --no-loadscope-reorder -q
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robots sim_backends autograder solutions cobotlab tests benchmarks
