@@ -317,7 +317,10 @@ def _load_file(module_name: str, path: Path, what: str, fix: str):
     sys.modules[module_name] = module
     _loaded_files.append(module_name)
     try:
-        spec.loader.exec_module(module)
+        # compiled from the source every time, never from a cached .pyc: the cache is keyed by
+        # the file's mtime in seconds and its size, so a spec edited and put back within one
+        # second (a tolerance 6.0 -> 2.0 -> 6.0) would load the edited code
+        exec(spec.loader.source_to_code(path.read_bytes(), str(path)), module.__dict__)
     except Exception as exc:  # noqa: BLE001 - an author's file: say which and why
         sys.modules.pop(module_name, None)
         line = ""
