@@ -69,7 +69,7 @@ class FamilyGate:
         for family, score in zip(families.FAMILIES, self.scores):
             kept, outcomes = [], []
             for trial, problem in zip(trials, problems):
-                answer = self._predict(family, problem)
+                answer = family.answer_on(problem) if problem is not None else None
                 if answer is not None:
                     kept.append(trial)
                     outcomes.append(TrialOutcome(value=answer))
@@ -86,11 +86,6 @@ class FamilyGate:
         if self.spec.drive is not None or trial.raises is not None:
             return None   # a closed loop's answer is its loop; a degenerate input must raise
         return Problem(self.spec, trial, answer_truth(trial))
-
-    @staticmethod
-    def _predict(family, problem: Problem | None):
-        found = family.predictions(problem) if problem is not None else []
-        return found[0].answer if found else None
 
     def status(self, score: FamilyScore) -> str:
         """:data:`APPLIES`, :data:`NOT_APPLICABLE`, or :data:`NO_REFERENCE` (an input-side

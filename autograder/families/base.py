@@ -147,7 +147,12 @@ class Family:
     def predict(self, spec: FunctionSpec, trial: Trial, truth=None):
         """The answer this mistake gives on ``trial`` (the first when it gives several, as
         one per part of a tuple answer), or None when the family does not apply."""
-        found = self.predictions(Problem(spec, trial, answer_truth(trial, truth)))
+        return self.answer_on(Problem(spec, trial, answer_truth(trial, truth)))
+
+    def answer_on(self, problem: Problem):
+        """:meth:`predict` on a problem already built (several families sharing one problem
+        share the reference's answers cached on it)."""
+        found = self.predictions(problem)
         return found[0].answer if found else None
 
 
