@@ -161,10 +161,25 @@ def undoing(distance):
     """``distance(a, b)`` extended to :class:`Prediction` candidates: an answer against a
     prediction with an ``undo`` is the answer mapped back, measured against the truth (so
     an estimate in millimetres is named on a noisy problem, where the truth in millimetres
-    is far from it); two predictions, or one without ``undo``, compare their answers."""
+    is far from it); two predictions, or one without ``undo``, compare their answers.
+    Made for one problem: what depends on one candidate alone (is it a pose, is its mistake
+    resolved) is computed once per candidate, not once per comparison."""
+    known: dict = {}
+
+    def once(tag: str, of, compute):
+        # keyed by identity, holding ``of`` so that its id is not reused while cached
+        hit = known.get((tag, id(of)))
+        if hit is None or hit[0] is not of:
+            hit = known[(tag, id(of))] = (of, compute())
+        return hit[1]
+
+    def resolved(b: Prediction) -> bool:
+        return b.null is not None and distance(b.null, b.base) <= RESOLVED
+
     def measure(a, b) -> float:
         if isinstance(b, Prediction) and not isinstance(a, Prediction) \
-                and is_pose(b.answer) and not is_pose(a):
+                and once("pose", b, lambda: is_pose(b.answer)) \
+                and not once("pose", a, lambda: is_pose(a)):
             # every pose mistake keeps the rotation block a rotation: one that is none
             # (an axis not normalised) is no such mistake, however near in numbers
             return math.inf
@@ -173,7 +188,7 @@ def undoing(distance):
                 a = a.answer if isinstance(a, Prediction) else a
                 return distance(a, b.answer)
             with np.errstate(all="ignore"):  # an answer's square root may be NaN: far
-                if b.null is not None and distance(b.null, b.base) <= RESOLVED:
+                if once("resolved", b, lambda: resolved(b)):
                     return distance(a, b.answer)
                 return distance(b.undo(a), b.base)
         return distance(a.answer if isinstance(a, Prediction) else a, b)
