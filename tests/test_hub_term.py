@@ -67,7 +67,7 @@ ASSIGNMENT = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 PREFIX = "hubt_"
 GRADER, INSTRUCTOR, STAFF_GROUP = f"{PREFIX}grader", f"{PREFIX}instr", f"{PREFIX}staff"
-STUDENTS = tuple(f"{PREFIX}s{i}" for i in (1, 2, 3))
+STUDENTS = tuple(f"{PREFIX}s{i}" for i in (1, 2))
 HUB_TIMEOUT_S = 30        # the hub, from start to answering /hub/health
 SPAWN_TIMEOUT_S = 60      # a user's server, from login to JupyterLab on the page
 KERNEL_TIMEOUT_S = 90     # a kernel, from Run All to every cell numbered
@@ -237,7 +237,10 @@ def _kill_processes_of(uid: int) -> int:
 def _remove_accounts() -> None:
     """Our accounts, their processes (by pid: each is one this test started, as that user)
     and their homes."""
-    for name in (GRADER, INSTRUCTOR, *STUDENTS):
+    # every account of the prefix: a run of an older version of this test had more students
+    ours = {GRADER, INSTRUCTOR, *STUDENTS} | {e.pw_name for e in pwd.getpwall()
+                                             if e.pw_name.startswith(PREFIX)}
+    for name in sorted(ours):
         try:
             uid = pwd.getpwnam(name).pw_uid
         except KeyError:
@@ -699,20 +702,23 @@ def _grades(course: Path) -> dict[str, dict]:
 
 @pytest.mark.timeout(600)
 def test_a_term_in_chromium(hub, browser):
-    """Three students and an instructor, through the hub's pages, in Chromium.
+    """Two students and an instructor, through the hub's pages, in Chromium.
 
-    s1 hands in the reference; s2 hands in the classic mistake, fixes it and hands in again;
-    s3 hands in the mistake after the deadline. The instructor collects in formgrader (its
-    own tab), grades with `cobotlab grade` in the grading service's terminal, generates and
-    releases the feedback there; each student fetches it and reads their score and reasons.
+    s1 hands in the classic mistake, fixes it (check() then gives every function full
+    marks on a second Run All) and hands in again; s2 hands in the mistake after the
+    deadline. The instructor collects in formgrader (its own tab), grades with `cobotlab
+    grade` in the grading service's terminal, generates and releases the feedback there;
+    each student fetches it and reads their score and reasons. (Two students, not three:
+    the one who handed in the reference at once proved nothing s1's second submission
+    does not, and a JupyterLab in Chromium costs ~20 s of CPU.)
     """
-    s1, s2, s3 = STUDENTS
+    s1, s2 = STUDENTS
     for name in STUDENTS:
         _give_lab_settings(name)
     students = {name: Student(hub, browser, name) for name in STUDENTS}
     teacher = Instructor(hub, browser, INSTRUCTOR)
     try:
-        # log in: the three servers start side by side
+        # log in: the servers start side by side
         for student in students.values():
             student.log_in()
         for student in students.values():
@@ -728,30 +734,31 @@ def test_a_term_in_chromium(hub, browser):
             student.open_assignments()
             student.fetch()
             student.open_notebook()
-        answers = {s1: _answers(False), s2: _answers(True), s3: _answers(True)}
-        for name, student in students.items():
-            student.write(answers[name])
+        for student in students.values():
+            student.write(_answers(True))
             student.run_all()
-        for name, student in students.items():
+        for student in students.values():
+            # check() showed the loss, then the sanity test stopped Run All
             state = student.wait_for_run()
             raised = [t for t in state["stderr"] if "Traceback" in t]
             scores = student.check_scores()
-            if name == s1:   # every cell ran; check() gave every function full marks
-                assert not raised, state["stderr"]
-                assert set(scores) == set(FUNCTIONS), scores
-                assert all(got == out_of for got, out_of in scores.values()), scores
-            else:   # check() showed the loss, then the sanity test stopped Run All
-                assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
-                got, out_of = scores["invert_pose"]
-                assert list(scores) == ["invert_pose"] and got < out_of, scores
-        for name in (s1, s2):
-            students[name].save()
-            students[name].submit()
-        students[s2].fix_invert_pose()
-        assert students[s2].check_scores()["invert_pose"][0] == \
-            students[s2].check_scores()["invert_pose"][1]
-        students[s2].save()
-        students[s2].submit()   # the second submission is the one graded
+            assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
+            got, out_of = scores["invert_pose"]
+            assert list(scores) == ["invert_pose"] and got < out_of, scores
+        students[s1].save()
+        students[s1].submit()
+        students[s1].fix_invert_pose()
+        assert students[s1].check_scores()["invert_pose"][0] == \
+            students[s1].check_scores()["invert_pose"][1]
+        # Run All again: every cell runs; check() gives every function full marks
+        students[s1].run_all()
+        state = students[s1].wait_for_run()
+        assert not [t for t in state["stderr"] if "Traceback" in t], state["stderr"]
+        scores = students[s1].check_scores()
+        assert set(scores) == set(FUNCTIONS), scores
+        assert all(got == out_of for got, out_of in scores.values()), scores
+        students[s1].save()
+        students[s1].submit()   # the second submission is the one graded
 
         # the deadline passes: the instructor moves it to now, in the grading service
         teacher.open_formgrader()
@@ -760,16 +767,16 @@ def test_a_term_in_chromium(hub, browser):
         assert teacher.type(f"nbgrader db assignment add {ASSIGNMENT} --duedate '{now}'",
                             hub.course / ".deadline.done", STEP_TIMEOUT_S) == "0"
         time.sleep(1.1)   # the late one's timestamp is strictly after
-        students[s3].save()
-        _add_hostile_cell(students[s3].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
-        students[s3].submit()
+        students[s2].save()
+        _add_hostile_cell(students[s2].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
+        students[s2].submit()
 
         # each submission went into its student's own folder of the private exchange, which
         # no other student can enter; nor can one reach another's server or the hub's record
         inbound = Path(hub.settings["EXCHANGE"]) / "cobotlab" / "inbound"
         assert sorted(p.name for p in inbound.iterdir()) == sorted(STUDENTS)
         assert {n: len(list((inbound / n).iterdir())) for n in STUDENTS} == \
-            {s1: 1, s2: 2, s3: 1}
+            {s1: 2, s2: 1}
         assert all((inbound / n).stat().st_mode & 0o7777 == 0o2750 for n in STUDENTS)
         for path in (f"/user/{s2}/api/contents", f"/user/{s2}/files/{ASSIGNMENT}",
                      f"/hub/api/users/{s2}"):
@@ -788,24 +795,23 @@ def test_a_term_in_chromium(hub, browser):
         teacher.formgrader_action("generate-feedback", "Generate Feedback")
         teacher.formgrader_action("release-feedback", "Release Feedback")
         teacher.page.goto(f"{hub.url}{teacher.FORMGRADER}/manage_submissions/{ASSIGNMENT}")
-        teacher.wait(f"() => document.body.textContent.includes('{s3}')",
+        teacher.wait(f"() => document.body.textContent.includes('{s2}')",
                      "formgrader's list of lab 0's submissions", STEP_TIMEOUT_S)
         teacher.shot("submissions")
-        _hostile_cell_is_inert(teacher, hub.course, s3)
+        _hostile_cell_is_inert(teacher, hub.course, s2)
 
         grades = _grades(hub.course)
         assert set(grades) == set(STUDENTS), grades
         assert float(grades[s1]["score"]) == float(grades[s1]["max_score"]) == 10.0
-        assert float(grades[s2]["score"]) == 10.0, grades[s2]   # the fixed resubmission
-        assert float(grades[s3]["score"]) < 10.0, grades[s3]
-        assert grades[s3]["timestamp"] > now[:19] >= grades[s1]["timestamp"][:19], grades
+        assert float(grades[s2]["score"]) < 10.0, grades[s2]
+        assert grades[s2]["timestamp"] > now[:19] >= grades[s1]["timestamp"][:19], grades
 
         # each student reads their own page
         for name, student in students.items():
             text = student.fetch_feedback()
             score = float(grades[name]["score"])
             assert f"{score:g} / 10" in text, (name, text[:3000])
-            if name == s3:
+            if name == s2:
                 assert "classic mistake: its translation is -t, not -R^T t" in text, text[:3000]
             else:
                 assert "classic mistake" not in text, (name, text[:3000])
