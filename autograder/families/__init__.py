@@ -24,7 +24,8 @@ that mistake gives on a problem. One module per act:
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
   absolute errors for an RMS), :mod:`.units_input` (one input's lengths
   in millimetres), :mod:`.product_order` (the factors of each product in reverse
-  order).
+  order), :mod:`.chain` (a pose input, or a stack's poses, left out of the chain as the
+  identity; one input used in place of another of its kind).
 * over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
   reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
   last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum;
@@ -59,6 +60,7 @@ import numpy as np
 
 from autograder.families import (
     absolute,
+    chain,
     first_last,
     inverse,
     not_rotation,
@@ -106,6 +108,8 @@ FAMILIES: tuple[Family, ...] = (
     # stacks and reductions (issue 52): each a walk over the inputs gone wrong
     *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
     *uncentred.FAMILIES,
+    # a chain of frames gone wrong at one input (issue 52): a factor left out, one used twice
+    *chain.FAMILIES,
 )
 
 
