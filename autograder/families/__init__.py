@@ -25,7 +25,8 @@ that mistake gives on a problem. One module per act:
   absolute errors for an RMS), :mod:`.units_input` (one input's lengths
   in millimetres), :mod:`.product_order` (the factors of each product in reverse
   order), :mod:`.chain` (a pose input, or a stack's poses, left out of the chain as the
-  identity; one input used in place of another of its kind).
+  identity; one input used in place of another of its kind), :mod:`.matrix_input` (a
+  square matrix input read transposed; a camera matrix's principal point left out).
 * over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
   reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
   last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum;
@@ -63,6 +64,7 @@ from autograder.families import (
     chain,
     first_last,
     inverse,
+    matrix_input,
     not_rotation,
     off_by_one,
     pose_parts,
@@ -108,8 +110,9 @@ FAMILIES: tuple[Family, ...] = (
     # stacks and reductions (issue 52): each a walk over the inputs gone wrong
     *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
     *uncentred.FAMILIES,
-    # a chain of frames gone wrong at one input (issue 52): a factor left out, one used twice
-    *chain.FAMILIES,
+    # a chain of frames gone wrong at one input (issue 52): a factor left out, one used twice;
+    # a matrix input read transposed, a camera matrix's principal point left out
+    *chain.FAMILIES, *matrix_input.FAMILIES,
 )
 
 
