@@ -219,3 +219,30 @@ def test_the_chain_families_apply_by_kinds_only():
     assert "factor left out" not in {f.key for f in families.applicable(spec, trial)}
     exact = Trial(args=(np.eye(4), np.eye(4)), truth=np.eye(4), tol=dict(EXACT_TOL))
     assert chain.FAMILIES[0].predict(RELATIVE, exact) is not None
+
+
+def test_practice_data_names_what_the_grader_names():
+    """check() on a student's install weighs the input-side answers precomputed into
+    practice data (no reference to call), each with its own words: the same names."""
+    from dataclasses import replace
+
+    from autograder import practice
+
+    for func in (point_b_T_c_left_out, point_a_T_b_twice):
+        for t in _trials(POINT, 13, 2):
+            stored = replace(t, mistakes=practice.precomputed_mistakes(POINT, t))
+            value = func(*t.args)
+            live = checks._mistake_hint(POINT, value, t)
+            assert live is not None and checks._mistake_hint(POINT, value, stored) == live
+
+
+def test_an_answer_two_transforms_give_alike_is_listed_once():
+    """K.T read entry by entry gives what K without (cx, cy) gives: one candidate, the
+    principal point's (listed first), so practice data holds that image once."""
+    from test_families_slips import PROJECT
+
+    t = _trials(PROJECT, 3, 1)[0]
+    found = [(n.family, n.words[:30]) for n, _ in
+             families.predictions(PROJECT, t, sides=(families.INPUT,))]
+    assert any(f == "missing part" for f, _ in found)
+    assert not any(w.startswith("the input K was read transp") for _, w in found), found
