@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 import test_families_poses as harness  # noqa: E402
 import test_families_slips as dev  # noqa: E402
+from families_dev_poses import _share  # noqa: E402 - one bootstrap for both
 
 from autograder import checks, families  # noqa: E402
 from autograder.families import chain, inverse, matrix_input, units_length  # noqa: E402
@@ -101,7 +102,6 @@ HELD_OUT = [
 
 def _spec(lab, name):
     return harness.RELATIVE if lab == "relative" else dev.spec_of(lab, name)
-BOOTSTRAP = 2000
 
 
 @contextmanager
@@ -138,14 +138,6 @@ def lost(draws: int, seed: int, rows=None) -> dict[str, int]:
             checks.score_function(spec, [t], [TrialOutcome(value=func(*t.args))],
                                   hints=False).fraction < 1.0 for t in trials)
     return found
-
-
-def _share(flags: np.ndarray, rng) -> str:
-    if flags.size == 0:
-        return "   -"
-    boots = rng.choice(flags, (BOOTSTRAP, len(flags))).mean(axis=1)
-    low, high = np.percentile(boots, [2.5, 97.5])
-    return f"{flags.mean():6.1%} [{low:.2f}, {high:.2f}]"
 
 
 def _counts(found, slip) -> str:
