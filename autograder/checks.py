@@ -36,7 +36,7 @@ import numpy as np
 
 from autograder import families, forbidden, mistakes, practice, registry
 from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
-from autograder.families import units_angle
+from autograder.families import pieces, units_angle
 from autograder.inside import standin
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
@@ -378,8 +378,10 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             gated += 1
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
+        # an answer that cannot be measured (its last row is no pose's) is named too, on
+        # what of it can be compared: a hint never changes a score
         hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
-            and measured is not None and trial.raises is None else None
+            and outcome.error is None and trial.raises is None else None
         if hint is not None:
             mistakes.setdefault(hint)
             found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint.words}", leads=True))
@@ -583,9 +585,21 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
         return mistakes.nearest(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
     predicted = _resolved(_predicted(spec, trial, truth), _noise_distance(spec, trial), truth)
-    exact = [p for p in predicted if not _loose(p[1])]
     distance = _wrapping(families.undoing(_noise_distance(spec, trial)),
                          lambda: _wrap_radius(_noise_distance(spec, trial), truth))
+    hint = _whole_answer_name(value, truth, predicted, distance)
+    if hint is None and not _measurable(spec, value, trial):
+        # a piece's mistake before what is read from the answer itself: a translation in
+        # millimetres is named beside a rotation block that is no rotation
+        hint = _piece_name(value, truth, predicted, distance)
+    return hint or families.mirrored_name(value, truth) \
+        or families.not_rotation_name(value, truth)
+
+
+def _whole_answer_name(value, truth, predicted: list, distance) -> MistakeName | None:
+    """The nearest rule on ``value`` as a whole against ``predicted`` (see
+    :func:`_matching_mistake`): the exact candidates, then the loose ones."""
+    exact = [p for p in predicted if not _loose(p[1])]
     nothing = [(None, truth), *_no_mistakes(truth, exact)]
     hint = mistakes.nearest(value, nothing + exact, distance)
     if hint is None:
@@ -594,8 +608,23 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
         # before the whole-answer candidates: where one gives the same answer on this
         # problem, it was not near in the first pass, so the loose one speaks for both
         hint = mistakes.nearest(value, nothing + loose + exact, distance) if loose else None
-    return hint or families.mirrored_name(value, truth) \
-        or families.not_rotation_name(value, truth)
+    return hint
+
+
+def _measurable(spec: FunctionSpec, value, trial: Trial) -> bool:
+    """True when the spec's measure gives every check a finite error on ``value``."""
+    measured, _ = _measured(spec, value, trial)
+    return measured is not None and all(math.isfinite(e) for e in measured.values())
+
+
+def _piece_name(value, truth, predicted: list, distance) -> MistakeName | None:
+    """The mistake named on the pieces of an answer that cannot be measured as a whole
+    (:func:`autograder.families.pieces.spliced`: a translation in millimetres beside a
+    rotation block that is no rotation): the one name its pieces give, or None when they
+    give none or two different ones (never two names at once)."""
+    names = {_whole_answer_name(piece, truth, predicted, distance)
+             for piece in pieces.spliced(value, truth)} - {None}
+    return names.pop() if len(names) == 1 else None
 
 
 # A pose's angle scaled (times 180/pi, halved, doubled) is named only where a wrong angle

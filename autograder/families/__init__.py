@@ -24,7 +24,9 @@ that mistake gives on a problem. One module per act:
   (a stack's first or last item for the mean over it), :mod:`.absolute` (a mean of
   absolute errors for an RMS), :mod:`.units_input` (one input's lengths
   in millimetres), :mod:`.product_order` (the factors of each product in reverse
-  order).
+  order), :mod:`.chain` (a pose input, or a stack's poses, left out of the chain as the
+  identity; one input used in place of another of its kind), :mod:`.matrix_input` (a
+  square matrix input read transposed; a camera matrix's principal point left out).
 * over stacks and reductions (:mod:`.stacks` reads which inputs are stacks and how the
   reference's answer is reduced over their items): :mod:`.off_by_one` (a stack's first or
   last item left out or taken twice), :mod:`.statistic` (median, max, n - 1, mean for sum;
@@ -59,8 +61,10 @@ import numpy as np
 
 from autograder.families import (
     absolute,
+    chain,
     first_last,
     inverse,
+    matrix_input,
     not_rotation,
     off_by_one,
     pose_parts,
@@ -106,6 +110,9 @@ FAMILIES: tuple[Family, ...] = (
     # stacks and reductions (issue 52): each a walk over the inputs gone wrong
     *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
     *uncentred.FAMILIES,
+    # a chain of frames gone wrong at one input (issue 52): a factor left out, one used twice;
+    # a matrix input read transposed, a camera matrix's principal point left out
+    *chain.FAMILIES, *matrix_input.FAMILIES,
 )
 
 
@@ -126,8 +133,10 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
     if spec.drive is not None or trial.raises is not None:
         return []
     problem = Problem(spec, trial, answer_truth(trial, truth))
+    seen: list = []
     found = [(f.label(p), p) for f in FAMILIES if f.side in sides
-             for p in f.predictions(problem)]
+             for p in (f.predictions(problem) if f.side == OUTPUT
+                       else _distinct(f.predictions(problem), seen))]
     if INPUT not in sides:
         return found
     # an input-side mistake that changes nothing here (K times 1000 leaves every ray as it
@@ -135,6 +144,36 @@ def predictions(spec: FunctionSpec, trial: Trial, truth=None,
     right = problem.right_answer()
     return [(name, p) for name, p in found
             if p.undo is not None or right is None or not same_answer(p.answer, right)]
+
+
+def _identical(a, b) -> bool:
+    """True when ``a`` and ``b`` are the same answer bit for bit (NaN where NaN is: a depth
+    image's holes), a tuple part by part."""
+    if isinstance(a, tuple) or isinstance(b, tuple):
+        return isinstance(a, tuple) and isinstance(b, tuple) and len(a) == len(b) \
+            and all(_identical(x, y) for x, y in zip(a, b))
+    try:
+        x, y = np.asarray(a), np.asarray(b)
+        return x.shape == y.shape and x.dtype.kind in "fiub" and y.dtype.kind in "fiub" \
+            and bool(np.array_equal(x, y, equal_nan=x.dtype.kind == "f" == y.dtype.kind))
+    except (TypeError, ValueError):
+        return False
+
+
+def _distinct(found: list[Prediction], seen: list) -> list[Prediction]:
+    """``found`` less the plain input-side predictions whose answer an earlier one gave bit
+    for bit (K.T read entry by entry gives what K without (cx, cy) gives): the nearest rule
+    keeps the earlier one for both anyway, and practice data then holds each answer once.
+    ``seen`` collects the answers kept, across families."""
+    kept = []
+    for p in found:
+        plain = p.undo is None and not (p.loose or p.wraps or p.resolved) and p.null is None
+        if plain and any(_identical(p.answer, q) for q in seen):
+            continue
+        if plain:
+            seen.append(p.answer)
+        kept.append(p)
+    return kept
 
 
 def nulls(found: list[tuple[MistakeName, Prediction]]) -> list:

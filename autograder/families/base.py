@@ -93,6 +93,16 @@ class Problem:
                                for i in range(n)]
         return self.cache[key]
 
+    def reference_on(self, key, make_args: Callable[[], tuple]):
+        """The reference on the inputs ``make_args()`` gives, cached under ``key`` (the
+        transform and the inputs it changes, e.g. ("inverted", (2,))): two families that
+        transform the inputs alike (a stack's poses inverted, for its order and for the
+        product's) share one call."""
+        cached = ("on", key)
+        if cached not in self.cache:
+            self.cache[cached] = self.reference(*make_args())
+        return self.cache[cached]
+
     def reference(self, *args):
         """The spec's private reference on ``args`` (copies: it must not write into the
         problem), or None when there is none or it raises on them."""
@@ -104,9 +114,21 @@ class Problem:
             # told so on purpose here: the inputs carry the mistake
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return ref(*copy.deepcopy(args))
+                return ref(*_copied(args))
         except Exception:  # noqa: BLE001 - transformed inputs may be ones it refuses
             return None
+
+
+def _copied(value):
+    """A deep copy of a reference's inputs, arrays copied directly (``copy.deepcopy``'s
+    bookkeeping cost more than the arrays on every family's call)."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if type(value) in (tuple, list):
+        return type(value)(_copied(v) for v in value)
+    if value is None or isinstance(value, (bool, int, float, str, np.generic)):
+        return value
+    return copy.deepcopy(value)
 
 
 @dataclass(frozen=True)
@@ -195,9 +217,18 @@ def as_array(value) -> np.ndarray | None:
     return a
 
 
+_EYE3 = np.eye(3)
+
+
 def _rotations(R: np.ndarray, atol: float) -> bool:
     """True when every 3x3 block of ``R`` (shape (..., 3, 3)) is a rotation (plain numpy:
     the families test every input of every failed problem)."""
+    if R.ndim == 2:
+        # one block (most calls: a truth or an answer), without einsum's and det's setup
+        if np.abs(R.T @ R - _EYE3).max() > atol:
+            return False
+        (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+        return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0
     gram = np.einsum("...ji,...jk->...ik", R, R)
     return bool(np.abs(gram - np.eye(3)).max() <= atol) and bool(np.all(np.linalg.det(R) > 0))
 
@@ -211,7 +242,15 @@ def _last_rows(a: np.ndarray) -> bool:
     return bool(np.abs(a[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max() <= 1e-8)
 
 
+def _not_shaped(value, test) -> bool:
+    """True when ``value`` is an array whose shape fails ``test`` (checked before
+    converting it: every family asks of every input whether it is a pose)."""
+    return isinstance(value, np.ndarray) and not test(value.shape)
+
+
 def is_pose(value) -> bool:
+    if _not_shaped(value, lambda s: s == (4, 4)):
+        return False
     a = as_array(value)
     return a is not None and a.shape == (4, 4) and _last_rows(a) \
         and _rotations(a[:3, :3], 1e-4)
@@ -219,6 +258,8 @@ def is_pose(value) -> bool:
 
 def is_stack(value) -> bool:
     """A stack of poses: a list of them or an (n, 4, 4) array, n >= 2."""
+    if _not_shaped(value, lambda s: len(s) == 3 and s[1:] == (4, 4)):
+        return False
     a = as_array(value)
     return a is not None and a.ndim == 3 and a.shape[0] >= 2 and a.shape[1:] == (4, 4) \
         and _last_rows(a) and _rotations(a[:, :3, :3], 1e-4)

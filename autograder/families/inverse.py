@@ -1,6 +1,7 @@
 """Inverse and transpose: b_T_a where a_T_b was asked, R^T where R was, a matrix transposed.
 
-Applies to a pose answer (the inverse, the rotation transposed) and to any other square
+Applies to a pose answer (the inverse, the rotation transposed, the whole 4x4 transposed:
+no pose, named where the answer failed the pose check) and to any other square
 matrix answer (its transpose). Output side: the truth transformed; the student's answer is
 undone the same way (the inverse of an inverse) and compared with the truth.
 """
@@ -17,6 +18,9 @@ INVERSE = ("it is the inverse of the expected pose: b_T_a where a_T_b was asked 
 TRANSPOSED = ("its rotation is the transpose of the expected one (R.T where R was asked: "
               "check the direction of the rotation)")
 TRANSPOSE = "it is the transpose of the expected matrix"
+WHOLE_TRANSPOSED = ("the whole 4x4 matrix is transposed (T.T: its last row is no longer "
+                    "[0, 0, 0, 1]): only a rotation's inverse is its transpose; a pose's "
+                    "inverse is [R^T | -R^T t]")
 
 
 def _inverse(problem: Problem) -> list[Prediction]:
@@ -39,6 +43,15 @@ def _transposed_rotation(problem: Problem) -> list[Prediction]:
     return [Prediction(_rotation_transposed(truth), _rotation_transposed, truth)]
 
 
+def _whole_transposed(problem: Problem) -> list[Prediction]:
+    # T.T is no pose (unless t = 0, where it is the transposed rotation, listed before it):
+    # only an answer that failed the pose check lands near it
+    if not is_pose(problem.truth):
+        return []
+    truth = np.asarray(problem.truth, dtype=float)
+    return [Prediction(truth.T, lambda v: np.asarray(v, float).T, truth)]
+
+
 def _transpose(problem: Problem) -> list[Prediction]:
     t = as_array(problem.truth)
     if t is None or is_pose(t) or t.ndim != 2 or t.shape[0] != t.shape[1]:
@@ -50,4 +63,6 @@ FAMILIES = (
     Family("inverse/transpose", INVERSE, OUTPUT, _inverse, "inverse pose"),
     Family("inverse/transpose", TRANSPOSED, OUTPUT, _transposed_rotation, "transposed rotation"),
     Family("inverse/transpose", TRANSPOSE, OUTPUT, _transpose, "transposed matrix"),
+    Family("inverse/transpose", WHOLE_TRANSPOSED, OUTPUT, _whole_transposed,
+           "whole pose transposed"),
 )

@@ -17,7 +17,7 @@ and cut), and no one mistake describes it.
 from __future__ import annotations
 
 from autograder.families.base import INPUT, Family, Prediction, Problem
-from autograder.families.stacks import longest, loses_credit, with_stacks
+from autograder.families.stacks import lengths_of, longest, loses_credit, with_stacks
 
 WITHOUT_FIRST = ("it leaves out the first item of the input stack (a loop from 1, or a "
                  "slice [1:]): go over every item, from index 0")
@@ -32,10 +32,11 @@ LAST_TWICE = ("it takes the last item of the input stack twice (one item too man
 def _off_by_one(change, min_items: int):
     def make(problem: Problem) -> list[Prediction]:
         args = tuple(problem.trial.args)
-        n = longest(args)
+        lengths = lengths_of(problem)
+        n = longest(args, lengths)
         if n is None or n < min_items or problem.spec is None or problem.spec.reference is None:
             return []
-        answer = problem.reference(*with_stacks(args, n, change))
+        answer = problem.reference(*with_stacks(args, n, change, lengths))
         if answer is None or not loses_credit(problem, answer):
             return []
         return [Prediction(answer)]

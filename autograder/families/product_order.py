@@ -63,8 +63,10 @@ def _reversed_products(problem: Problem) -> list[Prediction]:
     subsets = [which] + ([[i] for i in which] if len(which) > 1 else [])
     out = []
     for subset in subsets:
-        changed = [(_inverted(a) if i in subset else a) for i, a in enumerate(args)]
-        answer = problem.reference(*changed)
+        def changed(subset=subset):
+            return tuple(_inverted(a) if i in subset else a for i, a in enumerate(args))
+        # each pose input inverted alone is reversed_stack's call too: one call for both
+        answer = problem.reference_on(("inverted", tuple(subset)), changed)
         back = None if answer is None else _back(answer, right)
         # a single factor has no order (the inverse of an inverse): no mistake here
         if back is not None and not (right is not None and same_answer(back, right)):

@@ -28,30 +28,32 @@ def _like(original, poses: list[np.ndarray]):
         tuple(poses) if isinstance(original, tuple) else np.stack(poses)
 
 
-def _each(problem: Problem, test, change) -> list[Prediction]:
+def _each(problem: Problem, test, change, tag: str) -> list[Prediction]:
     out = []
     args = tuple(problem.trial.args)
     for i, a in enumerate(args):
         if test(a):
-            changed = list(args)
-            changed[i] = change(a)
-            answer = problem.reference(*changed)
+            def changed(i=i, a=a):
+                return tuple(change(a) if k == i else x for k, x in enumerate(args))
+            # (tag, (i,)): the key product_order shares for the same inputs inverted
+            answer = problem.reference_on((tag, (i,)), changed)
             if answer is not None:
                 out.append(Prediction(answer))
     return out
 
 
 def _reversed(problem: Problem) -> list[Prediction]:
-    return _each(problem, is_stack, lambda a: _like(a, [np.asarray(T, float) for T in a][::-1]))
+    return _each(problem, is_stack, lambda a: _like(a, [np.asarray(T, float) for T in a][::-1]),
+                 "reversed")
 
 
 def _inverted(problem: Problem) -> list[Prediction]:
     return _each(problem, is_stack,
-                 lambda a: _like(a, [geo.invert(np.asarray(T, float)) for T in a]))
+                 lambda a: _like(a, [geo.invert(np.asarray(T, float)) for T in a]), "inverted")
 
 
 def _pose_inverted(problem: Problem) -> list[Prediction]:
-    return _each(problem, is_pose, lambda a: geo.invert(np.asarray(a, float)))
+    return _each(problem, is_pose, lambda a: geo.invert(np.asarray(a, float)), "inverted")
 
 
 FAMILIES = (

@@ -48,9 +48,18 @@ def stack_lengths(args) -> list[int | None]:
     return [_length(a) for a in args]
 
 
-def longest(args) -> int | None:
-    """The number of items of the longest stacks among ``args`` (None: no stack)."""
-    return max((n for n in stack_lengths(args) if n is not None), default=None)
+def lengths_of(problem: Problem) -> list[int | None]:
+    """:func:`stack_lengths` of the problem's inputs, cached on it (each stack family asks)."""
+    if "lengths" not in problem.cache:
+        problem.cache["lengths"] = stack_lengths(tuple(problem.trial.args))
+    return problem.cache["lengths"]
+
+
+def longest(args, lengths: list | None = None) -> int | None:
+    """The number of items of the longest stacks among ``args`` (None: no stack);
+    ``lengths`` their :func:`stack_lengths` when known."""
+    lengths = stack_lengths(args) if lengths is None else lengths
+    return max((n for n in lengths if n is not None), default=None)
 
 
 def _like(original, items: list):
@@ -62,10 +71,11 @@ def _like(original, items: list):
     return np.stack([np.asarray(x, dtype=float) for x in items])
 
 
-def with_stacks(args, n: int, change) -> tuple:
+def with_stacks(args, n: int, change, lengths: list | None = None) -> tuple:
     """``args`` with every stack of ``n`` items replaced by ``change(list of its items)``,
-    in its own container; the other arguments as they are."""
-    lengths = stack_lengths(args)
+    in its own container; the other arguments as they are (``lengths``: their
+    :func:`stack_lengths` when known)."""
+    lengths = stack_lengths(args) if lengths is None else lengths
     return tuple(_like(a, change(list(a))) if n_a == n else a for a, n_a in zip(args, lengths))
 
 
@@ -120,7 +130,7 @@ def reduction(problem: Problem, min_items: int = 3) -> Reduction | None:
 
 def _reduction(problem: Problem, min_items: int) -> Reduction | None:
     args = tuple(problem.trial.args)
-    n = longest(args)
+    n = longest(args, lengths_of(problem))
     whole = problem.right_answer()
     if n is None or n < min_items or not is_numeric_array(whole):
         return None
@@ -130,7 +140,7 @@ def _reduction(problem: Problem, min_items: int) -> Reduction | None:
     if whole.ndim > 1:
         return None
     items = []
-    for answer in problem.item_answers(stack_lengths(args), n):
+    for answer in problem.item_answers(lengths_of(problem), n):
         value = as_array(answer)
         if value is None or value.shape != whole.shape:
             return None

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from autograder.families.base import INPUT, OUTPUT, Family, Prediction, Problem, is_numeric_array
-from autograder.families.stacks import Reduction, coincide, loses_credit, reduction, stack_lengths
+from autograder.families.stacks import Reduction, coincide, lengths_of, loses_credit, reduction
 
 MEDIAN = ("it takes the median over the items where their mean (or RMS) was asked: "
           "average over every item (np.mean), the median ignores how large the largest "
@@ -82,7 +82,7 @@ def _divisor_swapped(up: bool):
             return []
         truth = np.asarray(problem.truth, dtype=float)
         out = []
-        for n in sorted({n for n in stack_lengths(problem.trial.args) if n and n >= 3}):
+        for n in sorted({n for n in lengths_of(problem) if n and n >= 3}):
             ratio = n / (n - 1) if up else (n - 1) / n
             for factor in (ratio, np.sqrt(ratio)):
                 answer = float(truth * factor) if truth.ndim == 0 else truth * factor

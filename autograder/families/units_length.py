@@ -8,6 +8,8 @@ divided back is compared with the truth within the problem's noise.
 
 from __future__ import annotations
 
+import numpy as np
+
 from autograder.families.base import (
     OUTPUT,
     Family,
@@ -24,6 +26,9 @@ METRES = ("its translation is 1000 times too small: metres where millimetres wer
           "or a conversion applied twice")
 ARRAY_MM = "it is 1000 times too large: millimetres where metres were asked"
 ARRAY_M = "it is 1000 times too small: metres where millimetres were asked"
+WHOLE_MM = ("the whole matrix was multiplied by 1000 (its rotation block and last row too): "
+            "a pose's lengths are its translation column alone, and the course keeps them "
+            "in metres")
 ORDINALS = ("first", "second", "third", "fourth", "fifth", "sixth")
 
 
@@ -44,6 +49,15 @@ def _scaled(factor: float, pose_words: str, array_words: str, part_words: str):
     return make
 
 
+def _whole_pose_scaled(problem: Problem) -> list[Prediction]:
+    # no pose (its last row is [0, 0, 0, 1000]): only an answer that failed the pose check
+    # lands near it
+    if not is_pose(problem.truth):
+        return []
+    truth = np.asarray(problem.truth, dtype=float)
+    return [Prediction(1000.0 * truth, lambda v: np.asarray(v, float) / 1000.0, truth)]
+
+
 FAMILIES = (
     Family("units m/mm", MILLIMETRES, OUTPUT, _scaled(
         1000.0, MILLIMETRES, ARRAY_MM,
@@ -53,4 +67,5 @@ FAMILIES = (
         1e-3, METRES, ARRAY_M,
         "{part} is 1000 times too small: metres where millimetres were asked, or a "
         "conversion applied twice"), "metres"),
+    Family("units m/mm", WHOLE_MM, OUTPUT, _whole_pose_scaled, "whole pose times 1000"),
 )

@@ -1,0 +1,82 @@
+"""A matrix input read wrong: used transposed, or a camera matrix's principal point left out.
+
+* Transposed: numpy indexes ``[row, column]``; reading ``K[2, 0]`` for ``K[0, 2]`` (or
+  building the matrix from rows where columns were meant) reads the input transposed.
+  Applies to an input that is a square matrix (2x2 and up), neither a pose (an inverted
+  pose is :mod:`.reversed_stack`'s) nor symmetric (its transpose is itself).
+* Principal point left out: a pinhole projection or back-projection written ``u / fx``
+  where ``(u - cx) / fx`` is meant. Applies to an input of the kind of a camera matrix
+  (3x3, upper triangular, last row [0, 0, 1], positive focal lengths, a principal point
+  off zero).
+
+Input side: the private reference called on the input changed so. The words name the input
+by the function's parameter name (:func:`.chain.parameter_names`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, is_pose
+from autograder.families.chain import parameter_names
+
+TRANSPOSED_INPUT = ("the input {name} was read transposed ([column, row] where [row, column] "
+                    "was meant, e.g. {name}[2, 0] for {name}[0, 2]): numpy indexes a matrix "
+                    "[row, column]")
+NO_PRINCIPAL_POINT = ("the principal point (cx, cy) of {name} was left out: a pixel's offset "
+                      "from the optical axis is (u - cx, v - cy), not (u, v)")
+
+
+def _square(a) -> np.ndarray | None:
+    """``a`` as a square non-symmetric matrix that is no pose, or None."""
+    if isinstance(a, (int, float, str, bytes, dict)) or is_pose(a):
+        return None
+    m = as_array(a)
+    if m is None or m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] < 2 \
+            or np.allclose(m, m.T):
+        return None
+    return m
+
+
+def is_camera_matrix(a) -> bool:
+    """A pinhole camera matrix K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0, its
+    principal point off zero."""
+    m = _square(a)
+    return m is not None and m.shape == (3, 3) and np.allclose(m[2], [0.0, 0.0, 1.0]) \
+        and m[1, 0] == 0.0 and m[0, 0] > 0 and m[1, 1] > 0 and bool(np.any(m[:2, 2] != 0))
+
+
+def _changed_input(test, change, words: str):
+    def make(problem: Problem) -> list[Prediction]:
+        args = tuple(problem.trial.args)
+        names = parameter_names(problem.spec, len(args))
+        out = []
+        for i, a in enumerate(args):
+            if not test(a):
+                continue
+            changed = tuple(change(np.asarray(a, float)) if k == i else x
+                            for k, x in enumerate(args))
+            answer = problem.reference(*changed)
+            if answer is not None:
+                out.append(Prediction(answer, words=words.format(name=names[i])))
+        return out
+    return make
+
+
+def _without_principal_point(K: np.ndarray) -> np.ndarray:
+    out = np.array(K)
+    out[:2, 2] = 0.0
+    return out
+
+
+# The principal point first: a formula that reads K's entries one by one gets from K.T
+# exactly what it gets without (cx, cy) (K.T[0, 2] = K[2, 0] = 0), and where two families
+# give one answer the first speaks for both: leaving (cx, cy) out is the common slip.
+FAMILIES = (
+    Family("missing part", NO_PRINCIPAL_POINT.format(name="K"), INPUT,
+           _changed_input(is_camera_matrix, _without_principal_point, NO_PRINCIPAL_POINT),
+           "no principal point"),
+    Family("inverse/transpose", TRANSPOSED_INPUT.format(name="a matrix input"), INPUT,
+           _changed_input(lambda a: _square(a) is not None, lambda m: m.T, TRANSPOSED_INPUT),
+           "input transposed"),
+)
