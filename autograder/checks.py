@@ -589,9 +589,10 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
                          lambda: _wrap_radius(_noise_distance(spec, trial), truth))
     hint = _whole_answer_name(value, truth, predicted, distance)
     if hint is None and not _measurable(spec, value, trial):
-        # a piece's mistake before what is read from the answer itself: a translation in
-        # millimetres is named beside a rotation block that is no rotation
-        hint = _piece_name(value, truth, predicted, distance)
+        # T.T for T^-1, then a piece's mistake, before what is read from the answer itself:
+        # a translation in millimetres is named beside a rotation block that is no rotation
+        hint = families.transposed_for_inverse_name(value, truth, _noise_distance(spec, trial)) \
+            or _piece_name(value, truth, predicted, distance)
     return hint or families.mirrored_name(value, truth) \
         or families.not_rotation_name(value, truth)
 
@@ -621,8 +622,15 @@ def _piece_name(value, truth, predicted: list, distance) -> MistakeName | None:
     """The mistake named on the pieces of an answer that cannot be measured as a whole
     (:func:`autograder.families.pieces.spliced`: a translation in millimetres beside a
     rotation block that is no rotation): the one name its pieces give, or None when they
-    give none or two different ones (never two names at once)."""
-    names = {_whole_answer_name(piece, truth, predicted, distance)
+    give none or two different ones (never two names at once).
+
+    Only a mistake that maps a right piece to the answer's and back (``undo``: x1000,
+    degrees, an inverse) is named from a piece: undoing it gives the truth's piece, while a
+    piece that merely looks like a part left out (a translation near zero) says nothing of
+    why, beside another piece that is wrong for a reason no candidate knows."""
+    invertible = [p for p in predicted
+                  if isinstance(p[1], families.Prediction) and p[1].undo is not None]
+    names = {_whole_answer_name(piece, truth, invertible, distance)
              for piece in pieces.spliced(value, truth)} - {None}
     return names.pop() if len(names) == 1 else None
 

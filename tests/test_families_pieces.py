@@ -61,8 +61,9 @@ def relative_whole_transposed(a_T_b, a_T_c):
 # allowed: (family, the words' start); a lab's own code mistake for it has family None)
 MM = ("units m/mm", "its translation is 1000 times too large")
 CASES = [
-    # a_T_b.T is [R^T | 0] above a last row [t 1]: the inverse's rotation, no translation
-    ("lab0_frames", "invert_pose", whole_transposed, [("missing part", "its rotation is right")]),
+    # a_T_b.T is [R^T | 0] above a last row [t 1]: the transpose where the inverse belongs
+    ("lab0_frames", "invert_pose", whole_transposed,
+     [("inverse/transpose", inverse.TRANSPOSED_FOR_INVERSE)]),
     (None, "relative_pose", relative_whole_transposed,
      [("inverse/transpose", inverse.WHOLE_TRANSPOSED)]),
     ("lab0_frames", "compose_chain", compose_whole_mm, [("units m/mm", units_length.WHOLE_MM)]),
@@ -104,7 +105,7 @@ def test_the_grader_names_an_answer_it_cannot_measure_and_scores_it_as_before():
     named = checks.score_function(spec, trials, outcomes)
     bare = checks.score_function(spec, trials, outcomes, hints=False)
     assert named.points == bare.points == 0.0
-    assert [m.family for m in named.mistakes] == ["missing part"]
+    assert [m.words for m in named.mistakes] == [inverse.TRANSPOSED_FOR_INVERSE]
     assert not bare.mistakes
 
 

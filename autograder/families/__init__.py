@@ -98,7 +98,8 @@ from autograder.families.base import (
 from autograder.spec_types import FunctionSpec, Trial
 
 __all__ = ["FAMILIES", "INPUT", "OUTPUT", "Family", "MistakeName", "Prediction", "applicable",
-           "mirrored_name", "not_rotation_name", "nulls", "predictions", "transforms", "undoing"]
+           "mirrored_name", "not_rotation_name", "nulls", "predictions", "transforms",
+           "transposed_for_inverse_name", "undoing"]
 
 FAMILIES: tuple[Family, ...] = (
     *inverse.FAMILIES, *units_length.FAMILIES, *units_angle.FAMILIES, *sign.FAMILIES,
@@ -238,6 +239,13 @@ def mirrored_name(value, truth) -> MistakeName | None:
     """The reflection family's name when ``value`` is a mirror image of a pose (see
     :func:`autograder.families.reflection.mirrored`), else None."""
     return reflection.REFLECTION.label() if reflection.mirrored(value, truth) else None
+
+
+def transposed_for_inverse_name(value, truth, distance) -> MistakeName | None:
+    """The inverse family's name for T.T returned where T^-1 was asked (see
+    :func:`autograder.families.inverse.transposed_for_inverse`), else None."""
+    return inverse.FOR_INVERSE.label() \
+        if inverse.transposed_for_inverse(value, truth, distance) else None
 
 
 def not_rotation_name(value, truth) -> MistakeName | None:
