@@ -253,16 +253,15 @@ def ta(tmp_path_factory) -> Instructor:
 
 
 def _hand_in(ta: Instructor, course: Path, cases: dict, names,
-             with_reference: bool = True) -> set[str]:
-    """Submit the named corpus cases, the victim, the reference (``with_reference``) and a
-    blank (as root, then given to the user, as nbgrader collect would leave them); returns
-    the folder names. The victim is the reference's code under another name."""
+             full_marks=("victim", "reference")) -> set[str]:
+    """Submit the named corpus cases, a blank and the reference's code under each name of
+    ``full_marks`` (the victim: what the corpus's classmate attacks aim at) (as root, then
+    given to the user, as nbgrader collect would leave them); returns the folder names."""
     reference = kit.solution_sources(ASSIGNMENT, FUNCTIONS)
-    kit.submit(course, ASSIGNMENT, "victim", replace=reference)
-    if with_reference:
-        kit.submit(course, ASSIGNMENT, "reference", replace=reference)
+    for name in full_marks:
+        kit.submit(course, ASSIGNMENT, name, replace=reference)
     kit.submit(course, ASSIGNMENT, "blank")
-    folders = {"victim", "blank", *(["reference"] if with_reference else [])}
+    folders = {"blank", *full_marks}
     for name in names:
         folders.add(kit.submit_case(course, ASSIGNMENT, name, cases[name]))
     _give(course / "submitted", ta.user)
@@ -294,7 +293,8 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     course = ta.course(ta.released, "course")
     # the victim is the reference's code: its full marks are the reference's (the full
     # corpus grades the reference too, with nbgrader's kernel)
-    folders = _hand_in(ta, course, cases, names, with_reference=kit.full_corpus())
+    folders = _hand_in(ta, course, cases, names, ("victim", "reference") if kit.full_corpus()
+                       else ("victim",))
     assert os.stat(course).st_uid == ta.user.pw_uid
 
     in_kernel = [*(["reference"] if kit.full_corpus() else []), *KERNEL_CASES]
@@ -341,7 +341,8 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
 def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     course = ta.course(ta.released, "fallback")
     cases = kit.corpus(ASSIGNMENT)
-    _hand_in(ta, course, cases, ["geometry_invert"])
+    # no classmate attack here: the reference alone has full marks to keep
+    _hand_in(ta, course, cases, ["geometry_invert"], ("reference",))
     done = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", userns=False)
     # said before any submission is graded (the progress bar comes after it), with why and
     # what to do about it
@@ -355,7 +356,7 @@ def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     assert log.startswith("sandbox: rlimits only") and "ENOSPC" in log, log[:1000]
 
     grades = _grades(course)
-    assert set(grades) == {"victim", "reference", "blank", "geometry_invert"}
+    assert set(grades) == {"reference", "blank", "geometry_invert"}
     for row in grades.values():
         assert "sandbox:rlimits_only" in row["flags"].split(";"), row
     assert float(grades["reference"]["score"]) == 10.0
