@@ -11,7 +11,7 @@ to say about a blank and are left to tests/test_course_cycle.py.
 nbgrader is not run: the flags checked are those of the independent grader's own scan.
 
 A suite run grades the attacks whose grading depends on the lab (LAB_SLICE), each on one of
-the three labs in turn, by name; every case meets lab 0 in tests/test_corpus_batch_*.py.
+the three labs, by name; every case meets lab 0 in tests/test_corpus_batch_*.py.
 ``COBOTLAB_FULL_CORPUS=1`` (benchmarks/adversarial_corpus.py) runs every case on every lab.
 """
 
@@ -43,9 +43,16 @@ CORRECT_ANSWERS_ONLY = {"mangled"}
 # meet the libraries the lab's checks call (numpy_patch, sys_modules), the jail hides the
 # lab's own source notebook and solutions (reader_source_notebook, import_solutions), and
 # the lab's replies cross the pipe the forger writes to (forge_protocol). The other attacks
-# act on the grader the same way whatever the lab.
-LAB_SLICE = ("forbidden_alias", "forge_protocol", "huge_values", "import_solutions",
-             "nan_and_shapes", "numpy_patch", "raises", "reader_source_notebook", "sys_modules")
+# act on the grader the same way whatever the lab. Each is graded on one lab, three a lab.
+# Lab 4's shared cells outlast these limits' 2 s a cell, so it has no template and every
+# submission there starts cold and waits out that cell again: reader_source_notebook, whose
+# search starts over after every call it loses to its time limit, cost 11 s of CPU there
+# against about 3 on lab 5, where it forks from the template.
+LAB_SLICE = {
+    "lab3_servoing": ("forbidden_alias", "import_solutions", "raises"),
+    "lab4_stereo": ("forge_protocol", "nan_and_shapes", "sys_modules"),
+    "lab5_depth": ("huge_values", "numpy_patch", "reader_source_notebook"),
+}
 # Short limits skip the lab's simulator cells (they need the blanks anyway) and make the
 # hangs cheap (a third of the corpus on labs 3 and 4 took about 85 s on 2 cores, against
 # 130 s with 3 s / 2 s limits); no score here depends on them, every one must be the
@@ -84,10 +91,11 @@ def test_adversarial_corpus_scores_no_more_than_the_blank(assignment, tmp_path):
     cases = {n: c for n, c in kit.corpus().items()
              if n not in CORRECT_ANSWERS_ONLY and c["layer"] == "notebook"}
     assert len(cases) >= 12 and sum(len(_scan_flags(c)) for c in cases.values()) >= 7
-    assert set(LAB_SLICE) <= set(cases), "a renamed case: update LAB_SLICE"
+    assert set(LAB_SLICE) == set(LABS), "a lab without its share of the slice"
+    assert {n for names in LAB_SLICE.values() for n in names} <= set(cases), \
+        "a renamed case: update LAB_SLICE"
     if not kit.full_corpus():   # this lab's third of the slice
-        share = sorted(LABS).index(assignment)
-        cases = {n: cases[n] for i, n in enumerate(sorted(LAB_SLICE)) if i % len(LABS) == share}
+        cases = {n: cases[n] for n in LAB_SLICE[assignment]}
     for name, case in cases.items():
         kit.submit(course, assignment, name, replace=_retarget(case, functions),
                    extra=case["extra"], mangle=case["mangle"])

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 
 import course_kit as kit
 import numpy as np
@@ -73,15 +74,38 @@ def _one_core():
 
 @contextlib.contextmanager
 def _busy(core: int, n: int):
-    """``n`` busy processes on ``core``, killed on the way out."""
+    """``n`` busy processes on ``core`` while a worker runs cells and calls, killed on the
+    way out. They are held stopped (SIGSTOP) from the start of each worker until it says it
+    is ready, and again from when it closes: each test's claims are about cells and calls
+    beside them, and a cold interpreter starting at a ninth of a core kept the hogs
+    spinning a whole core for seconds that no assertion looks at."""
     import multiprocessing
 
     context = multiprocessing.get_context("fork")
     hogs = [context.Process(target=_spin, args=(core,), daemon=True) for _ in range(n)]
     for hog in hogs:
         hog.start()
+
+    def send(signum: int) -> None:
+        for hog in hogs:
+            os.kill(hog.pid, signum)
+
+    send(signal.SIGSTOP)
+    ready, close = Worker._wait_ready, Worker.close
+
+    def ready_then_busy(worker, first):
+        ready(worker, first)
+        send(signal.SIGCONT)
+
+    def idle_then_close(worker):
+        send(signal.SIGSTOP)
+        close(worker)
+
     try:
-        yield
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(Worker, "_wait_ready", ready_then_busy)
+            patch.setattr(Worker, "close", idle_then_close)
+            yield
     finally:
         for hog in hogs:
             hog.kill()

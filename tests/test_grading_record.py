@@ -222,6 +222,8 @@ def test_cobotlab_scores_are_what_nbgrader_shows_and_its_feedback_hides_the_test
 
     rows = {r["student_id"]: r for r in grade_course(course, LAB0, limits=LIMITS, quiet=True)}
     assert rows["ref"]["score"] == 10.0 and rows["fools"]["score"] == 0.0
+    # nbgrader's own results agree with cobotlab's on an honest notebook: no flag at all
+    assert rows["ref"]["flags"] == "", rows["ref"]
     assert 0 < rows["wrong"]["score"] < 10
     fooled = "nbgrader_passed_but_grader_failed:invert_pose"
     assert fooled in rows["fools"]["flags"].split(";")

@@ -6,7 +6,7 @@ runs the real command line as it (``setpriv --reuid --regid --init-groups``):
 
 * **with user namespaces** (this machine's default): lab 0 adversarial cases through
   ``cobotlab grade`` on a course the user released and owns must score as they do for root
-  (each case's score bounds and flags, the reference full marks, a blank 0), under
+  (each case's score bounds and flags, the reference's code full marks, a blank 0), under
   bubblewrap's user-namespace path (no root to drop from: ``--unshare-user``);
 * **without** (``user.max_user_namespaces`` set to 0 in a user namespace of the user's own,
   so bubblewrap fails there exactly as on a machine or container that forbids them): the
@@ -20,14 +20,16 @@ the same version (the same ABI), outside every private folder, holding this envi
 libraries as hard links (tests/test_course_install.py's helpers) and cobotlab from a wheel
 built from the working tree: a regular install, as on a course server.
 
-Graded as the user: the notebook-layer cases of the lab 0 corpus whose grade the sandbox
-decides (SANDBOX_CASES, and one that fools nbgrader's own kernel, in a first run with
-``--nbgrader-kernel`` so that its cross-check flags it, as tests/test_corpus_batch_a.py
-does for root with all three), six course, host and layout cases of
-tests/test_grading_flow.py's slice (the gradebook, files outside the scratch space, a
-symlinked notebook, a symlinked folder, the answer key, the keyrings: the user's login
-token in the grader's session keyring), the victim they aim at, the reference and a blank. With ``COBOTLAB_FULL_CORPUS=1``
-(benchmarks/adversarial_corpus.py) every notebook-layer case but one is graded as the user.
+Graded as the user: the notebook-layer cases of the lab 0 corpus whose grade depends on
+what differs for the user (SANDBOX_CASES: the user's limits without a cgroup, what the user's
+jail shows of the user's own course and regular install), and one that fools nbgrader's own
+kernel, in a first run with ``--nbgrader-kernel`` so that its cross-check flags it (the
+kernel's jail as the user; tests/test_corpus_batch_a.py grades all three with it as root),
+five course, host and layout cases of tests/test_grading_flow.py's slice (files outside the
+scratch space, a symlinked notebook, a symlinked folder, the answer key, the keyrings: the
+user's login token in the grader's session keyring), the victim they aim at and a blank.
+With ``COBOTLAB_FULL_CORPUS=1`` (benchmarks/adversarial_corpus.py) every notebook-layer case
+but one is graded as the user, and the reference too.
 tests/test_grading_keyrings.py also runs as the user. Left to the root tests, even in the
 full corpus: ``infinite_loop``, which costs over a minute of CPU at the command line's
 default time limits (``cobotlab grade`` has no option to lower them) and meets only
@@ -68,15 +70,24 @@ FUNCTIONS = tuple(s.name for s in checks.SPECS[ASSIGNMENT])
 KERNEL_CASES = kit.FOOL_NBGRADER if kit.full_corpus() else ("kernel_patch",)
 # Graded by root only (see above): it costs its time limits, the same for every user.
 ROOT_ONLY = ("infinite_loop",)
-# The notebook-layer cases whose grade depends on the sandbox: what the jail shows (the
-# solutions, the source notebook, the grader's secrets), its limits without a cgroup
-# (memory, threads), the reply pipe. The rest (values, the source scan, floods, a mangled
-# notebook) grade the same under any sandbox: tests/test_corpus_batch_b.py grades them.
-SANDBOX_CASES = ("forbidden_thread", "forge_protocol", "importlib_solutions", "memory_bomb",
-                 "reader_source_notebook", "secret_hunt")
-# Of tests/test_grading_flow.py's course, host and layout slice: one attack per path.
-FLOW_CASES = ("gradebook_overwrite", "write_outside", "symlink_notebook", "symlink_folder",
-              "import_solutions", "keyring")
+# The notebook-layer cases whose grade depends on what differs for the user: its limits
+# without a cgroup (memory; threads, which RLIMIT_NPROC counts per user), what the user's
+# jail shows of the user's own course (its secret) and of its regular install (the labs'
+# source notebooks in site-packages). Every submission as the user starts cold, so the
+# cases root's cold run already tells apart and whose target is the same for any user are
+# left to root (tests/test_corpus_batch_*.py, REGRADED_COLD) and the full corpus:
+# forge_protocol (the reply pipe is the grader's own, whoever runs it) and
+# importlib_solutions (the answer key by another spelling: FLOW_CASES' import_solutions
+# meets the user's jail, the spelling only the scan, the same for any user).
+# The rest (values, the source scan, floods, a mangled notebook) grade the same under any
+# sandbox: tests/test_corpus_batch_b.py grades them.
+SANDBOX_CASES = ("forbidden_thread", "memory_bomb", "reader_source_notebook", "secret_hunt")
+# Of tests/test_grading_flow.py's course, host and layout slice: one attack per path
+# (write_outside writes beside the user's course, in the user's home and into the user's
+# install: gradebook_overwrite's write into the course is the same path, left to the flow
+# test and the full corpus).
+FLOW_CASES = ("write_outside", "symlink_notebook", "symlink_folder", "import_solutions",
+              "keyring") + (("gradebook_overwrite",) if kit.full_corpus() else ())
 # A user namespace of the user's own in which no further one may be made: bubblewrap's
 # --unshare-user then fails as where the kernel, a sysctl, AppArmor or a container's seccomp
 # profile forbids unprivileged user namespaces. The process keeps its uid; exec drops the
@@ -241,14 +252,16 @@ def ta(tmp_path_factory) -> Instructor:
         shutil.rmtree(base, ignore_errors=True)
 
 
-def _hand_in(ta: Instructor, course: Path, cases: dict, names) -> set[str]:
-    """Submit the named corpus cases, the victim, the reference and a blank (as root, then
+def _hand_in(ta: Instructor, course: Path, cases: dict, names,
+             full_marks=("victim", "reference")) -> set[str]:
+    """Submit the named corpus cases, a blank and the reference's code under each name of
+    ``full_marks`` (the victim: what the corpus's classmate attacks aim at) (as root, then
     given to the user, as nbgrader collect would leave them); returns the folder names."""
     reference = kit.solution_sources(ASSIGNMENT, FUNCTIONS)
-    kit.submit(course, ASSIGNMENT, "victim", replace=reference)
-    kit.submit(course, ASSIGNMENT, "reference", replace=reference)
+    for name in full_marks:
+        kit.submit(course, ASSIGNMENT, name, replace=reference)
     kit.submit(course, ASSIGNMENT, "blank")
-    folders = {"victim", "reference", "blank"}
+    folders = {"blank", *full_marks}
     for name in names:
         folders.add(kit.submit_case(course, ASSIGNMENT, name, cases[name]))
     _give(course / "submitted", ta.user)
@@ -278,12 +291,15 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
         notebook = sorted({*KERNEL_CASES, *SANDBOX_CASES})
     names = sorted(set(notebook) | set(FLOW_CASES))
     course = ta.course(ta.released, "course")
-    folders = _hand_in(ta, course, cases, names)
+    # the victim is the reference's code: its full marks are the reference's (the full
+    # corpus grades the reference too, with nbgrader's kernel)
+    folders = _hand_in(ta, course, cases, names, ("victim", "reference") if kit.full_corpus()
+                       else ("victim",))
     assert os.stat(course).st_uid == ta.user.pw_uid
 
-    kernel = _students_file(ta, course, "kernel", ["reference", *KERNEL_CASES])
-    rest = _students_file(ta, course, "rest", sorted(folders - set(KERNEL_CASES)
-                                                     - {"reference"}))
+    in_kernel = [*(["reference"] if kit.full_corpus() else []), *KERNEL_CASES]
+    kernel = _students_file(ta, course, "kernel", in_kernel)
+    rest = _students_file(ta, course, "rest", sorted(folders - set(in_kernel)))
     # the user's login session keeps a token in its session keyring (pam_keyinit)
     with kit.instructor_keyring(b"the user's login token"):
         first = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", "--no-progress",
@@ -302,7 +318,8 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     grades = _grades(course)
     assert len(grades) == len(folders), sorted(grades)
     assert all("sandbox:" not in r["flags"] for r in grades.values()), grades
-    assert float(grades["reference"]["score"]) == 10.0, grades["reference"]
+    if kit.full_corpus():
+        assert float(grades["reference"]["score"]) == 10.0, grades["reference"]
     assert float(grades["victim"]["score"]) == 10.0, grades["victim"]
     assert float(grades["blank"]["score"]) == 0.0, grades["blank"]
     for name in names:
@@ -324,7 +341,8 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
 def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     course = ta.course(ta.released, "fallback")
     cases = kit.corpus(ASSIGNMENT)
-    _hand_in(ta, course, cases, ["geometry_invert"])
+    # no classmate attack here: the reference alone has full marks to keep
+    _hand_in(ta, course, cases, ["geometry_invert"], ("reference",))
     done = ta.cobotlab("grade", course, ASSIGNMENT, "--workers", "2", userns=False)
     # said before any submission is graded (the progress bar comes after it), with why and
     # what to do about it
@@ -338,7 +356,7 @@ def test_without_user_namespaces_the_fallback_is_announced_and_flagged(ta):
     assert log.startswith("sandbox: rlimits only") and "ENOSPC" in log, log[:1000]
 
     grades = _grades(course)
-    assert set(grades) == {"victim", "reference", "blank", "geometry_invert"}
+    assert set(grades) == {"reference", "blank", "geometry_invert"}
     for row in grades.values():
         assert "sandbox:rlimits_only" in row["flags"].split(";"), row
     assert float(grades["reference"]["score"]) == 10.0

@@ -60,7 +60,7 @@ def execute(run: GradeRun, frozen, problems: DrawnProblems, store: Path,
              progress=None, cluster=None) -> dict[str, Executed]:
     """{student: :class:`Executed`} for every frozen submission. With ``cluster``, each
     runs on a worker of that Dask cluster (:mod:`autograder.cluster`); otherwise, with the
-    ``template`` option, each grading thread forks its workers from a template of its own."""
+    ``template`` option, every grading thread forks its workers from the run's one template."""
     sandbox.capabilities()   # probed here, once, before any worker thread starts
     _announce_fallback()
     use_template = run.options.template and cluster is None
@@ -160,7 +160,7 @@ class _Executor:
     def _usable(self, sub: freeze.Frozen, mine: Problems, errors: list[str]):
         """(execution or None, nbgrader's result or None) of one usable submission."""
         if self.templates is not None:
-            self.templates.mine()   # this thread's, built before nbgrader's share is timed
+            self.templates.mine()   # built before nbgrader's share is timed
         nb = execution = None
         if self.template is not None:
             nb, execution = self._with_nbgrader(sub, mine, errors)
@@ -200,21 +200,26 @@ def submission_digest(sub: freeze.Frozen) -> str:
 
 
 class _Templates:
-    """One :class:`autograder.template.Template` per grading thread, built on its first
-    submission (so ``--workers 2`` builds two at once, one per core) and closed at the end.
-    A thread whose template cannot be built grades cold; the run log says why, once."""
+    """The run's one :class:`autograder.template.Template`, built by the first grading
+    thread that needs it (the others wait for it, then fork from it too: its control
+    socket serves one fork at a time) and closed at the end. With ``--workers 2`` a
+    template per thread cost a second interpreter and the shared cells' CPU again, for
+    the same forks, in about the same wall clock. When it cannot be built every
+    submission is graded cold; the run log says why, once."""
 
     def __init__(self, root: Path, assignment: str, limits: Limits, run_notes):
         self.limits, self.run_notes = limits, run_notes
         self.release = root / "release" / assignment / f"{assignment}.ipynb"
         self.cpu_s = limits.worker_cpu_s(checks.SPECS[assignment])
-        self._local, self._lock, self._built = threading.local(), threading.Lock(), []
+        self._lock, self._tried, self._template = threading.Lock(), False, None
 
     def mine(self):
-        """This thread's template, or None (no release, nothing to share, or it failed)."""
-        if not hasattr(self._local, "template"):
-            self._local.template = self._build()
-        return self._local.template
+        """The run's template, or None (no release, nothing to share, or it failed)."""
+        with self._lock:
+            if not self._tried:
+                self._tried = True
+                self._template = self._build()
+            return self._template
 
     def _build(self):
         why = None
@@ -231,27 +236,20 @@ class _Templates:
             why = printable(exc, 300)
         except Exception as exc:  # noqa: BLE001 - a grader bug costs speed, never a grade
             why = f"{type(exc).__name__}: {printable(exc, 300)}"
-        with self._lock:
-            if why is not None:
-                note = f"no template, every submission started cold: {why}"
-                if note not in self.run_notes:
-                    self.run_notes.append(note)
-                return None
-            self._built.append(built)
-            if len(self._built) == 1:
-                self.run_notes.append(
-                    f"template: the interpreter, the notebook's imports and its first "
-                    f"{len(cells)} cells "
-                    f"({built.shared_s:.1f} s) loaded once per worker, in "
-                    f"{built.build_s:.1f} s; peak {built.peak_memory_mb():.0f} MB, shared by "
-                    "its forks")
+        if why is not None:
+            self.run_notes.append(f"no template, every submission started cold: {why}")
+            return None
+        self.run_notes.append(
+            f"template: the interpreter, the notebook's imports and its first {len(cells)} "
+            f"cells ({built.shared_s:.1f} s) loaded once for the run, in "
+            f"{built.build_s:.1f} s; peak {built.peak_memory_mb():.0f} MB, shared by its forks")
         return built
 
     def close(self) -> None:
         with self._lock:
-            for template in self._built:
-                template.close()
-            self._built.clear()
+            if self._template is not None:
+                self._template.close()
+            self._template = None
 
 
 # A grader error (its sandbox did not start, a bug) is tried again in a fresh sandbox; a
