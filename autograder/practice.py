@@ -16,6 +16,10 @@ cannot run code. :func:`load_practice` looks for it in ``$COBOTLAB_PRACTICE_DIR`
 kernel sandbox points it at the assignment's folder), then in the current folder (a
 notebook's kernel starts in its lab folder); only when neither has it and the private
 generators are importable (an instructor's install) does it build the same data in memory.
+
+Drawing the public and kernel seeds' problems costs seconds of CPU a lab, so the private side
+keeps them in the instructor's cache (:mod:`autograder.practice_cache`), checked on every read
+as a student's file is; :func:`drawn` is the draw itself.
 """
 
 from __future__ import annotations
