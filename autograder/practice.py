@@ -16,6 +16,10 @@ cannot run code. :func:`load_practice` looks for it in ``$COBOTLAB_PRACTICE_DIR`
 kernel sandbox points it at the assignment's folder), then in the current folder (a
 notebook's kernel starts in its lab folder); only when neither has it and the private
 generators are importable (an instructor's install) does it build the same data in memory.
+
+Drawing the public and kernel seeds' problems costs seconds of CPU a lab, so the private side
+keeps them in the instructor's cache (:mod:`autograder.practice_cache`), checked on every read
+as a student's file is; :func:`drawn` is the draw itself.
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ from autograder import families, registry
 from autograder.inside import wire
 from autograder.spec_types import FunctionSpec, Trial, mistake_answers
 
-__all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "load_practice",
+__all__ = ["ENV_DIR", "PracticeDataError", "PracticeSet", "build_practice", "drawn",
+           "load_practice",
            "practice_file_name", "practice_rng", "practice_trials", "precomputed_mistakes",
            "releasable",
            "save_practice", "write_practice"]
@@ -98,14 +103,35 @@ def precomputed_mistakes(spec: FunctionSpec, trial: Trial) -> list[tuple]:
 
 
 def _built(assignment: str, name: str, seed: int) -> tuple:
-    """The encoded practice problems of one function and seed, drawn by its generator (cached
-    per version of the lab's spec: another course's lab of that name, or an edited spec, is
-    drawn again)."""
+    """The encoded practice problems of one function and seed, drawn by its generator (kept
+    in memory and on disk per version of the lab's spec and of the code that draws it:
+    another course's lab of that name, or an edited spec, is drawn again)."""
     return _built_for(assignment, name, seed, registry.spec_hash(assignment))
 
 
 @lru_cache(maxsize=256)
 def _built_for(assignment: str, name: str, seed: int, spec_hash: str) -> tuple:
+    # Drawn once per machine (autograder.practice_cache), not once per process: the six
+    # built-in labs cost ~12 s of CPU in every process that laid out a course. Imported
+    # here: only the private side draws, and nbgrader's kernel view lists no cache module.
+    from autograder import practice_cache
+
+    if int(seed) not in _default_seeds():   # the cache holds released data only
+        return drawn(assignment, name, seed)
+    return tuple(practice_cache.cached(
+        assignment, practice_cache.key(assignment, spec_hash, FORMAT), f"{name}-{int(seed)}",
+        lambda: list(drawn(assignment, name, seed)), _check_cached))
+
+
+def _check_cached(encoded: list, where: str) -> None:
+    """Refuse a cache file holding anything a student's file could not (the same checks)."""
+    for data in encoded:
+        _trial_from(data, where)
+
+
+def drawn(assignment: str, name: str, seed: int) -> tuple:
+    """The encoded practice problems of one function and seed, drawn by its generator now
+    (no cache: what the cache stores, and what tests of the drawing itself compare)."""
     spec = _full_spec(assignment, name)
     rng = practice_rng(seed)
     n = spec.practice_trials or spec.n_trials
@@ -173,9 +199,18 @@ def save_practice(document: dict, folder) -> Path:
     # mtime=0: the same problems give the same bytes, so a re-release changes no file.
     # Level 6: level 9 took twice the CPU (1.6 s of `course init`'s 9.5 s for the six built-in
     # labs) for files 0.2 % smaller.
-    partial.write_bytes(gzip.compress(body, compresslevel=6, mtime=0))
+    partial.write_bytes(_compressed(body))
     partial.replace(path)
     return path
+
+
+def _compressed(body: bytes) -> bytes:
+    """``body`` gzipped, through the instructor's cache (only the private side releases
+    practice data; its drawing is cached there too)."""
+    from autograder import practice_cache
+
+    return practice_cache.compressed(
+        body, lambda data: gzip.compress(data, compresslevel=6, mtime=0))
 
 
 # --------------------------------------------------------------------------- loading

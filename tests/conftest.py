@@ -82,12 +82,20 @@ def _no_course_left_behind():
 def _built_once_for_the_whole_run(tmp_path_factory):
     """What tests/course_kit.built_once builds (a released course, a wheel) goes in this
     run's temporary folder, the one all xdist workers share (each worker's own folder is in
-    it), so it is built once per run and removed with pytest's old temporary folders."""
+    it), so it is built once per run and removed with pytest's old temporary folders.
+
+    So does the practice-problem cache (autograder/practice_cache.py), inherited by every
+    process a test starts: every `course init`, `labs student` and instructor's kernel of
+    the run drew the six labs' practice problems again (about 10 s of CPU each). One the
+    caller set is kept (a warm cache to measure with)."""
     import course_kit
+
+    from autograder import practice_cache
 
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
     course_kit.BUILT_ONCE_DIR = shared / "built-once"
+    os.environ.setdefault(practice_cache.ENV, str(shared / "practice-cache"))
 
 
 def _kernels_under(pid: int) -> list[int]:

@@ -293,6 +293,14 @@ def plant_markers(package_root: Path, course: Path) -> tuple[list[str], list[str
     return paths, [m for m in places.values() if m]
 
 
+def unplant_markers(package_root: Path) -> None:
+    """Remove what plant_markers put in the install's packages: the install is shared by
+    the later tests of this file (a source file left in autograder/ changes the key of its
+    practice-problem cache, and the authoring page's `course init` drew them all again)."""
+    for folder in ("solutions", "autograder/specs", "autograder"):
+        (package_root / folder / f"{TOKEN}.py").unlink(missing_ok=True)
+
+
 def probe_views(env_dir: Path, env: dict, cwd: Path, course: Path, paths, modules) -> dict:
     args = json.dumps([paths, modules, TOKEN])
     out = {}
@@ -331,6 +339,7 @@ def test_the_answer_key_is_out_of_reach_in_a_regular_install(regular, regular_co
     finally:
         text = Path(checks_py).read_text().replace(f"# {TOKEN}\n", "")
         Path(checks_py).write_text(text)
+        unplant_markers(package_root)
     assert seen["kernel"]["readable"] == [checks_py], seen["kernel"]["readable"]
     seen["kernel"]["readable"] = []
     assert_out_of_reach(seen, "regular")
@@ -348,8 +357,11 @@ def test_the_answer_key_is_out_of_reach_in_an_editable_install(editable, regular
     # The checkout's own lab sources too (labs/, the package cobotlab_labs in this install).
     lab_marker = checkout / "labs" / "lab0_frames" / f"{TOKEN}.txt"
     lab_marker.write_text(TOKEN)
-    seen = probe_views(env_dir, env, tmp_path, tmp_path / "course",
-                       paths + [str(lab_marker)], modules)
+    try:
+        seen = probe_views(env_dir, env, tmp_path, tmp_path / "course",
+                           paths + [str(lab_marker)], modules)
+    finally:
+        unplant_markers(checkout)
     assert_out_of_reach(seen, "editable")
 
 
