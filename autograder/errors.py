@@ -73,11 +73,13 @@ def line_words(label: str, message: str, place: Place | None = None) -> str:
 
 def _first_lines(errors) -> list[ProblemError]:
     """Each distinct line once, leading ones first (a later leading line before an earlier
-    one), then the rest in the order met; the first :data:`MAX_LINES` of them."""
-    seen: set[str] = set()
+    one), then the rest in the order met; the first :data:`MAX_LINES` of them. A leading
+    line (a named mistake) is given once whatever problems it was met on: the same name on
+    five problems would fill every line and hide what else went wrong."""
+    seen: set = set()
     lines: list[ProblemError] = []
     for e in errors:
-        words = line_words(e.label, e.message, e.place)
+        words = (e.message, e.place) if e.leads else line_words(e.label, e.message, e.place)
         if words not in seen:
             seen.add(words)
             lines.insert(0 if e.leads else len(lines), e)

@@ -17,11 +17,15 @@ def test_lines_put_leading_errors_first_each_line_once_and_cap_them():
               ProblemError("a", "ValueError: x", BOOM),            # the same line again
               ProblemError("c", "looks like mistake 1", leads=True),
               ProblemError("d", "looks like mistake 2", leads=True),
-              ProblemError("b", "looks like mistake 2", leads=True)]
+              ProblemError("b", "looks like mistake 2", leads=True)]   # the same name again
+    # a named mistake once, on the first problem it was met on; the other lines stay
     assert error_lines(errors) == [
-        "on a b problem: looks like mistake 2", "on a d problem: looks like mistake 2",
-        "on a c problem: looks like mistake 1", "on a a problem: ValueError: x",
-        "on a b problem: ValueError: x"]
+        "on a d problem: looks like mistake 2", "on a c problem: looks like mistake 1",
+        "on a a problem: ValueError: x", "on a b problem: ValueError: x"]
+    # five problems with one name leave room for what else went wrong
+    named = [ProblemError(str(i), "looks like mistake 1", leads=True) for i in range(5)]
+    assert error_lines([*named, ProblemError("z", "not a proper rotation")]) == [
+        "on a 0 problem: looks like mistake 1", "on a z problem: not a proper rotation"]
     many = [ProblemError(str(i), "m") for i in range(3 * pe.MAX_LINES)]
     assert len(error_lines(many)) == pe.MAX_LINES
 
