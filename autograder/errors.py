@@ -105,9 +105,12 @@ def error_groups(errors) -> list[ErrorGroup]:
             if e.failure is not None:
                 failures.setdefault(key, e.failure)
     labels: dict[tuple[str, Place | None], list[str]] = {}
-    for e in _first_lines(errors):
+    # a named mistake is one line, but the group lists the problems it was met on, as
+    # many as lines would have shown
+    shown = [*_first_lines(errors), *(e for e in errors if e.leads)]
+    for e in shown:
         said = labels.setdefault((e.message, e.place), [])
-        if e.label and e.label not in said:
+        if e.label and e.label not in said and len(said) < MAX_LINES:
             said.append(e.label)
     return [ErrorGroup(message, n, failures.get((message, place)),
                        tuple(labels.get((message, place), ())), place)

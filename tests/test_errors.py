@@ -26,6 +26,8 @@ def test_lines_put_leading_errors_first_each_line_once_and_cap_them():
     named = [ProblemError(str(i), "looks like mistake 1", leads=True) for i in range(5)]
     assert error_lines([*named, ProblemError("z", "not a proper rotation")]) == [
         "on a 0 problem: looks like mistake 1", "on a z problem: not a proper rotation"]
+    assert error_groups([*named, ProblemError("z", "not a proper rotation")])[0].labels == \
+        ("0", "1", "2", "3", "4")
     many = [ProblemError(str(i), "m") for i in range(3 * pe.MAX_LINES)]
     assert len(error_lines(many)) == pe.MAX_LINES
 
