@@ -210,6 +210,10 @@ def nearest(value, candidates, distance, within: float = 1.0,
     if not listed:
         return None
     ranked = sorted((far(value, answer), i) for i, (_, answer) in enumerate(listed))
+    if ranked[0][0] > within:
+        # nothing within the noise (most wrong answers, every garbage one): no need to
+        # decide which candidates are one answer, which costs a measure per pair
+        return None
     status: dict[int, bool] = {}
 
     def kept(i: int) -> bool:
