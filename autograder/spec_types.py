@@ -11,6 +11,7 @@ reaches specs only when the grader asks for them).
 
 from __future__ import annotations
 
+import ast
 import copy
 import math
 from collections.abc import Callable
@@ -167,6 +168,19 @@ class CodeMistake:
 
     label: str
     func: Callable
+
+
+def declared_parameters(spec: FunctionSpec) -> list[str]:
+    """The names of ``spec``'s positional parameters, read from ``spec.parameters`` (the
+    notebook's ``def`` list, e.g. "points, inlier_m, iterations=500"); [] where it gives
+    none or does not parse."""
+    if not spec.parameters:
+        return []
+    try:
+        args = ast.parse(f"def f({spec.parameters}):\n    pass").body[0].args
+    except SyntaxError:
+        return []
+    return [a.arg for a in args.posonlyargs + args.args]
 
 
 def mistake_answers(spec: FunctionSpec, trial: Trial) -> list[tuple[str, Any]]:

@@ -31,7 +31,6 @@ whose names are the same on every problem, so their scores add up over problems 
 
 from __future__ import annotations
 
-import ast
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from autograder.spec_types import FunctionSpec, Trial
+from autograder.spec_types import FunctionSpec, Trial, declared_parameters
 
 __all__ = ["TrivialAnswer", "trivial_answers", "MAX_COMBINATIONS"]
 
@@ -110,13 +109,7 @@ def _at(value, path):
 
 
 def _parameter_names(spec: FunctionSpec, n: int) -> list[str]:
-    names: list[str] = []
-    if spec.parameters:
-        try:
-            args = ast.parse(f"def f({spec.parameters}):\n    pass").body[0].args
-            names = [a.arg for a in args.posonlyargs + args.args]
-        except SyntaxError:
-            names = []
+    names = declared_parameters(spec)
     return [names[i] if i < len(names) else f"argument {i}" for i in range(n)]
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from autograder.families.base import INPUT, Family, Prediction, Problem, is_pose, is_stack
 from autograder.families.swapped import same_kind_pairs
+from autograder.spec_types import declared_parameters
 
 LEFT_OUT = ("the transform {name} was left out of the chain (computed as if it were the "
             "identity): apply {name} in the product, in its place in the chain of frames")
@@ -34,13 +35,14 @@ def parameter_names(spec, n: int) -> list[str]:
     """The names of the first ``n`` parameters of ``spec``'s function, from
     ``spec.parameters`` ("src, dst, iterations=500") or else ``spec.signature``, defaults
     and annotations left out; "input k" (1-based) where the spec does not say."""
-    text = getattr(spec, "parameters", None)
-    if not text:
-        # the signature's own list ("f(a_T_b: (4, 4), b_T_c)"), its annotations left out
+    names = declared_parameters(spec)
+    if not names:
+        # the signature's own list ("f(a_T_b (4, 4), b_T_c)": no Python), its shapes and
+        # annotations left out
         signature = getattr(spec, "signature", None) or ""
         text = signature[signature.find("(") + 1:] if "(" in signature else ""
-    names = [p.split("=")[0].split(":")[0].strip() for p in _top_level(text)]
-    names = [p for p in names if p.isidentifier()]
+        names = [p.split("=")[0].split(":")[0].strip() for p in _top_level(text)]
+        names = [p for p in names if p.isidentifier()]
     return [names[k] if k < len(names) else f"input {k + 1}" for k in range(n)]
 
 
