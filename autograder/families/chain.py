@@ -71,19 +71,27 @@ def _identity_for(value):
         tuple(eyes) if isinstance(value, tuple) else np.stack(eyes)
 
 
-def _left_out(problem: Problem) -> list[Prediction]:
-    args = tuple(problem.trial.args)
-    names = parameter_names(problem.spec, len(args))
-    out = []
-    for i, a in enumerate(args):
-        if isinstance(a, (int, float, str)) or not (is_pose(a) or is_stack(a)):
-            continue
-        changed = list(args)
-        changed[i] = _identity_for(a)
-        answer = problem.reference(*changed)
-        if answer is not None:
-            out.append(Prediction(answer, words=LEFT_OUT.format(name=names[i])))
-    return out
+def one_input_changed(test, change, words: str):
+    """A family's predictions: for each input ``a`` that passes ``test(a)``, the reference on
+    the inputs with that one replaced by ``change(a)``, named by ``words`` formatted with the
+    input's parameter ``name``."""
+    def make(problem: Problem) -> list[Prediction]:
+        args = tuple(problem.trial.args)
+        names = parameter_names(problem.spec, len(args))
+        out = []
+        for i, a in enumerate(args):
+            if not test(a):
+                continue
+            changed = tuple(change(a) if k == i else x for k, x in enumerate(args))
+            answer = problem.reference(*changed)
+            if answer is not None:
+                out.append(Prediction(answer, words=words.format(name=names[i])))
+        return out
+    return make
+
+
+def _pose_or_stack(a) -> bool:
+    return not isinstance(a, (int, float, str)) and (is_pose(a) or is_stack(a))
 
 
 def _used_twice(problem: Problem) -> list[Prediction]:
@@ -102,8 +110,8 @@ def _used_twice(problem: Problem) -> list[Prediction]:
 
 
 FAMILIES = (
-    Family("factor left out", LEFT_OUT.format(name="one input pose"), INPUT, _left_out,
-           "factor left out"),
+    Family("factor left out", LEFT_OUT.format(name="one input pose"), INPUT,
+           one_input_changed(_pose_or_stack, _identity_for, LEFT_OUT), "factor left out"),
     Family("input used twice", USED_TWICE.format(used="one input", meant="another"), INPUT,
            _used_twice, "input used twice"),
 )

@@ -10,15 +10,15 @@
   off zero).
 
 Input side: the private reference called on the input changed so. The words name the input
-by the function's parameter name (:func:`.chain.parameter_names`).
+by the function's parameter name (:func:`.chain.one_input_changed`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, is_pose
-from autograder.families.chain import parameter_names
+from autograder.families.base import INPUT, Family, as_array, is_pose
+from autograder.families.chain import one_input_changed
 
 TRANSPOSED_INPUT = ("the input {name} was read transposed ([column, row] where [row, column] "
                     "was meant, e.g. {name}[2, 0] for {name}[0, 2]): numpy indexes a matrix "
@@ -46,25 +46,8 @@ def is_camera_matrix(a) -> bool:
         and m[1, 0] == 0.0 and m[0, 0] > 0 and m[1, 1] > 0 and bool(np.any(m[:2, 2] != 0))
 
 
-def _changed_input(test, change, words: str):
-    def make(problem: Problem) -> list[Prediction]:
-        args = tuple(problem.trial.args)
-        names = parameter_names(problem.spec, len(args))
-        out = []
-        for i, a in enumerate(args):
-            if not test(a):
-                continue
-            changed = tuple(change(np.asarray(a, float)) if k == i else x
-                            for k, x in enumerate(args))
-            answer = problem.reference(*changed)
-            if answer is not None:
-                out.append(Prediction(answer, words=words.format(name=names[i])))
-        return out
-    return make
-
-
-def _without_principal_point(K: np.ndarray) -> np.ndarray:
-    out = np.array(K)
+def _without_principal_point(K) -> np.ndarray:
+    out = np.array(K, dtype=float)
     out[:2, 2] = 0.0
     return out
 
@@ -74,9 +57,10 @@ def _without_principal_point(K: np.ndarray) -> np.ndarray:
 # give one answer the first speaks for both: leaving (cx, cy) out is the common slip.
 FAMILIES = (
     Family("missing part", NO_PRINCIPAL_POINT.format(name="K"), INPUT,
-           _changed_input(is_camera_matrix, _without_principal_point, NO_PRINCIPAL_POINT),
+           one_input_changed(is_camera_matrix, _without_principal_point, NO_PRINCIPAL_POINT),
            "no principal point"),
     Family("inverse/transpose", TRANSPOSED_INPUT.format(name="a matrix input"), INPUT,
-           _changed_input(lambda a: _square(a) is not None, lambda m: m.T, TRANSPOSED_INPUT),
+           one_input_changed(lambda a: _square(a) is not None,
+                             lambda a: np.asarray(a, float).T, TRANSPOSED_INPUT),
            "input transposed"),
 )
