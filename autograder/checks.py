@@ -584,14 +584,14 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
                      m[1]) for m in predicted)]
         return mistakes.nearest(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
-    predicted = _resolved(_predicted(spec, trial, truth), _noise_distance(spec, trial), truth)
-    distance = _wrapping(families.undoing(_noise_distance(spec, trial)),
-                         lambda: _wrap_radius(_noise_distance(spec, trial), truth))
+    noise = _noise_distance(spec, trial)
+    predicted = _resolved(_predicted(spec, trial, truth), noise, truth)
+    distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
     hint = _whole_answer_name(value, truth, predicted, distance)
     if hint is None and not _measurable(spec, value, trial):
         # T.T for T^-1, then a piece's mistake, before what is read from the answer itself:
         # a translation in millimetres is named beside a rotation block that is no rotation
-        hint = families.transposed_for_inverse_name(value, truth, _noise_distance(spec, trial)) \
+        hint = families.transposed_for_inverse_name(value, truth, noise) \
             or _piece_name(value, truth, predicted, distance)
     return hint or families.mirrored_name(value, truth) \
         or families.not_rotation_name(value, truth)
