@@ -170,6 +170,19 @@ class CodeMistake:
     func: Callable
 
 
+def copied(value):
+    """A deep copy of inputs or answers (arrays, tuples and lists of them, numbers), arrays
+    copied directly: ``copy.deepcopy``'s bookkeeping cost more than the arrays where the
+    mistake families call a reference on every problem. Anything else is deep-copied."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if type(value) in (tuple, list):
+        return type(value)(copied(v) for v in value)
+    if value is None or isinstance(value, (bool, int, float, str, np.generic)):
+        return value
+    return copy.deepcopy(value)
+
+
 def declared_parameters(spec: FunctionSpec) -> list[str]:
     """The names of ``spec``'s positional parameters, read from ``spec.parameters`` (the
     notebook's ``def`` list, e.g. "points, inlier_m, iterations=500"); [] where it gives

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from autograder.spec_types import FunctionSpec, Trial, declared_parameters
+from autograder.spec_types import FunctionSpec, Trial, copied, declared_parameters
 
 __all__ = ["TrivialAnswer", "trivial_answers", "MAX_COMBINATIONS"]
 
@@ -284,7 +284,7 @@ def trivial_answers(spec: FunctionSpec, trial: Trial,
                                               f" (part {'/'.join(map(str, path))})")
         if other is not None and label not in seen:
             seen.add(label)
-            answers.append(TrivialAnswer(label, value=_copy_tree(_at(other.truth, path))))
+            answers.append(TrivialAnswer(label, value=copied(_at(other.truth, path))))
     return answers
 
 
@@ -294,14 +294,3 @@ def _fits(truth, path, shape) -> bool:
     except (KeyError, IndexError, TypeError):
         return False
 
-
-def _copy_tree(value):
-    if isinstance(value, np.ndarray):
-        return value.copy()
-    if isinstance(value, tuple):
-        return tuple(_copy_tree(v) for v in value)
-    if isinstance(value, list):
-        return [_copy_tree(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _copy_tree(v) for k, v in value.items()}
-    return value

@@ -10,7 +10,6 @@ Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix in metr
 
 from __future__ import annotations
 
-import copy
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from autograder.spec_types import FunctionSpec, MistakeName, Trial
+from autograder.spec_types import FunctionSpec, MistakeName, Trial, copied
 
 __all__ = ["Family", "MistakeName", "Prediction", "Problem", "as_array", "is_pose",
            "is_rotation", "is_stack", "is_points", "is_numeric_array", "part_predictions", "parts",
@@ -114,21 +113,9 @@ class Problem:
             # told so on purpose here: the inputs carry the mistake
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return ref(*_copied(args))
+                return ref(*copied(args))
         except Exception:  # noqa: BLE001 - transformed inputs may be ones it refuses
             return None
-
-
-def _copied(value):
-    """A deep copy of a reference's inputs, arrays copied directly (``copy.deepcopy``'s
-    bookkeeping cost more than the arrays on every family's call)."""
-    if isinstance(value, np.ndarray):
-        return value.copy()
-    if type(value) in (tuple, list):
-        return type(value)(_copied(v) for v in value)
-    if value is None or isinstance(value, (bool, int, float, str, np.generic)):
-        return value
-    return copy.deepcopy(value)
 
 
 @dataclass(frozen=True)
