@@ -153,10 +153,15 @@ def _read(path: Path, entry_key: str) -> list:
 def _write(path: Path, entry_key: str, value: list) -> None:
     body = gzip.compress(json.dumps(value, separators=(",", ":"), allow_nan=True)
                          .encode("utf-8"), compresslevel=1, mtime=0)
-    # written whole under another name, then renamed: a reader never sees half a file
+    _replace(path, _digest(entry_key, body) + b"\n" + body)
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """``path`` holding ``data``, written whole under another name, then renamed: a reader
+    never sees half a file."""
     handle, partial = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".partial")
     with os.fdopen(handle, "wb") as f:
-        f.write(_digest(entry_key, body) + b"\n" + body)
+        f.write(data)
     os.replace(partial, path)
 
 
@@ -249,11 +254,7 @@ def compressed(body: bytes, compress: Callable[[bytes], bytes]) -> bytes:
     value = compress(body)
     try:
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-        handle, partial = tempfile.mkstemp(dir=path.parent, prefix=path.name,
-                                           suffix=".partial")
-        with os.fdopen(handle, "wb") as f:
-            f.write(value)
-        os.replace(partial, path)
+        _replace(path, value)
         _prune(path.parent, path.name)
     except OSError:
         pass
