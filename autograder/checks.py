@@ -36,8 +36,9 @@ import numpy as np
 
 from autograder import families, forbidden, mistakes, practice, registry
 from autograder.errors import ErrorGroup, ProblemError, error_groups, error_lines
-from autograder.families import pieces, units_angle
+from autograder.families import not_rotation, pieces, units_angle
 from autograder.inside import standin
+from autograder.mistakes import Weighing
 from autograder.outcomes import Failed, Failure, TrialOutcome, raised
 
 # Re-exported where callers reach them as checks.<name> (tests, benchmarks, grading).
@@ -368,6 +369,7 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
                 if not (t.all_or_nothing or t.raises is not None)]
     method_right = any(rows and min(r[2] for r in rows.values()) >= 1.0 for rows in ordinary)
     per_check = {c.name: [] for c in spec.checks}
+    answered_wrong: list[tuple[Trial, object]] = []
     n_failed = 0
     gated = 0
     for trial, outcome, (measured, rows) in zip(trials, outcomes, table):
@@ -378,15 +380,11 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
             gated += 1
         failed = bool(rows) and min(r[2] for r in rows.values()) < 1.0
         n_failed += failed
-        # an answer that cannot be measured (its last row is no pose's) is named too, on
-        # what of it can be compared: a hint never changes a score
-        hint = _mistake_hint(spec, outcome.value, trial) if hints and failed \
-            and outcome.error is None and trial.raises is None else None
-        if hint is not None:
-            mistakes.setdefault(hint)
-            found.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{hint.words}", leads=True))
+        if failed and outcome.error is None and trial.raises is None:
+            answered_wrong.append((trial, outcome.value))
         for name, row in rows.items():
             per_check[name].append(row)
+    found += _named_lines(spec, answered_wrong, mistakes, hints)
     if gated:   # leads: why right answers earned nothing, past the cap of five lines
         found.append(ProblemError(
             next(t.label for t in trials if t.all_or_nothing or t.raises is not None),
@@ -399,6 +397,58 @@ def score_function(spec: FunctionSpec, trials: list[Trial],
     return FunctionResult(spec.name, points, spec.points, results, error_lines(found),
                           n_problems=len(trials), n_failed=n_failed,
                           problem_errors=tuple(found), mistakes=tuple(mistakes))
+
+
+def _named_lines(spec: FunctionSpec, answered_wrong: list, named: dict,
+                 hints: bool = True) -> list[ProblemError]:
+    """The lines of what each failed answer ``(trial, value)`` looks like, in their order:
+    the classic mistake it is nearest to (added to ``named``), else, for a rotation block
+    that is no rotation, that symptom. A mistake is named only where no failed problem rules
+    it out: one slip gives the same answer on every problem, so a name that fits some
+    problems (an edge case where two causes give one answer: a symmetric rotation block is
+    its own transpose) but lies beyond the noise on another failed one is not the cause.
+    ``hints=False`` names nothing (a hint never changes a score)."""
+    weighed = [_weighed_hint(spec, value, trial) if hints else Weighing(None)
+               for trial, value in answered_wrong]
+    given = {w.label for w in weighed} - {None}
+    ruled_out: set = set()
+    for (trial, value), w in zip(answered_wrong, weighed):
+        doubted = (w.far & given) - {w.label} - ruled_out
+        if doubted:
+            ruled_out |= doubted - _near_on_a_piece(spec, value, trial, doubted)
+    lines = []
+    for (trial, value), w in zip(answered_wrong, weighed):
+        if w.label is not None and w.label not in ruled_out:
+            named.setdefault(w.label)
+            lines.append(ProblemError(trial.label, f"{MISTAKE_NOTE}{w.label.words}", leads=True))
+        elif _no_rotation(value, trial):
+            # the symptom, where no cause is known: "inf deg" alone says nothing of why
+            lines.append(ProblemError(trial.label, not_rotation.NOT_A_ROTATION, leads=True))
+    return lines
+
+
+def _near_on_a_piece(spec: FunctionSpec, value, trial: Trial, labels: set) -> set:
+    """Those of ``labels`` (mistakes ``value`` lies beyond the noise of as a whole on
+    ``trial``) that one piece of ``value`` lies within the noise of: a translation in
+    millimetres beside a rotation wrong for another reason is still that mistake there."""
+    try:
+        truth = _answer_truth(trial, value)
+        noise = _noise_distance(spec, trial)
+        predicted = [p for p in _resolved(_predicted(spec, trial, truth), noise, truth)
+                     if p[0] in labels]
+        distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
+        return set().union(*(w.near for w in _piece_weighings(value, truth, predicted, distance)))
+    except Exception:  # noqa: BLE001 - what cannot be weighed rules nothing out
+        return set(labels)
+
+
+def _no_rotation(value, trial: Trial) -> bool:
+    """True when ``value`` answers a pose or rotation with a block that is not orthonormal
+    (:func:`autograder.families.not_rotation.not_orthonormal`); never raises."""
+    try:
+        return not_rotation.not_orthonormal(value, _answer_truth(trial, value))
+    except Exception:  # noqa: BLE001 - a value this odd has other lines to say why
+        return False
 
 
 def _measured_or_error(spec: FunctionSpec, trial: Trial,
@@ -480,10 +530,16 @@ def _mistake_hint(spec: FunctionSpec, value, trial: Trial) -> MistakeName | None
     practice data, and the output-side families of :mod:`autograder.families`), or None.
     None when nothing is near, when two are about as near, or when comparing cannot be done
     on a value this odd."""
+    return _weighed_hint(spec, value, trial).label
+
+
+def _weighed_hint(spec: FunctionSpec, value, trial: Trial) -> Weighing:
+    """:func:`_mistake_hint`'s name, with the names ``value`` lies beyond the noise of on
+    ``trial`` (:class:`autograder.mistakes.Weighing`)."""
     try:
         return _matching_mistake(spec, value, trial)
     except Exception:  # noqa: BLE001 - a hint is a courtesy: no hint, never a failed grade
-        return None
+        return Weighing(None)
 
 
 def _answer_truth(trial: Trial, value):
@@ -574,7 +630,7 @@ def _as_name(entry) -> MistakeName:
     return MistakeName(entry[2] if len(entry) > 2 else None, str(entry[0]))
 
 
-def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | None:
+def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> Weighing:
     if spec.drive is not None:
         # the closed loop's measured errors; the truth's are none at all
         predicted = trial.mistakes if trial.mistakes is not None else \
@@ -582,34 +638,36 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> MistakeName | 
         listed = [(None, {c.name: 0.0 for c in spec.checks}),
                   *((_as_name(m) if trial.mistakes is not None else MistakeName(None, m[0]),
                      m[1]) for m in predicted)]
-        return mistakes.nearest(value, listed, _noise_distance(spec, trial))
+        return mistakes.weigh(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
     noise = _noise_distance(spec, trial)
     predicted = _resolved(_predicted(spec, trial, truth), noise, truth)
     distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
-    hint = _whole_answer_name(value, truth, predicted, distance)
+    whole = _whole_answer_weighing(value, truth, predicted, distance)
+    hint = whole.label
     if hint is None and not _measurable(spec, value, trial):
         # T.T for T^-1, then a piece's mistake, before what is read from the answer itself:
         # a translation in millimetres is named beside a rotation block that is no rotation
         hint = families.transposed_for_inverse_name(value, truth, noise) \
-            or _piece_name(value, truth, predicted, distance)
-    return hint or families.mirrored_name(value, truth) \
-        or families.not_rotation_name(value, truth)
+            or _piece_name(_piece_weighings(value, truth, _invertible(predicted), distance))
+    hint = hint or families.mirrored_name(value, truth) \
+        or families.not_rotation_name(value, truth, noise)
+    return Weighing(hint, whole.far)
 
 
-def _whole_answer_name(value, truth, predicted: list, distance) -> MistakeName | None:
+def _whole_answer_weighing(value, truth, predicted: list, distance) -> Weighing:
     """The nearest rule on ``value`` as a whole against ``predicted`` (see
     :func:`_matching_mistake`): the exact candidates, then the loose ones."""
     exact = [p for p in predicted if not _loose(p[1])]
     nothing = [(None, truth), *_no_mistakes(truth, exact)]
-    hint = mistakes.nearest(value, nothing + exact, distance)
-    if hint is None:
-        # a mistake in one part whatever the rest: only where no whole answer names it
-        loose = [p for p in predicted if _loose(p[1])]
+    weighed = mistakes.weigh(value, nothing + exact, distance)
+    loose = [p for p in predicted if _loose(p[1])]
+    if weighed.label is None and loose:
+        # a mistake in one part whatever the rest: only where no whole answer names it;
         # before the whole-answer candidates: where one gives the same answer on this
         # problem, it was not near in the first pass, so the loose one speaks for both
-        hint = mistakes.nearest(value, nothing + loose + exact, distance) if loose else None
-    return hint
+        weighed = mistakes.weigh(value, nothing + loose + exact, distance)
+    return weighed
 
 
 def _measurable(spec: FunctionSpec, value, trial: Trial) -> bool:
@@ -618,20 +676,28 @@ def _measurable(spec: FunctionSpec, value, trial: Trial) -> bool:
     return measured is not None and all(math.isfinite(e) for e in measured.values())
 
 
-def _piece_name(value, truth, predicted: list, distance) -> MistakeName | None:
-    """The mistake named on the pieces of an answer that cannot be measured as a whole
-    (:func:`autograder.families.pieces.spliced`: a translation in millimetres beside a
-    rotation block that is no rotation): the one name its pieces give, or None when they
-    give none or two different ones (never two names at once).
+def _invertible(predicted: list) -> list:
+    """The mistakes that map a right piece to the answer's and back (``undo``: x1000,
+    degrees, an inverse): the only ones named from a piece of an answer that cannot be
+    measured as a whole. Undoing one gives the truth's piece, while a piece that merely
+    looks like a part left out (a translation near zero) says nothing of why, beside another
+    piece that is wrong for a reason no candidate knows."""
+    return [p for p in predicted
+            if isinstance(p[1], families.Prediction) and p[1].undo is not None]
 
-    Only a mistake that maps a right piece to the answer's and back (``undo``: x1000,
-    degrees, an inverse) is named from a piece: undoing it gives the truth's piece, while a
-    piece that merely looks like a part left out (a translation near zero) says nothing of
-    why, beside another piece that is wrong for a reason no candidate knows."""
-    invertible = [p for p in predicted
-                  if isinstance(p[1], families.Prediction) and p[1].undo is not None]
-    names = {_whole_answer_name(piece, truth, invertible, distance)
-             for piece in pieces.spliced(value, truth)} - {None}
+
+def _piece_weighings(value, truth, predicted: list, distance) -> list[Weighing]:
+    """Each piece of ``value`` (:func:`autograder.families.pieces.spliced`: a pose's
+    rotation block, its translation; each part of a tuple) spliced into the truth and
+    weighed on its own against ``predicted``."""
+    return [_whole_answer_weighing(piece, truth, predicted, distance)
+            for piece in pieces.spliced(value, truth)]
+
+
+def _piece_name(by_piece: list[Weighing]) -> MistakeName | None:
+    """The one name the pieces' weighings give (:func:`_piece_weighings`), or None when
+    they give none or two different ones (never two names at once)."""
+    names = {w.label for w in by_piece} - {None}
     return names.pop() if len(names) == 1 else None
 
 

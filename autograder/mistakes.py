@@ -21,6 +21,7 @@ Frames follow DESIGN.md: a pose ``a_T_b`` is a (4, 4) homogeneous matrix, metres
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,8 +29,8 @@ from autograder import families
 from autograder.families import inverse, reflection, units_angle, units_length
 from robots import geometry as geo
 
-__all__ = ["candidates", "diagnose", "matches", "mirrored", "nearest", "relative_distance",
-           "trivial_answers"]
+__all__ = ["Weighing", "candidates", "diagnose", "matches", "mirrored", "nearest",
+           "relative_distance", "trivial_answers", "weigh"]
 
 # An answer "is" a mistake's prediction when it lies within this fraction of the
 # prediction's own size (plus a floor for near-zero truths): loose enough for noisy
@@ -185,9 +186,29 @@ def trivial_answers(truth) -> list[np.ndarray]:
 SAME = 1e-6
 
 
+@dataclass(frozen=True)
+class Weighing:
+    """An answer weighed against a problem's candidates (:func:`weigh`): ``label`` the one
+    it is clearly nearest to (None: none), ``far`` the labels every candidate of which lies
+    beyond the noise of it (on this problem the answer is no such mistake), ``near`` those
+    with a candidate within it."""
+
+    label: object
+    far: frozenset = frozenset()
+    near: frozenset = frozenset()
+
+
 def nearest(value, candidates, distance, within: float = 1.0,
             margin: float = MARGIN, same: float = SAME) -> str | None:
-    """The label of the one candidate ``value`` is clearly nearest to, or None.
+    """The label of the one candidate ``value`` is clearly nearest to, or None (see
+    :func:`weigh`, whose ``label`` this is)."""
+    return weigh(value, candidates, distance, within, margin, same).label
+
+
+def weigh(value, candidates, distance, within: float = 1.0,
+          margin: float = MARGIN, same: float = SAME) -> Weighing:
+    """The label of the one candidate ``value`` is clearly nearest to, or None, and the
+    labels it is far from (:class:`Weighing`).
 
     ``candidates`` are ``[(label, answer)]`` in order of precedence, ``label`` None for an
     answer that is no mistake (the truth, a trivial answer); candidates of equal labels
@@ -208,12 +229,14 @@ def nearest(value, candidates, distance, within: float = 1.0,
 
     listed = list(candidates)
     if not listed:
-        return None
+        return Weighing(None)
     ranked = sorted((far(value, answer), i) for i, (_, answer) in enumerate(listed))
+    near = frozenset(listed[i][0] for d, i in ranked if d <= within) - {None}
+    ruled_out = frozenset({label for label, _ in listed if label is not None} - near)
     if ranked[0][0] > within:
         # nothing within the noise (most wrong answers, every garbage one): no need to
         # decide which candidates are one answer, which costs a measure per pair
-        return None
+        return Weighing(None, ruled_out, near)
     status: dict[int, bool] = {}
 
     def kept(i: int) -> bool:
@@ -229,10 +252,10 @@ def nearest(value, candidates, distance, within: float = 1.0,
     best, index = next(survivors)
     label = listed[index][0]
     if label is None or best > within:
-        return None
+        return Weighing(None, ruled_out, near)
     # candidates of the same name are one explanation (a mistake made on each part of an
     # answer, each preimage of an angle): the runner-up is the nearest of another name
     runner_up = next((d for d, i in survivors if listed[i][0] != label), math.inf)
     if best > margin * runner_up:
-        return None
-    return label
+        return Weighing(None, ruled_out, near)
+    return Weighing(label, ruled_out, near)

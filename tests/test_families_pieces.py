@@ -136,7 +136,9 @@ def test_an_unmeasurable_answer_with_no_mistake_in_its_pieces_is_not_named():
         assert noise is None or noise.family == "not a rotation", noise
 
 
-def test_a_rotation_that_is_no_rotation_beside_a_right_translation_stays_not_a_rotation():
+def test_a_rotation_that_is_no_rotation_beside_a_right_translation_gets_no_name():
+    """Its nearest rotation is wrong too (the axis was never normalised): no cause is known,
+    and the right translation beside it is no piece's mistake either."""
     spec = checks.spec_for("pose_from_rotvec", "lab0_frames")
 
     def unnormalised(rvec, t):
@@ -144,8 +146,7 @@ def test_a_rotation_that_is_no_rotation_beside_a_right_translation_stays_not_a_r
         T[:3, 3] = t
         return T
     names = _hint(spec, unnormalised, n=4)
-    assert all(n is None or n.family == "not a rotation" for n in names), names
-    assert sum(n is not None for n in names) >= 2, names
+    assert names == [None] * 4, names
 
 
 def test_pieces_splice_one_piece_of_the_answer_into_the_truth():

@@ -135,6 +135,13 @@ def frame_z_not_normalised(p_origin, p_x, p_xy):
     return _pose(np.column_stack([x, np.cross(z, x), z]), p_origin)
 
 
+def frame_x_not_normalised(p_origin, p_x, p_xy):
+    x = p_x - p_origin                               # |x| is the points' spacing, not 1
+    z = np.cross(x, p_xy - p_origin)
+    z /= np.linalg.norm(z)
+    return _pose(np.column_stack([x, np.cross(z, x), z]), p_origin)
+
+
 def register_translation_unrotated(cam_centres, base_T_flanges):
     T = lab5._register(cam_centres, base_T_flanges)
     T[:3, 3] = T[:3, :3].T @ T[:3, 3]
@@ -184,16 +191,14 @@ DEV = [
     ("lab0_frames", "invert_pose", invert_rotated_wrong, "inverse/transpose"),
     ("lab0_frames", "compose_chain", compose_translation_zero, "missing part"),
     ("lab0_frames", "pose_from_rotvec", rotvec_half_angle, "half angle"),
-    ("lab0_frames", "pose_from_rotvec", rotvec_no_square_term, "not a rotation"),
-    ("lab0_frames", "pose_from_rotvec", rotvec_unnormalised_axis, "not a rotation"),
     ("lab0_frames", "pose_from_rotvec", rotvec_translation_negated, "sign"),
     ("lab1_flange", "fit_rigid", fit_covariance_transposed, "inverse/transpose"),
     ("lab1_flange", "fit_rigid", fit_translation_left_out, "missing part"),
-    ("lab1_flange", "fit_rigid", fit_not_projected, "not a rotation"),
     ("lab2_handeye", "motions", motions_a_reversed, "reversed stack/order"),
     ("lab2_handeye", "motions", motions_b_each_inverted, "inverse/transpose"),
     ("lab2_handeye", "axes_ls", axes_covariance_transposed, "inverse/transpose"),
     ("lab4_stereo", "frame_from_three_points", frame_z_not_normalised, "not a rotation"),
+    ("lab4_stereo", "frame_from_three_points", frame_x_not_normalised, "not a rotation"),
     ("lab5_depth", "base_T_cam_from_flanges", register_translation_unrotated,
      "inverse/transpose"),
     ("lab5_depth", "rectangle_pose", rectangle_translation_negated, "sign"),
@@ -235,6 +240,62 @@ def test_each_dev_mistake_is_named_by_its_family(lab, name, func, family):
     names = _names(spec, func, trials)
     assert all(n is None or n.family == family for n in names), names   # never misnamed
     assert len(trials) == 3 and sum(n is not None for n in names) >= 2, names
+
+
+# A block that is no rotation, and whose nearest rotation is wrong too, has no one cause:
+# a term of Rodrigues' formula left out, an axis never normalised, a linear fit that is no
+# rotation fit. The grader says the symptom (a line of the errors) and names nothing.
+NO_CAUSE = [
+    ("lab0_frames", "pose_from_rotvec", rotvec_no_square_term),
+    ("lab0_frames", "pose_from_rotvec", rotvec_unnormalised_axis),
+    ("lab1_flange", "fit_rigid", fit_not_projected),
+]
+
+
+@pytest.mark.parametrize("lab, name, func", NO_CAUSE, ids=[d[2].__name__ for d in NO_CAUSE])
+def test_a_block_that_is_no_rotation_says_so_and_names_no_cause(lab, name, func):
+    spec = _spec(lab, name)
+    trials = _trials(spec, 5, 3)
+    outcomes = [checks.TrialOutcome(value=func(*t.args)) for t in trials]
+    result = checks.score_function(spec, trials, outcomes)
+    assert result.points < spec.points and result.mistakes == (), result.mistakes
+    symptom = [e for e in result.problem_errors
+               if e.message == families.not_rotation.NOT_A_ROTATION]
+    assert symptom and all(e.leads for e in symptom), result.errors
+    assert sum(families.not_rotation.NOT_A_ROTATION in line for line in result.errors) == 1
+
+
+def relative_translation_in_last_row(a_T_b, a_T_c):
+    T = geo.invert(a_T_b) @ a_T_c
+    out = np.eye(4)
+    out[:3, :3], out[3, :3] = T[:3, :3], T[:3, 3]    # t written as a row, not a column
+    return out
+
+
+def test_a_name_one_edge_problem_gives_but_another_problem_rules_out_is_not_given():
+    """Where b and c share a rotation, b_T_c's block is the identity, symmetric: t written
+    in the last row is then exactly the whole 4x4 transposed. On the other problems the
+    answer is beyond the noise of that transpose, so that is not the slip: no name."""
+    rng = np.random.default_rng(3)
+    trials = [RELATIVE.make_trial(rng, i) for i in range(3)]
+    a_T_b = trials[0].args[0]
+    a_T_c = geo.make_pose(a_T_b[:3, :3], rng.uniform(-1, 1, 3))
+    trials.insert(0, replace(trials[0], args=(a_T_b, a_T_c), truth=geo.invert(a_T_b) @ a_T_c))
+    answers = [relative_translation_in_last_row(*t.args) for t in trials]
+    edge = checks._mistake_hint(RELATIVE, answers[0], trials[0])
+    assert edge is not None and edge.family == "inverse/transpose", edge   # alone, it fits
+    result = checks.score_function(RELATIVE, trials,
+                                   [checks.TrialOutcome(value=a) for a in answers])
+    assert result.points < RELATIVE.points and result.mistakes == (), result.mistakes
+    assert not any(e.message.startswith(checks.MISTAKE_NOTE) for e in result.problem_errors)
+
+
+def test_a_slip_named_on_every_problem_it_fits_keeps_its_name():
+    trials = _trials(RELATIVE, 4, 3)
+    result = checks.score_function(
+        RELATIVE, trials, [checks.TrialOutcome(value=relative_translation_sign(*t.args))
+                           for t in trials])
+    assert [m.family for m in result.mistakes] == ["sign"], result.mistakes
 
 
 # --------------------------------------------------------------------------- no misnaming

@@ -248,8 +248,9 @@ def transposed_for_inverse_name(value, truth, distance) -> MistakeName | None:
         if inverse.transposed_for_inverse(value, truth, distance) else None
 
 
-def not_rotation_name(value, truth) -> MistakeName | None:
+def not_rotation_name(value, truth, distance) -> MistakeName | None:
     """The not-a-rotation family's name when ``value``'s rotation block is not orthonormal
-    (see :func:`autograder.families.not_rotation.not_orthonormal`), else None."""
+    and its nearest rotation is the truth's to the noise (``distance`` in noise units; see
+    :func:`autograder.families.not_rotation.nearest_rotation_is_right`), else None."""
     return not_rotation.NOT_ROTATION.label() \
-        if not_rotation.not_orthonormal(value, truth) else None
+        if not_rotation.nearest_rotation_is_right(value, truth, distance) else None
