@@ -149,10 +149,6 @@ def diagnose(value, truth) -> str | None:
 MARGIN = 0.5
 
 
-def _is_pose(t: np.ndarray) -> bool:
-    return t.shape == (4, 4) and bool(np.allclose(t[3], [0, 0, 0, 1]))
-
-
 def candidates(truth) -> list[tuple[str, np.ndarray]]:
     """[(hint, the answer that mistake gives)] for the output-side mistake families of
     :mod:`autograder.families` made on ``truth`` alone: for a (4, 4) pose ``a_T_b`` (metres)
@@ -178,7 +174,7 @@ def trivial_answers(truth) -> list[np.ndarray]:
         return []
     if t.size == 0:
         return []
-    return [np.eye(4)] if _is_pose(t) else [np.zeros(t.shape)]
+    return [np.eye(4)] if families.is_pose(t) else [np.zeros(t.shape)]
 
 
 # Two candidates this close (in units of the noise) are one answer: rounding apart, as the
