@@ -93,7 +93,9 @@ HELD_OUT = [
     ("relative", "relative_pose", relative_a_T_c_left_out, "factor left out"),
     ("relative", "relative_pose", relative_whole_mm, "units m/mm"),
     ("lab5_depth", "rectangle_pose", rectangle_nan_rotation_mm, "units m/mm"),
-    ("lab3_servoing", "piece_position", piece_cx_for_cy, None),
+    # no family described it when this list was written; matrix_input's entry-for-its-twin
+    # family (fx for fy, cx for cy), made later from the dev slips' fx for fy, does
+    ("lab3_servoing", "piece_position", piece_cx_for_cy, "input used twice"),
     ("lab0_frames", "compose_chain", compose_middle_skipped, None),
     # K.T read entry by entry gives what (cx, cy) left out gives: that name speaks for both
     ("lab5_depth", "backproject", backproject_k_transposed, "missing part"),

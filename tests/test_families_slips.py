@@ -24,6 +24,7 @@ from autograder.specs import lab3_servoing as lab3
 from autograder.specs import lab5_depth as lab5
 
 TRANSPOSED, MISSING, CODE = "inverse/transpose", "missing part", "a lab's code mistake"
+TWIN = "input used twice"   # an entry of K for its twin of the y axis (fx for fy)
 
 
 # --------------------------------------------------------------------------- an instructor's
@@ -71,6 +72,11 @@ def project_divided_by_x(K, p_cam):
 def project_fx_for_fy(K, p_cam):
     p = np.asarray(p_cam, float)
     return np.array([K[0, 0] * p[0] / p[2] + K[0, 2], K[0, 0] * p[1] / p[2] + K[1, 2]])
+
+
+def project_cx_for_cy(K, p_cam):
+    p = np.asarray(p_cam, float)
+    return np.array([K[0, 0] * p[0] / p[2] + K[0, 2], K[1, 1] * p[1] / p[2] + K[0, 2]])
 
 
 # --------------------------------------------------------------------------- the labs'
@@ -136,15 +142,17 @@ DEV = [
     ("lab3_servoing", "interaction_matrix", interaction_x_row_y_squared, None),
     ("lab3_servoing", "interaction_matrix", interaction_one_dropped, None),
     ("lab3_servoing", "piece_position", piece_no_principal_point, MISSING),
+    # lab 3's camera has fx = fy: the slip changes nothing there, and nothing is named
     ("lab3_servoing", "piece_position", piece_fx_for_fy, None),
     ("lab5_depth", "backproject", backproject_no_principal_point, MISSING),
-    ("lab5_depth", "backproject", backproject_fx_for_fy, None),
+    ("lab5_depth", "backproject", backproject_fx_for_fy, TWIN),
     # lab 5 wrote a code mistake for it (family None): named by the lab's own words
     ("lab5_depth", "fit_flange_circle", circle_centre_as_mean, CODE),
     ("lab4_stereo", "reproject", reproject_q_transposed, TRANSPOSED),
     (None, "project", project_no_principal_point, MISSING),
     (None, "project", project_divided_by_x, None),
-    (None, "project", project_fx_for_fy, None),
+    (None, "project", project_fx_for_fy, TWIN),
+    (None, "project", project_cx_for_cy, TWIN),
 ]
 
 
@@ -177,17 +185,19 @@ def test_the_words_name_the_input():
     assert "the input Q was read transposed" in n.words
     n = _names(PROJECT, project_no_principal_point, _trials(PROJECT, 5, 1))[0]
     assert "principal point (cx, cy) of K" in n.words
+    n = _names(PROJECT, project_fx_for_fy, _trials(PROJECT, 5, 1))[0]
+    assert n.words.startswith("K's fx was used where its fy belongs (K[0, 0] read for K[1, 1])")
 
 
 def test_the_matrix_families_apply_by_kinds_only():
     keys = {f.key for f in families.applicable(PROJECT, _trials(PROJECT, 0, 1)[0])}
-    assert {"input transposed", "no principal point"} <= keys
+    assert {"input transposed", "no principal point", "entry for its twin"} <= keys
     assert matrix_input.is_camera_matrix(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]))
     assert not matrix_input.is_camera_matrix(np.eye(3))           # symmetric, no offset
     assert not matrix_input.is_camera_matrix(np.eye(4))           # a pose
     spec = checks.spec_for("fit_rigid", "lab1_flange")            # no matrix input
     keys = {f.key for f in families.applicable(spec, _trials(spec, 0, 1)[0])}
-    assert not keys & {"input transposed", "no principal point"}
+    assert not keys & {"input transposed", "no principal point", "entry for its twin"}
 
 
 def test_right_answers_of_the_instructors_function_get_no_name():
@@ -202,7 +212,8 @@ def test_the_other_dev_sets_are_never_given_these_two_mistakes():
     import test_families_poses as poses
     import test_families_stacks as stacks
 
-    ours = ("read transposed ([column, row]", "the principal point (cx, cy)")
+    ours = ("read transposed ([column, row]", "the principal point (cx, cy)",
+            "x pixels go with fx and cx")
     for dev, spec_of_row in ((poses, poses._spec), (stacks, poses._spec),
                              (chain_dev, chain_dev._spec)):
         for row in dev.DEV:

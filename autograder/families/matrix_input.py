@@ -9,6 +9,12 @@
   (3x3, upper triangular, last row [0, 0, 1], positive focal lengths, a principal point
   off zero).
 
+* One entry for its twin: ``fx`` used where ``fy`` belongs, or ``cx`` where ``cy`` does: the
+  x line of a pinhole formula copied for y with one letter left unchanged. Applies to a
+  camera matrix whose two entries differ (where they are equal the slip changes nothing
+  and is not named). Only the x-for-y direction: x is written first, and each prediction
+  is a whole answer stored in practice data (lab 5's are point clouds).
+
 Input side: the private reference called on the input changed so. The words name the input
 by the function's parameter name (:func:`.chain.one_input_changed`).
 """
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from autograder.families.base import INPUT, Family, as_array, is_pose
+from autograder.families.base import INPUT, Family, Prediction, Problem, as_array, is_pose
 from autograder.families.chain import one_input_changed
 
 TRANSPOSED_INPUT = ("the input {name} was read transposed ([column, row] where [row, column] "
@@ -52,6 +58,32 @@ def _without_principal_point(K) -> np.ndarray:
     return out
 
 
+ENTRY_FOR_TWIN = ("{name}'s {used} was used where its {meant} belongs ({name}[{i}, {j}] read "
+                  "for {name}[{k}, {l}]): x pixels go with fx and cx, y pixels with fy and cy")
+
+# (used, its index, meant, its index): an entry of K read where its twin of the y axis belongs
+_TWINS = (("fx", (0, 0), "fy", (1, 1)), ("cx", (0, 2), "cy", (1, 2)))
+
+
+def _entry_for_twin(problem: Problem) -> list[Prediction]:
+    """The reference with one entry of a camera-matrix input copied over its twin (fx over
+    fy, ...), one prediction per twin pair whose entries differ."""
+    out = []
+    for used, at, meant, to in _TWINS:
+        # every field but the input's name, which one_input_changed fills in
+        words = ENTRY_FOR_TWIN.format(name="{name}", used=used, meant=meant,
+                                      i=at[0], j=at[1], k=to[0], l=to[1])
+
+        def copied(K, at=at, to=to) -> np.ndarray:
+            out_K = np.array(K, dtype=float)
+            out_K[to] = out_K[at]
+            return out_K
+        out += one_input_changed(
+            lambda a, at=at, to=to: is_camera_matrix(a) and np.asarray(a)[at] != np.asarray(a)[to],
+            copied, words)(problem)
+    return out
+
+
 # The principal point first: a formula that reads K's entries one by one gets from K.T
 # exactly what it gets without (cx, cy) (K.T[0, 2] = K[2, 0] = 0), and where two families
 # give one answer the first speaks for both: leaving (cx, cy) out is the common slip.
@@ -63,4 +95,7 @@ FAMILIES = (
            one_input_changed(lambda a: _square(a) is not None,
                              lambda a: np.asarray(a, float).T, TRANSPOSED_INPUT),
            "input transposed"),
+    Family("input used twice", ENTRY_FOR_TWIN.format(name="K", used="fx", meant="fy", i=0, j=0,
+                                                     k=1, l=1), INPUT, _entry_for_twin,
+           "entry for its twin"),
 )
