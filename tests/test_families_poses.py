@@ -135,6 +135,13 @@ def frame_z_not_normalised(p_origin, p_x, p_xy):
     return _pose(np.column_stack([x, np.cross(z, x), z]), p_origin)
 
 
+def frame_cross_swapped(p_origin, p_x, p_xy):
+    x = (p_x - p_origin) / np.linalg.norm(p_x - p_origin)
+    z = np.cross(p_xy - p_origin, x)                 # (p_xy - o) x x: z points down
+    z /= np.linalg.norm(z)
+    return _pose(np.column_stack([x, np.cross(z, x), z]), p_origin)
+
+
 def frame_x_not_normalised(p_origin, p_x, p_xy):
     x = p_x - p_origin                               # |x| is the points' spacing, not 1
     z = np.cross(x, p_xy - p_origin)
@@ -270,6 +277,47 @@ def relative_translation_in_last_row(a_T_b, a_T_c):
     out = np.eye(4)
     out[:3, :3], out[3, :3] = T[:3, :3], T[:3, 3]    # t written as a row, not a column
     return out
+
+
+def _look_at(eye, target, up, x_first=lambda z, up: np.cross(z, up)):
+    """world_T_cam of a camera at ``eye`` looking at ``target``: z forward, x = z cross up
+    (right, for y down), y = z cross x."""
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = x_first(z, up)
+    x /= np.linalg.norm(x)
+    return _pose(np.column_stack([x, np.cross(z, x), z]), eye)
+
+
+def _look_at_spec():
+    def make_trial(rng, index):
+        eye, target = rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3) + [0.0, 0.0, 2.0]
+        up = np.array([0.0, 0.0, 1.0])
+        return Trial(args=(eye, target, up), truth=_look_at(eye, target, up),
+                     tol=dict(EXACT_TOL), label="a view")
+    return FunctionSpec("look_at", 2.0, 4, make_trial, measure_pose,
+                        pose_checks("world_T_cam looking at the target"),
+                        "look_at(eye, target, up)", reference=_look_at)
+
+
+def test_an_instructors_frame_with_a_cross_product_reversed_is_named_two_axes_flipped():
+    spec = _look_at_spec()
+    trials = _trials(spec, 2, 3)
+    reversed_cross = [_look_at(*t.args, x_first=lambda z, up: np.cross(up, z)) for t in trials]
+    names = [checks._mistake_hint(spec, v, t) for v, t in zip(reversed_cross, trials)]
+    assert all(n is not None and n.family == "sign" and "x and y axes point the wrong way"
+               in n.words for n in names), names
+    assert not [n for t in trials if (n := checks._mistake_hint(spec, _look_at(*t.args), t))]
+
+
+def test_the_flip_family_predicts_what_lab_4_wrote_by_hand_for_its_frame():
+    """Lab 4 wrote a code mistake for z = (p_xy - o) x x; its words speak there (listed
+    first), and the family gives the same answer, so a lab without that code mistake gets
+    the family's name."""
+    spec = checks.spec_for("frame_from_three_points", "lab4_stereo")
+    for t in _trials(spec, 4, 2):
+        flipped = [p.answer for name, p in families.predictions(spec, t)
+                   if "x axis)" in name.words and name.family == "sign"]
+        assert len(flipped) == 1 and np.allclose(flipped[0], frame_cross_swapped(*t.args))
 
 
 def test_a_name_one_edge_problem_gives_but_another_problem_rules_out_is_not_given():

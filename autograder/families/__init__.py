@@ -12,6 +12,8 @@ that mistake gives on a problem. One module per act:
   (x1000, /1000; per part of a tuple answer), :mod:`.units_angle` (180/pi, pi/180),
   :mod:`.sign`, :mod:`.root` (RMS vs mean square), :mod:`.sum_for_mean`,
   :mod:`.reflection` (a determinant -1 rotation, read from the answer itself),
+  :mod:`.axes_flipped` (two axes of a frame pointing the wrong way: a cross product's
+  operands swapped),
   :mod:`.pose_parts` (a pose part by part: its rotation right and its translation
   negated, zero or rotated the wrong way; its angle halved or doubled; its rotation
   transposed whatever its translation), :mod:`.stack_items` (each pose of a stack
@@ -61,6 +63,7 @@ import numpy as np
 
 from autograder.families import (
     absolute,
+    axes_flipped,
     chain,
     first_last,
     inverse,
@@ -107,6 +110,7 @@ FAMILIES: tuple[Family, ...] = (
     *swapped.FAMILIES, *reversed_stack.FAMILIES, *first_last.FAMILIES, *absolute.FAMILIES,
     *units_input.FAMILIES,
     *pose_parts.FAMILIES, *stack_items.FAMILIES, *not_rotation.FAMILIES,
+    *axes_flipped.FAMILIES,
     *product_order.FAMILIES,
     # stacks and reductions (issue 52): each a walk over the inputs gone wrong
     *off_by_one.FAMILIES, *statistic.FAMILIES, *wrong_axis.FAMILIES, *precision.FAMILIES,
