@@ -45,6 +45,7 @@ from pathlib import Path
 
 import course_kit as kit
 import jsonschema
+import nbformat
 import pytest
 import yaml
 from test_browser_lab import (
@@ -54,6 +55,9 @@ from test_browser_lab import (
     PAGE_STATE_JS,
     _free_port,
     _wait_for_run,
+    errors_in_file,
+    errors_on_page,
+    execution_counts,
     launch_chromium,
 )
 from test_course_install import _link_tree, cobotlab_wheel
@@ -696,6 +700,23 @@ def _hostile_cell_is_inert(teacher, course: Path, student: str) -> None:
         tab.close()
 
 
+def _ran_whole(state: dict, saved: Path) -> None:
+    """Lab 0 ran whole in JupyterLab, on the page and in the file File > Save wrote:
+    tests/test_browser_lab.py's checks of a lab's run (lab 0's run in the browser is this
+    one: the viewer's widgets and every cell of the lab, through the hub's JupyterLab), its
+    counts continuing from the cells run before (Run All, the fix, Run All again)."""
+    assert not errors_on_page(state), errors_on_page(state)
+    assert not state["dialogs"], f"JupyterLab showed a dialog: {state['dialogs']}"
+    counts = [int(p[1:-2]) if re.fullmatch(r"\[\d+\]:", p) else None
+              for p in state["prompts"]]
+    assert None not in counts and counts == list(range(counts[0], counts[0] + len(counts))), \
+        state["prompts"]
+    nb = nbformat.read(saved, as_version=4)
+    assert execution_counts(nb) == counts, (execution_counts(nb), counts)
+    assert not errors_in_file(nb), errors_in_file(nb)
+    assert any(cell.get("outputs") for cell in nb.cells), "no cell printed anything"
+
+
 def _grades(course: Path) -> dict[str, dict]:
     return kit.read_grades(course)
 
@@ -758,6 +779,7 @@ def test_a_term_in_chromium(hub, browser):
         assert set(scores) == set(FUNCTIONS), scores
         assert all(got == out_of for got, out_of in scores.values()), scores
         students[s1].save()
+        _ran_whole(state, students[s1].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
         students[s1].submit()   # the second submission is the one graded
 
         # the deadline passes: the instructor moves it to now, in the grading service
