@@ -62,6 +62,8 @@ from test_browser_lab import (
 )
 from test_course_install import _link_tree, cobotlab_wheel
 
+from autograder import practice_cache
+
 REPO = Path(__file__).resolve().parent.parent
 DOC = REPO / "docs" / "hub.md"
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
@@ -295,12 +297,50 @@ class Hub:
             roster = Path(self.settings[path])
             roster.touch(mode=0o600)   # first passwords: root's only, as the page says
             roster.write_text("".join(f"{n}:{self.passwords[n]}\n" for n in names))
-        script = "\n".join(["set -euo pipefail", self.settings_block(), *blocks[1:]])
+        steps = blocks[1:]
+        [accounts] = [i for i, block in enumerate(steps) if "useradd" in block]
+        steps.insert(accounts + 1, self.practice_cache_step())
+        script = "\n".join(["set -euo pipefail", self.settings_block(), *steps])
         done = subprocess.run(["bash", "-c", script], cwd=self.base, env=_root_env(),
                               capture_output=True, text=True, timeout=300, check=False)
         (self.artefacts / "setup.log").write_text(done.stdout + done.stderr)
         assert done.returncode == 0, ("docs/hub.md's set-up failed:\n" + done.stdout[-3000:]
                                       + done.stderr[-3000:])
+        self.check_practice_cache_read()
+
+    def check_practice_cache_read(self) -> None:
+        """The grading account's `course init` drew nothing: its cache holds no file the
+        run's lacks (a regular install whose code gave another key would draw them all)."""
+        source = os.environ.get(practice_cache.ENV, "off")
+        if source == "off":
+            return
+        cache = Path(pwd.getpwnam(GRADER).pw_dir) / ".cache" / "cobotlab" / "practice"
+
+        def files(root: Path) -> set[str]:
+            return {str(f.relative_to(root)) for f in root.rglob("*") if f.is_file()}
+
+        drawn = files(cache) - files(Path(source))
+        assert not drawn, f"course init as {GRADER} drew practice problems again: {drawn}"
+
+    def practice_cache_step(self) -> str:
+        """The test's own step between the page's accounts and its course: the grading
+        account's practice cache (autograder/practice_cache.py, ~/.cache/cobotlab/practice,
+        owned by it and no one else's to write) filled from the run's, as on a machine where
+        it laid out a course before. The page's `course init` as that account then reads the
+        six labs' practice problems instead of drawing them (about 10 s of CPU); the run's
+        cache holds them once its one course init ran (tests/course_kit.initialized_master,
+        shared with the other tests of the run): that one drew into an empty cache; the cache's
+        own rules (a hit is a fresh draw's bytes, a damaged file refused) are
+        tests/test_practice_cache.py's."""
+        source = os.environ.get(practice_cache.ENV, "off")
+        if source == "off":
+            return ""
+        kit.initialized_master()   # the run's one course init: the cache holds every lab
+        return ('cache="$(getent passwd "$GRADER" | cut -d: -f6)/.cache/cobotlab"\n'
+                'install -d -o "$GRADER" -g "$GRADER" -m 0700 "$(dirname "$cache")" "$cache"\n'
+                f'cp -r {_sh_quote(source)} "$cache/practice"\n'
+                'chown -R "$GRADER:$GRADER" "$cache"\n'
+                'chmod -R go-w "$cache"\n')
 
     def start(self) -> None:
         [start] = [b for b in _blocks("sh") if "jupyterhub -f" in b or "/jupyterhub\" -f" in b]
@@ -726,8 +766,8 @@ def test_a_term_in_chromium(hub, browser):
     """Two students and an instructor, through the hub's pages, in Chromium.
 
     s1 hands in the classic mistake, fixes it (check() then gives every function full
-    marks on a second Run All) and hands in again; s2 hands in the mistake after the
-    deadline. The instructor collects in formgrader (its own tab), grades with `cobotlab
+    marks on a second Run All) and hands in again; s2 types the mistake too and hands it
+    in, unrun, after the deadline. The instructor collects in formgrader (its own tab), grades with `cobotlab
     grade` in the grading service's terminal, generates and releases the feedback there;
     each student fetches it and reads their score and reasons. (Two students, not three:
     the one who handed in the reference at once proved nothing s1's second submission
@@ -757,15 +797,15 @@ def test_a_term_in_chromium(hub, browser):
             student.open_notebook()
         for student in students.values():
             student.write(_answers(True))
-            student.run_all()
-        for student in students.values():
-            # check() showed the loss, then the sanity test stopped Run All
-            state = student.wait_for_run()
-            raised = [t for t in state["stderr"] if "Traceback" in t]
-            scores = student.check_scores()
-            assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
-            got, out_of = scores["invert_pose"]
-            assert list(scores) == ["invert_pose"] and got < out_of, scores
+        # s1 runs it: check() showed the loss, then the sanity test stopped Run All (s2's
+        # Run All of the same cells showed the same, and cost its kernel and page ~5 s of CPU)
+        students[s1].run_all()
+        state = students[s1].wait_for_run()
+        raised = [t for t in state["stderr"] if "Traceback" in t]
+        scores = students[s1].check_scores()
+        assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
+        got, out_of = scores["invert_pose"]
+        assert list(scores) == ["invert_pose"] and got < out_of, scores
         students[s1].save()
         students[s1].submit()
         students[s1].fix_invert_pose()
