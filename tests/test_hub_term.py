@@ -698,11 +698,17 @@ def _give_lab_settings(user: str) -> None:
 HOSTILE_WORDS = "Notes on the inverse"
 
 
-def _add_hostile_cell(notebook: Path) -> None:
-    """A markdown cell whose HTML would write a file through the grading service's API if
-    it ran in the instructor's formgrader page (issue 51), added to the saved notebook."""
+def _edit_hostile(notebook: Path, answers: dict[str, str]) -> None:
+    """The fetched notebook edited as a student could in any editor: each graded
+    function's cell given ``answers``' source, and a markdown cell added whose HTML would
+    write a file through the grading service's API if it ran in the instructor's formgrader
+    page (issue 51). (Typing answers into JupyterLab is s1's part of the term.)"""
     attack = kit.page_attack("hub", ("services", "cobotlab"))
     nb = json.loads(notebook.read_text())
+    for cell in nb["cells"]:
+        grade_id = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if grade_id in answers:
+            cell["source"] = answers[grade_id]
     nb["cells"].insert(1, {"cell_type": "markdown", "metadata": {}, "source":
                            f"{HOSTILE_WORDS}: $T^{{-1}}$ <img src=x onerror=\"{attack}\">"})
     notebook.write_text(json.dumps(nb))   # in place: the student keeps the file
@@ -766,8 +772,8 @@ def test_a_term_in_chromium(hub, browser):
     """Two students and an instructor, through the hub's pages, in Chromium.
 
     s1 hands in the classic mistake, fixes it (check() then gives every function full
-    marks on a second Run All) and hands in again; s2 types the mistake too and hands it
-    in, unrun, after the deadline. The instructor collects in formgrader (its own tab), grades with `cobotlab
+    marks on a second Run All) and hands in again; s2 hands in the mistake too, edited
+    into the fetched file, unrun, after the deadline, with a hostile markdown cell. The instructor collects in formgrader (its own tab), grades with `cobotlab
     grade` in the grading service's terminal, generates and releases the feedback there;
     each student fetches it and reads their score and reasons. (Two students, not three:
     the one who handed in the reference at once proved nothing s1's second submission
@@ -794,11 +800,11 @@ def test_a_term_in_chromium(hub, browser):
         for student in students.values():
             student.open_assignments()
             student.fetch()
-            student.open_notebook()
-        for student in students.values():
-            student.write(_answers(True))
-        # s1 runs it: check() showed the loss, then the sanity test stopped Run All (s2's
-        # Run All of the same cells showed the same, and cost its kernel and page ~5 s of CPU)
+        # s1 types the mistake and runs it: check() showed the loss, then the sanity test
+        # stopped Run All. (s2's notebook, its kernel and a Run All of the same cells showed
+        # the same and cost about 5 s of CPU: s2 edits the file and hands it in unrun, below.)
+        students[s1].open_notebook()
+        students[s1].write(_answers(True))
         students[s1].run_all()
         state = students[s1].wait_for_run()
         raised = [t for t in state["stderr"] if "Traceback" in t]
@@ -829,8 +835,7 @@ def test_a_term_in_chromium(hub, browser):
         assert teacher.type(f"nbgrader db assignment add {ASSIGNMENT} --duedate '{now}'",
                             hub.course / ".deadline.done", STEP_TIMEOUT_S) == "0"
         time.sleep(1.1)   # the late one's timestamp is strictly after
-        students[s2].save()
-        _add_hostile_cell(students[s2].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
+        _edit_hostile(students[s2].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb", _answers(True))
         students[s2].submit()
 
         # each submission went into its student's own folder of the private exchange, which
