@@ -773,7 +773,8 @@ def test_a_term_in_chromium(hub, browser):
 
     s1 hands in the classic mistake, fixes it (check() then gives every function full
     marks on a second Run All) and hands in again; s2 hands in the mistake too, edited
-    into the fetched file, unrun, after the deadline, with a hostile markdown cell. The instructor collects in formgrader (its own tab), grades with `cobotlab
+    into the fetched file, unrun, after the deadline, with a hostile markdown cell. The
+    instructor collects in formgrader (its own tab), grades with `cobotlab
     grade` in the grading service's terminal, generates and releases the feedback there;
     each student fetches it and reads their score and reasons. (Two students, not three:
     the one who handed in the reference at once proved nothing s1's second submission
