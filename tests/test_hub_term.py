@@ -45,6 +45,7 @@ from pathlib import Path
 
 import course_kit as kit
 import jsonschema
+import nbformat
 import pytest
 import yaml
 from test_browser_lab import (
@@ -54,9 +55,14 @@ from test_browser_lab import (
     PAGE_STATE_JS,
     _free_port,
     _wait_for_run,
+    errors_in_file,
+    errors_on_page,
+    execution_counts,
     launch_chromium,
 )
 from test_course_install import _link_tree, cobotlab_wheel
+
+from autograder import practice_cache
 
 REPO = Path(__file__).resolve().parent.parent
 DOC = REPO / "docs" / "hub.md"
@@ -291,12 +297,50 @@ class Hub:
             roster = Path(self.settings[path])
             roster.touch(mode=0o600)   # first passwords: root's only, as the page says
             roster.write_text("".join(f"{n}:{self.passwords[n]}\n" for n in names))
-        script = "\n".join(["set -euo pipefail", self.settings_block(), *blocks[1:]])
+        steps = blocks[1:]
+        [accounts] = [i for i, block in enumerate(steps) if "useradd" in block]
+        steps.insert(accounts + 1, self.practice_cache_step())
+        script = "\n".join(["set -euo pipefail", self.settings_block(), *steps])
         done = subprocess.run(["bash", "-c", script], cwd=self.base, env=_root_env(),
                               capture_output=True, text=True, timeout=300, check=False)
         (self.artefacts / "setup.log").write_text(done.stdout + done.stderr)
         assert done.returncode == 0, ("docs/hub.md's set-up failed:\n" + done.stdout[-3000:]
                                       + done.stderr[-3000:])
+        self.check_practice_cache_read()
+
+    def check_practice_cache_read(self) -> None:
+        """The grading account's `course init` drew nothing: its cache holds no file the
+        run's lacks (a regular install whose code gave another key would draw them all)."""
+        source = os.environ.get(practice_cache.ENV, "off")
+        if source == "off":
+            return
+        cache = Path(pwd.getpwnam(GRADER).pw_dir) / ".cache" / "cobotlab" / "practice"
+
+        def files(root: Path) -> set[str]:
+            return {str(f.relative_to(root)) for f in root.rglob("*") if f.is_file()}
+
+        drawn = files(cache) - files(Path(source))
+        assert not drawn, f"course init as {GRADER} drew practice problems again: {drawn}"
+
+    def practice_cache_step(self) -> str:
+        """The test's own step between the page's accounts and its course: the grading
+        account's practice cache (autograder/practice_cache.py, ~/.cache/cobotlab/practice,
+        owned by it and no one else's to write) filled from the run's, as on a machine where
+        it laid out a course before. The page's `course init` as that account then reads the
+        six labs' practice problems instead of drawing them (about 10 s of CPU); the run's
+        cache holds them once its one course init ran (tests/course_kit.initialized_master,
+        shared with the other tests of the run): that one drew into an empty cache; the cache's
+        own rules (a hit is a fresh draw's bytes, a damaged file refused) are
+        tests/test_practice_cache.py's."""
+        source = os.environ.get(practice_cache.ENV, "off")
+        if source == "off":
+            return ""
+        kit.initialized_master()   # the run's one course init: the cache holds every lab
+        return ('cache="$(getent passwd "$GRADER" | cut -d: -f6)/.cache/cobotlab"\n'
+                'install -d -o "$GRADER" -g "$GRADER" -m 0700 "$(dirname "$cache")" "$cache"\n'
+                f'cp -r {_sh_quote(source)} "$cache/practice"\n'
+                'chown -R "$GRADER:$GRADER" "$cache"\n'
+                'chmod -R go-w "$cache"\n')
 
     def start(self) -> None:
         [start] = [b for b in _blocks("sh") if "jupyterhub -f" in b or "/jupyterhub\" -f" in b]
@@ -654,11 +698,17 @@ def _give_lab_settings(user: str) -> None:
 HOSTILE_WORDS = "Notes on the inverse"
 
 
-def _add_hostile_cell(notebook: Path) -> None:
-    """A markdown cell whose HTML would write a file through the grading service's API if
-    it ran in the instructor's formgrader page (issue 51), added to the saved notebook."""
+def _edit_hostile(notebook: Path, answers: dict[str, str]) -> None:
+    """The fetched notebook edited as a student could in any editor: each graded
+    function's cell given ``answers``' source, and a markdown cell added whose HTML would
+    write a file through the grading service's API if it ran in the instructor's formgrader
+    page (issue 51). (Typing answers into JupyterLab is s1's part of the term.)"""
     attack = kit.page_attack("hub", ("services", "cobotlab"))
     nb = json.loads(notebook.read_text())
+    for cell in nb["cells"]:
+        grade_id = cell["metadata"].get("nbgrader", {}).get("grade_id")
+        if grade_id in answers:
+            cell["source"] = answers[grade_id]
     nb["cells"].insert(1, {"cell_type": "markdown", "metadata": {}, "source":
                            f"{HOSTILE_WORDS}: $T^{{-1}}$ <img src=x onerror=\"{attack}\">"})
     notebook.write_text(json.dumps(nb))   # in place: the student keeps the file
@@ -696,6 +746,23 @@ def _hostile_cell_is_inert(teacher, course: Path, student: str) -> None:
         tab.close()
 
 
+def _ran_whole(state: dict, saved: Path) -> None:
+    """Lab 0 ran whole in JupyterLab, on the page and in the file File > Save wrote:
+    tests/test_browser_lab.py's checks of a lab's run (lab 0's run in the browser is this
+    one: the viewer's widgets and every cell of the lab, through the hub's JupyterLab), its
+    counts continuing from the cells run before (Run All, the fix, Run All again)."""
+    assert not errors_on_page(state), errors_on_page(state)
+    assert not state["dialogs"], f"JupyterLab showed a dialog: {state['dialogs']}"
+    counts = [int(p[1:-2]) if re.fullmatch(r"\[\d+\]:", p) else None
+              for p in state["prompts"]]
+    assert None not in counts and counts == list(range(counts[0], counts[0] + len(counts))), \
+        state["prompts"]
+    nb = nbformat.read(saved, as_version=4)
+    assert execution_counts(nb) == counts, (execution_counts(nb), counts)
+    assert not errors_in_file(nb), errors_in_file(nb)
+    assert any(cell.get("outputs") for cell in nb.cells), "no cell printed anything"
+
+
 def _grades(course: Path) -> dict[str, dict]:
     return kit.read_grades(course)
 
@@ -705,8 +772,9 @@ def test_a_term_in_chromium(hub, browser):
     """Two students and an instructor, through the hub's pages, in Chromium.
 
     s1 hands in the classic mistake, fixes it (check() then gives every function full
-    marks on a second Run All) and hands in again; s2 hands in the mistake after the
-    deadline. The instructor collects in formgrader (its own tab), grades with `cobotlab
+    marks on a second Run All) and hands in again; s2 hands in the mistake too, edited
+    into the fetched file, unrun, after the deadline, with a hostile markdown cell. The
+    instructor collects in formgrader (its own tab), grades with `cobotlab
     grade` in the grading service's terminal, generates and releases the feedback there;
     each student fetches it and reads their score and reasons. (Two students, not three:
     the one who handed in the reference at once proved nothing s1's second submission
@@ -733,18 +801,18 @@ def test_a_term_in_chromium(hub, browser):
         for student in students.values():
             student.open_assignments()
             student.fetch()
-            student.open_notebook()
-        for student in students.values():
-            student.write(_answers(True))
-            student.run_all()
-        for student in students.values():
-            # check() showed the loss, then the sanity test stopped Run All
-            state = student.wait_for_run()
-            raised = [t for t in state["stderr"] if "Traceback" in t]
-            scores = student.check_scores()
-            assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
-            got, out_of = scores["invert_pose"]
-            assert list(scores) == ["invert_pose"] and got < out_of, scores
+        # s1 types the mistake and runs it: check() showed the loss, then the sanity test
+        # stopped Run All. (s2's notebook, its kernel and a Run All of the same cells showed
+        # the same and cost about 5 s of CPU: s2 edits the file and hands it in unrun, below.)
+        students[s1].open_notebook()
+        students[s1].write(_answers(True))
+        students[s1].run_all()
+        state = students[s1].wait_for_run()
+        raised = [t for t in state["stderr"] if "Traceback" in t]
+        scores = students[s1].check_scores()
+        assert len(raised) == 1 and "AssertionError" in raised[0], state["stderr"]
+        got, out_of = scores["invert_pose"]
+        assert list(scores) == ["invert_pose"] and got < out_of, scores
         students[s1].save()
         students[s1].submit()
         students[s1].fix_invert_pose()
@@ -758,6 +826,7 @@ def test_a_term_in_chromium(hub, browser):
         assert set(scores) == set(FUNCTIONS), scores
         assert all(got == out_of for got, out_of in scores.values()), scores
         students[s1].save()
+        _ran_whole(state, students[s1].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
         students[s1].submit()   # the second submission is the one graded
 
         # the deadline passes: the instructor moves it to now, in the grading service
@@ -767,8 +836,7 @@ def test_a_term_in_chromium(hub, browser):
         assert teacher.type(f"nbgrader db assignment add {ASSIGNMENT} --duedate '{now}'",
                             hub.course / ".deadline.done", STEP_TIMEOUT_S) == "0"
         time.sleep(1.1)   # the late one's timestamp is strictly after
-        students[s2].save()
-        _add_hostile_cell(students[s2].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb")
+        _edit_hostile(students[s2].home() / ASSIGNMENT / f"{ASSIGNMENT}.ipynb", _answers(True))
         students[s2].submit()
 
         # each submission went into its student's own folder of the private exchange, which

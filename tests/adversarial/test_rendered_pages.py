@@ -265,69 +265,75 @@ class Visit:
         return self.page.inner_text("body")
 
 
+@pytest.fixture(scope="module")
+def visit(server, browser):  # noqa: F811
+    """One logged-in browser context for the module's pages (a context and formgrader's
+    token login each cost Chromium a page load for nothing the other test lacked); each
+    test starts by asserting that nothing ran on a page opened before it."""
+    shared = Visit(browser, server)
+    try:
+        yield shared
+    finally:
+        shared.context.close()
+
+
 def _planted(course: Path) -> list[str]:
     return sorted(p.name for p in course.rglob("PWNED-*"))
 
 
-def test_formgrader_shows_hostile_submissions_inertly(graded, server, browser):  # noqa: F811
+def test_formgrader_shows_hostile_submissions_inertly(graded, server, visit):
     ids = _submission_ids(graded)
     assert set(ids) == {STUDENT}, ids   # the folder named as HTML is refused
     grades = kit.read_grades(graded)
     assert grades[NAME_FOLDER]["flags"] == "rejected_student_id", grades
-    visit = Visit(browser, server)
-    try:
-        # the control: the same kind of payload, unsanitised at this origin, does write
-        control = server.root / "control.html"
-        control.write_text(f"<!DOCTYPE html><p>control</p>{_img('control')}")
-        visit.open_as_served(control, "shown-control")
-        assert visit.ran() == ["ran:control"] and _planted(graded) == ["PWNED-control"]
-        (graded / "PWNED-control").unlink()
-        visit.signs.clear()
+    assert not visit.ran(), visit.ran()   # the login page, or the pages of a test before
+    # the control: the same kind of payload, unsanitised at this origin, does write
+    control = server.root / "control.html"
+    control.write_text(f"<!DOCTYPE html><p>control</p>{_img('control')}")
+    visit.open_as_served(control, "shown-control")
+    assert visit.ran() == ["ran:control"] and _planted(graded) == ["PWNED-control"]
+    (graded / "PWNED-control").unlink()
+    visit.signs.clear()
 
-        visit.open(f"formgrader/submissions/{ids[STUDENT]}/")
-        text = visit.text()
-        shot = server.root / "formgrader-mallory.png"
-        visit.page.screenshot(path=str(shot), full_page=True)
-        print(f"formgrader's page of the hostile submission: {shot}")
-        # the student's work, legible: the markdown, the formula, the plot, the code
-        assert WORDS in text and FORMULA in text, text[:3000]
-        assert visit.plot_shown(), "the student's plot is not on the page"
-        assert "def invert_pose" in text and "hostile link" in text
-        # what could not be shown inertly is said, not silently lost
-        assert "application/javascript" in text
-        names = visit.page.locator("a.name-shown").text_content()   # shown by the eye icon
-        assert _img("last-name") in names and _img("first-name") in names, names
-        # the refused folder: listed by formgrader (nbgrader's own list), as text
-        visit.open(f"formgrader/manage_submissions/{ASSIGNMENT}")
-        visit.page.wait_for_selector("td.student-id", timeout=30_000)
-        assert NAME_FOLDER in visit.text()
-        assert not visit.ran(), visit.ran()
-    finally:
-        visit.context.close()
+    visit.open(f"formgrader/submissions/{ids[STUDENT]}/")
+    text = visit.text()
+    shot = server.root / "formgrader-mallory.png"
+    visit.page.screenshot(path=str(shot), full_page=True)
+    print(f"formgrader's page of the hostile submission: {shot}")
+    # the student's work, legible: the markdown, the formula, the plot, the code
+    assert WORDS in text and FORMULA in text, text[:3000]
+    assert visit.plot_shown(), "the student's plot is not on the page"
+    assert "def invert_pose" in text and "hostile link" in text
+    # what could not be shown inertly is said, not silently lost
+    assert "application/javascript" in text
+    names = visit.page.locator("a.name-shown").text_content()   # shown by the eye icon
+    assert _img("last-name") in names and _img("first-name") in names, names
+    # the refused folder: listed by formgrader (nbgrader's own list), as text
+    visit.open(f"formgrader/manage_submissions/{ASSIGNMENT}")
+    visit.page.wait_for_selector("td.student-id", timeout=30_000)
+    assert NAME_FOLDER in visit.text()
+    assert not visit.ran(), visit.ran()
     assert not _planted(graded), _planted(graded)
 
 
-def test_feedback_pages_and_class_report_are_inert(graded, server, browser):  # noqa: F811
+def test_feedback_pages_and_class_report_are_inert(graded, visit):
     nbgrader_page = graded / "feedback" / STUDENT / ASSIGNMENT / f"{ASSIGNMENT}.html"
     cobotlab_page = graded / "feedback_cobotlab" / STUDENT / ASSIGNMENT / "feedback.html"
     report = graded / "reports" / ASSIGNMENT / "index.html"
     for page in (nbgrader_page, cobotlab_page, report):
         assert page.is_file(), page
-    visit = Visit(browser, server)
-    try:
-        visit.open_as_served(nbgrader_page, "shown-nbgrader-feedback")
-        text = visit.text()
-        assert WORDS in text and FORMULA in text and visit.plot_shown(), text[:3000]
-        assert "cobotlab:" in text   # cobotlab's own section, on top, still styled and whole
-        visit.open_as_served(cobotlab_page, "shown-cobotlab-feedback")
-        assert "invert_pose" in visit.text() and "ValueError" in visit.text()
-        visit.open_as_served(report, "shown-report")
-        assert "the class at a glance" in visit.text()
-        # cobotlab's own pages carry their policy, and it lets their figures load
-        assert all(POLICY_META in p.read_text() for p in (cobotlab_page, report))
-        assert visit.page.evaluate(
-            "() => [...document.images].filter(i => i.naturalWidth > 100).length") == 3
-        assert not visit.ran(), visit.ran()
-    finally:
-        visit.context.close()
+    assert not visit.ran(), visit.ran()   # the login page, or the pages of a test before
+    visit.open_as_served(nbgrader_page, "shown-nbgrader-feedback")
+    text = visit.text()
+    assert WORDS in text and FORMULA in text and visit.plot_shown(), text[:3000]
+    assert "cobotlab:" in text   # cobotlab's own section, on top, still styled and whole
+    visit.open_as_served(cobotlab_page, "shown-cobotlab-feedback")
+    assert "invert_pose" in visit.text() and "ValueError" in visit.text()
+    visit.open_as_served(report, "shown-report")
+    assert "the class at a glance" in visit.text()
+    # cobotlab's own pages carry their policy, and it lets their figures load
+    assert all(POLICY_META in p.read_text() for p in (cobotlab_page, report))
+    assert visit.page.evaluate(
+        "() => [...document.images].filter(i => i.naturalWidth > 100).length") == 3
+    assert not visit.ran(), visit.ran()
     assert not _planted(graded), _planted(graded)
