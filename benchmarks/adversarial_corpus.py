@@ -13,6 +13,10 @@ cold, every notebook-layer case as the user, every case on every lab, ``reply_fl
 the cluster). A case that fails only in the full run is a hole the slice does not cover:
 add it to the slice. (The cases that only burn their limits, ``BURNS_ITS_LIMITS``, are
 graded at the short limits in both runs: what they test is that each loop is stopped.)
+The row ``practice`` is a slice of the same kind, not of the corpus: tests/test_answer_free.py
+compares check() on the practice file with the generators' scoring for every variant of the
+fairness table on one public seed each in a suite run (taken in turn; the solution on every
+seed), and every variant on every public seed in the full run.
 docs/benchmarks/adversarial_corpus.md has a run's table.
 
 Prints one row per test: its outcome, wall clock and machine CPU seconds (all the
@@ -49,6 +53,10 @@ TESTS = {
             "test_adversarial_corpus_scores_no_more_than_the_blank[lab5_depth]",
     "cluster": "tests/test_cluster.py::"
                "test_a_tls_cluster_grades_as_locally_even_when_a_worker_dies",
+    # not the adversarial corpus, but a slice of the same kind: check() on the practice
+    # file against the generators, every variant of the fairness table on one public seed
+    # in a suite run, on every public seed here
+    "practice": "tests/test_answer_free.py::test_check_on_practice_data_gives_the_same_table",
 }
 BOOTSTRAP = 2000
 

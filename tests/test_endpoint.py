@@ -19,6 +19,9 @@ from solutions import endpoint as EP
 # used here end at 0.17-0.77 mm. 2 mm sits above that worst case (the floor is the bias of
 # two PnP poses, plus the 0.5 mm stopping tolerance), yet well under the smallest miss of EOL
 # on these seeds with (5 mm, 2 deg): 7.9 mm (seed 0; 22-23 mm on seeds 1 and 2).
+# The comparison and the bound run here on one seed each (0 and 3): every run is a PyBullet
+# servo of about 3 s of CPU. The same claims on seeds 1-2 and 4 (and the table over 20 seeds)
+# are checked by benchmarks/servo_endpoint.py, which exits 1 when one breaks.
 ECL_BOUND_M = 2.0e-3
 
 
@@ -54,10 +57,9 @@ def _run(mode, seed, mm, deg):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_ecl_beats_eol_under_a_5mm_2deg_calibration_error(seed):
-    eol_error, shift, _ = _run("eol", seed, 5.0, 2.0)
-    ecl_error, _, ecl = _run("ecl", seed, 5.0, 2.0)
+def test_ecl_beats_eol_under_a_5mm_2deg_calibration_error():
+    eol_error, shift, _ = _run("eol", 0, 5.0, 2.0)
+    ecl_error, _, ecl = _run("ecl", 0, 5.0, 2.0)
     # EOL lands where the wrong calibration puts the goal (up to detection noise)...
     assert abs(eol_error - shift) < 2e-3, (eol_error, shift)
     assert eol_error > 5e-3
@@ -69,10 +71,9 @@ def test_ecl_beats_eol_under_a_5mm_2deg_calibration_error(seed):
 
 @pytest.mark.slow
 def test_ecl_error_stays_bounded_with_a_10mm_5deg_calibration_error():
-    for seed in (3, 4):
-        error, shift, _ = _run("ecl", seed, 10.0, 5.0)
-        assert shift > 0.02  # the calibration really is far off at the goal
-        assert error <= ECL_BOUND_M, (seed, error)
+    error, shift, _ = _run("ecl", 3, 10.0, 5.0)
+    assert shift > 0.02  # the calibration really is far off at the goal
+    assert error <= ECL_BOUND_M, error
 
 
 @pytest.mark.slow

@@ -57,6 +57,13 @@ def test_every_bash_block_runs_in_order_in_a_fresh_home(tmp_path):
     assert "alembic" not in done.stderr and "Traceback" not in done.stderr, log
 
     course = home / "course"
+    # what `cobotlab course init` laid out: the sources, a secret only its owner may read,
+    # and a .gitignore that keeps the secret and the grades out of the course's repository
+    assert (course / "source" / "lab0_frames" / "lab0_frames.ipynb").is_file()
+    secret = course / ".cobotlab" / "secret"
+    assert secret.is_file() and (secret.stat().st_mode & 0o077) == 0
+    ignored = (course / ".gitignore").read_text().splitlines()
+    assert ".cobotlab/secret" in ignored and "grades.csv" in ignored
     config = (course / "nbgrader_config.py").read_text()
     assert f"c.Exchange.root = {str(course / 'exchange')!r}" in config
     assert (course / "exchange" / "cobotlab" / "outbound" / "lab0_frames").is_dir()

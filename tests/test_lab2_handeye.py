@@ -110,9 +110,14 @@ def test_release_has_no_solution_hidden_tests_or_secret(released, solutions):
 
 def test_notebook_and_reference_solvers_earn_full_marks_on_many_problems(solutions):
     """A correct method passes over many seeds: the notebook's own solutions and the
-    instructor's reference solvers (solutions.handeye) on the very same problems."""
+    instructor's reference solvers (solutions.handeye) on the very same problems. Five
+    seeds (30 problems per solver) here; the long version is benchmarks/grading_fairness.py,
+    where both reference solvers and the notebook's solutions are correct variants scored
+    on thousands of hidden draws (docs/benchmarks/grading_fairness.md), every pose count
+    among them. Fifteen seeds here cost about 6 s more of CPU for a few more pose counts
+    (7, 9 and 13 poses), which that benchmark draws thousands of times."""
     ns = _compile(solutions)
-    seeds = range(200, 215)  # 90 problems per solver
+    seeds = range(200, 205)  # 30 problems per solver
     for name in FUNCTIONS:
         result = checks.evaluate(ns[name], name, seeds=seeds)
         assert result.fraction == 1.0, result.summary()
