@@ -611,7 +611,9 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
     skips and the tripwire's findings are those of one call each, and a batch that meets a
     time-out or a dead worker is made again call by call."""
     spec = checks.SPECS["lab0_frames"][0]
-    limits = Limits(cell_timeout_s=5, call_timeout_s=0.5, load_timeout_s=30)
+    # a looping call is stopped by its CPU timer: a quarter second (the others take
+    # microseconds), spent on every call that loops, batched and single
+    limits = Limits(cell_timeout_s=5, call_timeout_s=0.25, load_timeout_s=30)
     cells = [KEYED, misbehaves]
     singles = []
     monkeypatch.setattr(Worker, "call", lambda self, *a, _call=Worker.call,
