@@ -23,7 +23,8 @@ The shared cells come from the *released* notebook (no solutions in it), and onl
 leading run of read-only, ungraded code cells; a submission whose first cells are not
 exactly those (nbgrader restores locked cells, so only a raw, unsanitized notebook differs)
 gets a cold worker, as does every submission when the template cannot be built (the run
-log says why).
+log says why), and when the grader is not root (bubblewrap's user-namespace path forbids
+the namespaces a fork would need: no template is built then).
 """
 
 from __future__ import annotations
@@ -115,9 +116,16 @@ class Template:
 
     def __init__(self, cells: list[str], limits: Limits, cpu_s: int,
                  preload: list[str] = ()):
-        if not sandbox.capabilities().bwrap:
+        caps = sandbox.capabilities()
+        if not caps.bwrap:
             raise TemplateUnavailable("no bubblewrap here: a fork could not get a sandbox "
                                       "of its own")
+        if not caps.drop_to_uid:
+            # Checked before the template's interpreter and shared cells cost anything: a
+            # grader that is not root runs bubblewrap with --disable-userns, so every fork's
+            # unshare(CLONE_NEWUSER) would fail and each submission start cold anyway.
+            raise TemplateUnavailable("the grader is not root: its sandbox forbids the user "
+                                      "namespace each fork would isolate itself in")
         self.limits, self.cpu_s = limits, int(cpu_s)
         self.broken: str | None = None
         started = time.monotonic()

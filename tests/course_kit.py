@@ -445,9 +445,12 @@ def _keep_only(course: Path, students) -> Path:
     return course
 
 
-def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None:
+def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str],
+                       reference_cold: bool = True) -> None:
     """Submit the named lab 0 corpus cases and the reference, grade them in one batch, and
-    check every case's score bounds and flags (see tests/adversarial/README.md)."""
+    check every case's score bounds and flags (see tests/adversarial/README.md).
+    ``reference_cold``: the reference is graded cold too (one batch is enough: it meets
+    nothing a batch's cases change; the full corpus grades it cold in both)."""
     lab = "lab0_frames"
     course = fresh_course(released, tmp_path)
     cases = {n: c for n, c in corpus(lab).items() if n in names}
@@ -478,17 +481,20 @@ def grade_corpus_batch(released: Path, tmp_path: Path, names: list[str]) -> None
     for name in burning:
         shutil.rmtree(course / "submitted" / name)
     # Graded twice: each worker forked from a template (the default) and each a new
-    # interpreter; the template must change no score and no flag. Twice: the reference and
-    # the cases the template could change (REGRADED_COLD; all with full_corpus()).
-    cold = _keep_only(fresh_course(course, tmp_path / "cold"), [
-        "reference", *(n for n in cases if full_corpus() or n in REGRADED_COLD)])
+    # interpreter; the template must change no score and no flag. Twice: the reference (in
+    # one batch) and the cases the template could change (REGRADED_COLD; all with
+    # full_corpus()).
+    twice = [n for n in cases if full_corpus() or n in REGRADED_COLD]
+    if reference_cold or full_corpus():
+        twice.append("reference")
+    cold = _keep_only(fresh_course(course, tmp_path / "cold"), twice)
     rows = grade_course(course, lab, workers=2, limits=limits, quiet=True)
     if burn is not None:
         rows += grade_course(burn, lab, workers=2, limits=SHORT_LIMITS, quiet=True)
     cold_rows = grade_course(cold, lab, workers=2, limits=limits, quiet=True, template=False)
     assert "template: the interpreter" in (course / ".cobotlab" / "last_run.log").read_text()
     started_cold = {r["student_id"]: (r["score"], r["flags"]) for r in cold_rows}
-    assert "reference" in started_cold and len(started_cold) > 1, sorted(started_cold)
+    assert sorted(started_cold) == sorted(twice) and len(twice) > 1, sorted(started_cold)
     forked = {r["student_id"]: (r["score"], r["flags"]) for r in rows
               if (cold / "submitted" / r["student_id"]).is_dir()}
     differ = {k for k in set(forked) | set(started_cold) if forked.get(k) != started_cold.get(k)}

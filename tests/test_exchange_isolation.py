@@ -255,7 +255,7 @@ def term(machine):
     # Python runs on the system's standard library, where the sandbox and nbconvert's HTML
     # fail (tests/test_unprivileged.py builds an environment to grade as an instructor).
     # Then the course is the instructor's again.
-    for argv in ([BIN / "cobotlab", "grade", m.course, ASSIGNMENT, "--no-template"],
+    for argv in ([BIN / "cobotlab", "grade", m.course, ASSIGNMENT],
                  [sys.executable, "-m", "nbgrader", "generate_feedback", ASSIGNMENT]):
         done = subprocess.run(argv, capture_output=True, text=True, timeout=600, check=False,
                               env=_no_secret(), cwd=m.course)

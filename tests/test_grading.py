@@ -439,13 +439,15 @@ def burn(cpu_s):
 
 def test_a_worker_that_dies_late_is_reloaded_for_the_next_function(tmp_path):
     # The load budget counts the seconds spent loading, not the seconds since grading began:
-    # after invert_pose's trials (about 3 s here) the worker dies in compose_chain, and
-    # pose_from_rotvec still gets a freshly loaded worker within a 2.5 s load budget.
+    # after invert_pose's trials (0.25 s a call: well over the budget in all) the worker
+    # dies in compose_chain, and pose_from_rotvec still gets a freshly loaded worker within
+    # a 1.25 s load budget (a load is about 0.25 s). Quarter-second burns: the proportions
+    # are the test, and each burn's CPU is spent on every trial and again on the reload.
     slow_invert = REFERENCE.replace("def invert_pose(T):\n",
-                                    "def invert_pose(T):\n    burn(0.5)\n")
+                                    "def invert_pose(T):\n    burn(0.25)\n")
     dies = "\nimport os\ndef compose_chain(poses):\n    os.kill(os.getpid(), 9)\n"
-    limits = Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=2.5)
-    grade = grade_notebook(_notebook(tmp_path, BURN, "burn(0.5)", slow_invert + dies),
+    limits = Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=1.25)
+    grade = grade_notebook(_notebook(tmp_path, BURN, "burn(0.25)", slow_invert + dies),
                                    "lab0_frames", "carol", SECRET, "n", limits)
     points = {f.name: f.points for f in grade.functions}
     assert points == {"invert_pose": 3.0, "compose_chain": 0.0, "pose_from_rotvec": 4.0}, \
@@ -609,7 +611,9 @@ def test_a_batch_of_calls_gives_what_single_calls_give(misbehaves, monkeypatch):
     skips and the tripwire's findings are those of one call each, and a batch that meets a
     time-out or a dead worker is made again call by call."""
     spec = checks.SPECS["lab0_frames"][0]
-    limits = Limits(cell_timeout_s=5, call_timeout_s=0.5, load_timeout_s=30)
+    # a looping call is stopped by its CPU timer: a quarter second (the others take
+    # microseconds), spent on every call that loops, batched and single
+    limits = Limits(cell_timeout_s=5, call_timeout_s=0.25, load_timeout_s=30)
     cells = [KEYED, misbehaves]
     singles = []
     monkeypatch.setattr(Worker, "call", lambda self, *a, _call=Worker.call,

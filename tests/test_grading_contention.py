@@ -40,14 +40,18 @@ def burn(cpu_s):
     while time.process_time() - start < cpu_s:
         pass
 def slow():
-    burn(0.8)
+    burn(0.4)
     return 1
 def sleeper():
     time.sleep(100)
 """
-# 1 s of CPU a cell or call, 2 s of wall clock: a burn of 0.8 s needs 40 % of a core, and
-# beside HOGS busy processes on its core the worker gets about 1 / (HOGS + 1).
-LIMITS = Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30, wall_factor=2)
+# 0.5 s of CPU a cell or call, 1 s of wall clock (3 s with the waits added back): a burn of
+# 0.4 s needs 40 % of a core, and beside HOGS busy processes on its core the worker gets
+# about 1 / (HOGS + 1). Every busy process spins while a cell or call runs out its clock, so
+# the limits are short; the proportions (the burn to its limit, the wall clock to the CPU
+# limit) are what each claim rests on, not the seconds.
+LIMITS = Limits(cell_timeout_s=0.5, call_timeout_s=0.5, load_timeout_s=30, wall_factor=2)
+WALL_S = LIMITS.wall_factor * LIMITS.call_timeout_s   # a cell's or call's wall clock
 HOGS = 8
 
 
@@ -130,11 +134,11 @@ for _ in range(8):
         while time.monotonic() < _stop:
             pass
         os._exit(0)
-burn(0.8)
+burn(0.4)
 """
-# 6 s of wall clock for its 1 s limit: the submission's own processes use that second even
-# when a few other busy processes (another test file's, a neighbour's) share the core.
-CROWD_LIMITS = Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30,
+# 3 s of wall clock for its 0.5 s limit: the submission's own processes use that half second
+# even when a few other busy processes (another test file's, a neighbour's) share the core.
+CROWD_LIMITS = Limits(cell_timeout_s=0.5, call_timeout_s=0.5, load_timeout_s=30,
                               wall_factor=6)
 
 
@@ -150,28 +154,28 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
                 with Worker([BURN, "time.sleep(100)"], LIMITS, WorkerSetup(cgroup=cgroup,
                                     template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
-                    slept = w.call("sleeper", (), 1)
-                    assert slept.error.startswith("timed out") and slept.seconds >= 2.0
-                    # a call that needs 0.8 s of its 1 s and gets a ninth of a core
+                    slept = w.call("sleeper", (), LIMITS.call_timeout_s)
+                    assert slept.error.startswith("timed out") and slept.seconds >= WALL_S
+                    # a call that needs 0.4 s of its 0.5 s and gets a ninth of a core
                     with pytest.raises(GraderError, match="waited .* for a CPU"):
-                        w.call("slow", (), 1)
+                        w.call("slow", (), LIMITS.call_timeout_s)
                     assert not w.alive
                 # the same for a cell while loading
                 with pytest.raises(GraderError, match="cell 1 was stopped"):
-                    Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                    Worker([BURN, "burn(0.4)"], LIMITS, WorkerSetup(cgroup=cgroup,
                                    template=template))
-            # Beside two busy processes it needs 2.4 s of wall clock for its 0.8 s: the
-            # time it waited for the core is added back to its 2 s (up to three times
+            # Beside two busy processes it needs 1.2 s of wall clock for its 0.4 s: the
+            # time it waited for the core is added back to its 1 s (up to three times
             # that), so it is graded, not retried nor timed out
             with _busy(core, 2):
-                with Worker([BURN, "burn(0.8)"], LIMITS, WorkerSetup(cgroup=cgroup,
+                with Worker([BURN, "burn(0.4)"], LIMITS, WorkerSetup(cgroup=cgroup,
                                     template=template)) as w:
                     assert w.load_report[1]["ok"], w.load_report
-                    outcome = w.call("slow", (), 1)
-                    assert outcome.value == 1 and outcome.seconds > 2.0, outcome
+                    outcome = w.call("slow", (), LIMITS.call_timeout_s)
+                    assert outcome.value == 1 and outcome.seconds > WALL_S, outcome
                 # A cell that loops for ever is its own time-out, never the grader's failure,
                 # even when the cgroup's count read a moment after its CPU timer fired falls
-                # a hair short of the second
+                # a hair short of its half second
                 with Worker([BURN, "while True:\n    pass"], LIMITS, WorkerSetup(cgroup=cgroup,
                                     template=template)) as w:
                     assert w.load_report[1]["error"] == "timed out", w.load_report
@@ -189,8 +193,8 @@ def test_starved_is_the_graders_failure_asleep_or_crowded_by_itself_the_students
 
 LAB = "lab0_frames"
 FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
-# A correct notebook whose invert_pose cell needs 0.75 s of CPU before it defines the
-# function, and refuses to define it when that took more than 7 s of wall clock: it needs a
+# A correct notebook whose invert_pose cell needs 0.375 s of CPU before it defines the
+# function, and refuses to define it when that took more than 3.5 s of wall clock: it needs a
 # tenth of the core, so a busy machine around the test does not starve it. Beside the hog's
 # twenty busy processes it gets half the core with a share per submission, a twenty-first
 # without: stopped, it leaves invert_pose undefined. (The grader's own wall clock would not
@@ -199,11 +203,11 @@ FUNCTIONS = ("invert_pose", "compose_chain", "pose_from_rotvec")
 WAIT_FOR_THE_HOG = "import time\ntime.sleep(2.0)\n"
 NEEDS_CPU = """\
 _wall, _cpu = time.monotonic(), time.process_time()
-while time.process_time() - _cpu < 0.75:
+while time.process_time() - _cpu < 0.375:
     pass
 _wall = time.monotonic() - _wall
-if _wall > 7.0:
-    raise RuntimeError(f"starved: 0.75 s of CPU took {_wall:.1f} s of wall clock")
+if _wall > 3.5:
+    raise RuntimeError(f"starved: 0.375 s of CPU took {_wall:.1f} s of wall clock")
 """
 
 
@@ -227,9 +231,10 @@ def test_a_correct_submission_beside_a_cpu_hog_scores_full_marks(tmp_path):
     assert sleeps != reference["invert_pose"]
     kit.submit(course, LAB, "sleeper", replace=dict(reference, invert_pose=sleeps),
                extra="import time\n")
-    # 4 s of CPU a cell (8 s of wall clock): the sleeper's three test cells and the hog's
-    # sleeping cells each wait that long, so the hog's crowd spins that long too.
-    limits = Limits(cell_timeout_s=4, call_timeout_s=2, load_timeout_s=60,
+    # 2 s of CPU a cell (4 s of wall clock): the sleeper's three test cells and the hog's
+    # sleeping cells each wait that long, so the hog's crowd spins that long too. (With the
+    # share switched off this test still fails: correct, grader_error, no score.)
+    limits = Limits(cell_timeout_s=2, call_timeout_s=1, load_timeout_s=60,
                             wall_factor=2)
     with _one_core():
         rows = grading_rows(course, limits)
@@ -262,27 +267,28 @@ def invert_pose(T):
 
 
 def test_time_limits_count_cpu_seconds_so_a_busy_machine_grades_the_same():
-    """A cell needing 1.5 s of CPU under a 2 s limit, on a core it shares with a busy process
-    (so over 2 s of wall clock), runs as on a quiet laptop; a busy loop is still stopped by
+    """A cell needing 0.75 s of CPU under a 1 s limit, on a core it shares with a busy process
+    (so over 1 s of wall clock), runs as on a quiet laptop; a busy loop is still stopped by
     its CPU timer, a sleeper by the wall-clock backstop. In this file with the other tests
     that pin to the grader's core, so no two of them crowd that core at once."""
     import time
 
-    limits = Limits(cell_timeout_s=2, call_timeout_s=2, load_timeout_s=30,
+    limits = Limits(cell_timeout_s=1, call_timeout_s=1, load_timeout_s=30,
                             wall_factor=3)
-    cells = [BURN, "burn(1.5)", "while True:\n    pass", "time.sleep(1000)", INVERT_POSE]
+    cells = [BURN, "burn(0.75)", "while True:\n    pass", "time.sleep(1000)", INVERT_POSE]
     with _one_core() as core, _busy(core, 1):
         started = time.monotonic()
         with Worker(cells, limits, WorkerSetup(cpu_s=60)) as worker:
             report = {r["index"]: r for r in worker.load_report}
-            result = worker.call("invert_pose", (np.eye(4),), 2)
+            result = worker.call("invert_pose", (np.eye(4),), limits.call_timeout_s)
         elapsed = time.monotonic() - started
     assert report[1]["ok"], report[1]
-    assert report[1]["seconds"] > 2.0, "the hog did not load the core: the test proves nothing"
+    assert report[1]["seconds"] > limits.cell_timeout_s, \
+        "the hog did not load the core: the test proves nothing"
     assert report[2]["error"] == "timed out" and report[3]["error"] == "timed out"
     # the busy loop's own CPU timer stopped it (the grader then never judges it starved),
     # the sleeper's wall clock
     assert report[2].get("limit") == "cpu" and "limit" not in report[3], (report[2], report[3])
-    assert 5.0 < report[3]["seconds"] < 8.0, report[3]   # the 3 x 2 s wall-clock backstop
+    assert 2.5 < report[3]["seconds"] < 4.0, report[3]   # the 3 x 1 s wall-clock backstop
     assert np.allclose(result.value, np.eye(4))
     assert elapsed < 30

@@ -72,19 +72,39 @@ def _outputs(course: Path, student: str, grade_id: str) -> list[dict]:
                 if c["metadata"].get("nbgrader", {}).get("grade_id") == grade_id)
 
 
-def test_cell_scores_match_nbgrader_with_its_own_kernel(released, tmp_path):
-    subs = _submissions()
-    kernel_course = kit.fresh_course(released, tmp_path / "kernel")
-    worker_course = kit.fresh_course(released, tmp_path / "worker")
+# A notebook that patches the hidden test in its own process: nbgrader's kernel runs the
+# patched one, the worker's cells run against the grader's own checks.
+PATCH_HIDDEN_TEST = ("import autograder.checks as _checks\n"
+                     "_checks.hidden_test = lambda *args, **kwargs: None")
+
+
+@pytest.fixture(scope="module")
+def graded(released, tmp_path_factory) -> tuple[Path, Path, dict[str, dict]]:
+    """(kernel course, worker course, the worker course's rows): every submission of both
+    tests in two copies of lab 0, one autograded by nbgrader as it comes (one run, its
+    kernels), one graded by `cobotlab grade` with nbgrader's run of the cells in the worker.
+    One run each for both tests: nbgrader's start, the template and nbgrader's scratch
+    course are paid once."""
+    root = tmp_path_factory.mktemp("graded")
+    subs = dict(_submissions())
+    kernel_course = kit.fresh_course(released, root / "kernel")
+    worker_course = kit.fresh_course(released, root / "worker")
     for course in (kernel_course, worker_course):
         for student, code in subs.items():
             kit.submit(course, LAB0, student, replace=code)
+        kit.submit(course, LAB0, "patcher", replace=subs["reversed"], extra=PATCH_HIDDEN_TEST)
 
     kit.nbgrader(kernel_course, "autograde", LAB0)   # nbgrader as it comes: one run, kernels
-    kernel = _cell_scores(kernel_course, subs)
     rows = {r["student_id"]: r for r in grade_course(
         worker_course, LAB0, limits=LIMITS, run_nbgrader=True, quiet=True)}
-    worker = _nbgrader_own(worker_course)
+    return kernel_course, worker_course, rows
+
+
+def test_cell_scores_match_nbgrader_with_its_own_kernel(graded):
+    kernel_course, worker_course, rows = graded
+    subs = _submissions()
+    kernel = _cell_scores(kernel_course, subs)
+    worker = {s: cells for s, cells in _nbgrader_own(worker_course).items() if s in subs}
 
     assert worker == kernel
     # the expected verdicts, so that agreement is not agreement on nothing
@@ -110,23 +130,16 @@ def test_cell_scores_match_nbgrader_with_its_own_kernel(released, tmp_path):
     assert "its cells run by the grader" in log
 
 
-def test_a_patched_hidden_test_fools_the_kernel_but_not_the_worker(released, tmp_path):
-    code = _submissions()["reversed"]
-    patch = ("import autograder.checks as _checks\n"
-             "_checks.hidden_test = lambda *args, **kwargs: None")
-    kernel_course = kit.fresh_course(released, tmp_path / "kernel")
-    worker_course = kit.fresh_course(released, tmp_path / "worker")
-    for course in (kernel_course, worker_course):
-        kit.submit(course, LAB0, "patcher", replace=code, extra=patch)
-
-    kit.nbgrader(kernel_course, "autograde", LAB0)
+def test_a_patched_hidden_test_fools_the_kernel_but_not_the_worker(graded):
+    kernel_course, worker_course, worker_rows = graded
     assert _cell_scores(kernel_course, ["patcher"])["patcher"]["test_compose_chain"] == 3.0
-    rows = grade_course(kernel_course, LAB0, limits=LIMITS, quiet=True)
+    rows = grade_course(kernel_course, LAB0, limits=LIMITS, quiet=True, students=["patcher"])
+    assert [r["student_id"] for r in rows] == ["patcher"]
     assert "nbgrader_passed_but_grader_failed:compose_chain" in rows[0]["flags"].split(";")
 
-    rows = grade_course(worker_course, LAB0, limits=LIMITS, run_nbgrader=True, quiet=True)
     assert _nbgrader_own(worker_course)["patcher"]["test_compose_chain"] == 0.0
-    assert rows[0]["score"] < 10 and "suspicious_grader_patch" in rows[0]["flags"].split(";")
+    patcher = worker_rows["patcher"]
+    assert patcher["score"] < 10 and "suspicious_grader_patch" in patcher["flags"].split(";")
 
 
 def test_two_conversions_at_once_share_nbgrader_s_environment_variable():

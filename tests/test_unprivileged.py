@@ -314,6 +314,9 @@ def test_the_corpus_grades_as_for_root_under_bubblewraps_user_namespace(ta):
     log = (course / ".cobotlab" / "last_run.log").read_text()
     assert log.startswith("sandbox: bubblewrap"), log[:500]
     assert f"uid and interfaces '{ta.user.pw_uid} 1'" in log, log[:1000]
+    # no template is built as the user (its forks could not make their namespaces)
+    assert "no template, every submission started cold: the grader is not root" in log, \
+        log[:3000]
 
     grades = _grades(course)
     assert len(grades) == len(folders), sorted(grades)
