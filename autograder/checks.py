@@ -433,10 +433,8 @@ def _near_on_a_piece(spec: FunctionSpec, value, trial: Trial, labels: set) -> se
     millimetres beside a rotation wrong for another reason is still that mistake there."""
     try:
         truth = _answer_truth(trial, value)
-        noise = _noise_distance(spec, trial)
-        predicted = [p for p in _resolved(_predicted(spec, trial, truth), noise, truth)
-                     if p[0] in labels]
-        distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
+        _, predicted, distance = _weighing_terms(spec, trial, truth)
+        predicted = [p for p in predicted if p[0] in labels]
         return set().union(*(w.near for w in _piece_weighings(value, truth, predicted, distance)))
     except Exception:  # noqa: BLE001 - what cannot be weighed rules nothing out
         return set(labels)
@@ -640,9 +638,7 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> Weighing:
                      m[1]) for m in predicted)]
         return mistakes.weigh(value, listed, _noise_distance(spec, trial))
     truth = _answer_truth(trial, value)
-    noise = _noise_distance(spec, trial)
-    predicted = _resolved(_predicted(spec, trial, truth), noise, truth)
-    distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
+    noise, predicted, distance = _weighing_terms(spec, trial, truth)
     whole = _whole_answer_weighing(value, truth, predicted, distance)
     hint = whole.label
     if hint is None and not _measurable(spec, value, trial):
@@ -653,6 +649,16 @@ def _matching_mistake(spec: FunctionSpec, value, trial: Trial) -> Weighing:
     hint = hint or families.mirrored_name(value, truth) \
         or families.not_rotation_name(value, truth, noise)
     return Weighing(hint, whole.far)
+
+
+def _weighing_terms(spec: FunctionSpec, trial: Trial, truth) -> tuple:
+    """What the nearest rule weighs an answer on ``trial`` with: the problem's noise distance,
+    the candidates (code mistakes and families, less those the noise does not resolve) and
+    the distance that undoes a mistake and bounds a scaled angle's radius."""
+    noise = _noise_distance(spec, trial)
+    predicted = _resolved(_predicted(spec, trial, truth), noise, truth)
+    distance = _wrapping(families.undoing(noise), lambda: _wrap_radius(noise, truth))
+    return noise, predicted, distance
 
 
 def _whole_answer_weighing(value, truth, predicted: list, distance) -> Weighing:
