@@ -65,6 +65,17 @@ ENTRY_FOR_TWIN = ("{name}'s {used} was used where its {meant} belongs ({name}[{i
 _TWINS = (("fx", (0, 0), "fy", (1, 1)), ("cx", (0, 2), "cy", (1, 2)))
 
 
+def _entry_over_twin(K, at: tuple, to: tuple) -> np.ndarray:
+    """``K`` with its entry ``at`` copied over its entry ``to``."""
+    out = np.array(K, dtype=float)
+    out[to] = out[at]
+    return out
+
+
+def _twins_differ(a, at: tuple, to: tuple) -> bool:
+    return is_camera_matrix(a) and bool(np.asarray(a)[at] != np.asarray(a)[to])
+
+
 def _entry_for_twin(problem: Problem) -> list[Prediction]:
     """The reference with one entry of a camera-matrix input copied over its twin (fx over
     fy, ...), one prediction per twin pair whose entries differ."""
@@ -73,14 +84,9 @@ def _entry_for_twin(problem: Problem) -> list[Prediction]:
         # every field but the input's name, which one_input_changed fills in
         words = ENTRY_FOR_TWIN.format(name="{name}", used=used, meant=meant,
                                       i=at[0], j=at[1], k=to[0], l=to[1])
-
-        def copied(K, at=at, to=to) -> np.ndarray:
-            out_K = np.array(K, dtype=float)
-            out_K[to] = out_K[at]
-            return out_K
-        out += one_input_changed(
-            lambda a, at=at, to=to: is_camera_matrix(a) and np.asarray(a)[at] != np.asarray(a)[to],
-            copied, words)(problem)
+        out += one_input_changed(lambda a, at=at, to=to: _twins_differ(a, at, to),
+                                 lambda K, at=at, to=to: _entry_over_twin(K, at, to),
+                                 words)(problem)
     return out
 
 
